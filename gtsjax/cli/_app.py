@@ -1,0 +1,22 @@
+"""The Typer application every command module registers on, and the guard that turns a user's
+mistake into one line on stderr and exit status 2."""
+
+import sys
+
+import typer
+
+from ..errors import InputError
+
+app = typer.Typer(
+    name="gtsjax",
+    help="Portable laser ground truth for mobile robots: simulate, train, replay, run live.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+
+def fail(where: object, problem: str) -> "typer.Exit":
+    """Print ``gtsjax: <where>: <problem>`` on stderr; return the exit (status 2) to raise."""
+    print(f"gtsjax: {InputError(where, problem)}", file=sys.stderr)
+    return typer.Exit(2)

@@ -1,0 +1,273 @@
+"""Scan logs in the ``.npz`` format of ``shared/spec/formats.md``: load, validate, save, and convert
+to the padded :class:`~gtsjax.Scan` arrays the numeric core takes.
+
+Every rule of the format is checked on load; a file that breaks one raises :class:`InputError` with a
+single line naming the file and the rule. Keys the format does not know are kept (``ScanLog.extra``)
+and written back on save, so other programs' additions survive a round trip.
+"""
+
+import dataclasses
+import os
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+
+REQUIRED = ("ranges", "stamps", "angle_min", "angle_increment")
+OPTIONAL = ("intensities", "range_min", "range_max", "sensor_model", "truth_classes", "truth_poses")
+DEFAULT_RANGE_MIN = 0.02
+DEFAULT_RANGE_MAX = 30.0
+
+
+@dataclasses.dataclass
+class ScanLog:
+    """A scan log in memory (NumPy arrays, host side). Shapes: ``T`` scans, ``N`` beams, ``M`` labelled objects."""
+
+    ranges: np.ndarray  # float32 [T, N]
+    stamps: np.ndarray  # float64 [T]
+    angle_min: float
+    angle_increment: float
+    intensities: np.ndarray | None = None  # float32 [T, N]
+    range_min: float = DEFAULT_RANGE_MIN
+    range_max: float = DEFAULT_RANGE_MAX
+    sensor_model: str | None = None
+    truth_classes: np.ndarray | None = None  # str [M]
+    truth_poses: np.ndarray | None = None  # float64 [T, M, 3]
+    extra: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
+
+    @property
+    def n_scans(self) -> int:
+        return self.ranges.shape[0]
+
+    @property
+    def n_beams(self) -> int:
+        return self.ranges.shape[1]
+
+    @property
+    def labelled(self) -> bool:
+        return self.truth_poses is not None
+
+    def angles(self) -> np.ndarray:
+        return self.angle_min + np.arange(self.n_beams) * self.angle_increment
+
+    def valid(self) -> np.ndarray:
+        """Beams with a return: finite, positive and inside ``[range_min, range_max]``."""
+        r = self.ranges
+        with np.errstate(invalid="ignore"):
+            return np.isfinite(r) & (r > 0) & (r >= self.range_min) & (r <= self.range_max)
+
+    def slice(self, start: int, stop: int) -> "ScanLog":
+        """Scans ``start:stop`` as a log of their own."""
+        s = np.s_[start:stop]
+        return dataclasses.replace(
+            self,
+            ranges=self.ranges[s],
+            stamps=self.stamps[s],
+            intensities=None if self.intensities is None else self.intensities[s],
+            truth_poses=None if self.truth_poses is None else self.truth_poses[s],
+        )
+
+    def to_dict(self) -> dict[str, np.ndarray]:
+        out: dict[str, np.ndarray] = dict(self.extra)
+        out["ranges"] = np.asarray(self.ranges, dtype=np.float32)
+        out["stamps"] = np.asarray(self.stamps, dtype=np.float64)
+        out["angle_min"] = np.asarray(self.angle_min, dtype=np.float64)
+        out["angle_increment"] = np.asarray(self.angle_increment, dtype=np.float64)
+        out["range_min"] = np.asarray(self.range_min, dtype=np.float64)
+        out["range_max"] = np.asarray(self.range_max, dtype=np.float64)
+        if self.intensities is not None:
+            out["intensities"] = np.asarray(self.intensities, dtype=np.float32)
+        if self.sensor_model is not None:
+            out["sensor_model"] = np.asarray(self.sensor_model, dtype=np.str_)
+        if self.truth_poses is not None:
+            out["truth_classes"] = np.asarray(self.truth_classes, dtype=np.str_)
+            out["truth_poses"] = np.asarray(self.truth_poses, dtype=np.float64)
+        return out
+
+    def validate(self, where: object = "scan log") -> "ScanLog":
+        """Check every rule of the format; raise :class:`InputError` naming ``where`` on the first broken one."""
+        _validate(self.to_dict(), where)
+        return self
+
+
+def save_log(log: ScanLog, path: str | os.PathLike) -> None:
+    """Write ``log`` as an ``.npz`` per the spec. The file appears whole or not at all (written to a
+    temporary name, then renamed), so a crash never leaves a half-written log under ``path``."""
+    path = Path(path)
+    log.validate(path)
+    tmp = path.with_name(path.name + ".part")
+    with open(tmp, "wb") as f:
+        np.savez(f, **log.to_dict())
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def load_log(path: str | os.PathLike) -> ScanLog:
+    """Read and validate a scan log; raise :class:`InputError` (one line, naming ``path``) if it breaks the format."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(path, "no such file")
+    if path.is_dir():
+        raise InputError(path, "is a directory, not a .npz scan log")
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            data = {}
+            for key in npz.files:
+                try:
+                    data[key] = npz[key]
+                except ValueError:
+                    raise InputError(path, f"key '{key}' holds pickled Python objects, which the format forbids") from None
+    except InputError:
+        raise
+    except (zipfile.BadZipFile, ValueError, OSError, EOFError) as err:
+        raise InputError(path, f"not a NumPy .npz archive ({type(err).__name__})") from None
+    if not isinstance(data, dict) or not data:
+        raise InputError(path, "empty archive, not a scan log")
+    _validate(data, path)
+    extra = {k: v for k, v in data.items() if k not in REQUIRED + OPTIONAL}
+    has_truth = "truth_poses" in data
+    return ScanLog(
+        ranges=data["ranges"].astype(np.float32, copy=False),
+        stamps=data["stamps"].astype(np.float64, copy=False),
+        angle_min=float(data["angle_min"]),
+        angle_increment=float(data["angle_increment"]),
+        intensities=data["intensities"].astype(np.float32, copy=False) if "intensities" in data else None,
+        range_min=float(data["range_min"]) if "range_min" in data else DEFAULT_RANGE_MIN,
+        range_max=float(data["range_max"]) if "range_max" in data else DEFAULT_RANGE_MAX,
+        sensor_model=str(data["sensor_model"]) if "sensor_model" in data else None,
+        truth_classes=data["truth_classes"].astype(np.str_) if has_truth else None,
+        truth_poses=data["truth_poses"].astype(np.float64, copy=False) if has_truth else None,
+        extra=extra,
+    )
+
+
+def _validate(d: dict[str, np.ndarray], where: object) -> None:
+    def bad(problem: str):
+        raise InputError(where, problem)
+
+    missing = [k for k in REQUIRED if k not in d]
+    if missing:
+        bad(f"missing required key(s) {', '.join(repr(k) for k in missing)}")
+
+    ranges = np.asarray(d["ranges"])
+    if ranges.dtype.kind != "f":
+        bad(f"'ranges' must be float32, got {ranges.dtype}")
+    if ranges.ndim != 2:
+        bad(f"'ranges' must have shape [T, N], got shape {list(ranges.shape)}")
+    t, n = ranges.shape
+    if t == 0 or n == 0:
+        bad(f"'ranges' is empty (shape {list(ranges.shape)})")
+
+    stamps = np.asarray(d["stamps"])
+    if stamps.dtype.kind != "f":
+        bad(f"'stamps' must be float64, got {stamps.dtype}")
+    if stamps.shape != (t,):
+        bad(f"'stamps' must have shape [{t}] to match 'ranges', got {list(stamps.shape)}")
+    if not np.all(np.isfinite(stamps)):
+        i = int(np.flatnonzero(~np.isfinite(stamps))[0])
+        bad(f"'stamps' has a non-finite value at scan {i}")
+    if t > 1 and np.any(np.diff(stamps) < 0):
+        i = int(np.flatnonzero(np.diff(stamps) < 0)[0]) + 1
+        bad(f"'stamps' decrease at scan {i} ({stamps[i - 1]!r} -> {stamps[i]!r})")
+
+    for key in ("angle_min", "angle_increment", "range_min", "range_max"):
+        if key not in d:
+            continue
+        v = np.asarray(d[key])
+        if v.shape != () or v.dtype.kind not in "fiu":
+            bad(f"'{key}' must be a float64 scalar, got {v.dtype} of shape {list(v.shape)}")
+        if not np.isfinite(v):
+            bad(f"'{key}' is not finite")
+    if not float(d["angle_increment"]) > 0:
+        bad(f"'angle_increment' must be > 0, got {float(d['angle_increment'])}")
+    rmin = float(d.get("range_min", DEFAULT_RANGE_MIN))
+    rmax = float(d.get("range_max", DEFAULT_RANGE_MAX))
+    if not 0 <= rmin < rmax:
+        bad(f"range window [{rmin}, {rmax}] is empty or negative")
+
+    if "intensities" in d:
+        inten = np.asarray(d["intensities"])
+        if inten.dtype.kind != "f":
+            bad(f"'intensities' must be float32, got {inten.dtype}")
+        if inten.shape != ranges.shape:
+            bad(f"'intensities' must have the shape of 'ranges' {list(ranges.shape)}, got {list(inten.shape)}")
+        if not np.all(np.isfinite(inten)) or np.any(inten < 0):
+            bad("'intensities' must be finite and >= 0")
+
+    if "sensor_model" in d:
+        sm = np.asarray(d["sensor_model"])
+        if sm.shape != () or sm.dtype.kind != "U":
+            bad(f"'sensor_model' must be a string scalar, got {sm.dtype} of shape {list(sm.shape)}")
+
+    has_cls, has_poses = "truth_classes" in d, "truth_poses" in d
+    if has_cls != has_poses:
+        bad("'truth_classes' and 'truth_poses' must come together")
+    if has_poses:
+        cls = np.asarray(d["truth_classes"])
+        if cls.ndim != 1 or cls.dtype.kind != "U":
+            bad(f"'truth_classes' must be a 1-D string array, got {cls.dtype} of shape {list(cls.shape)}")
+        m = cls.shape[0]
+        poses = np.asarray(d["truth_poses"])
+        if poses.dtype.kind != "f":
+            bad(f"'truth_poses' must be float64, got {poses.dtype}")
+        if poses.shape != (t, m, 3):
+            bad(f"'truth_poses' must have shape [{t}, {m}, 3], got {list(poses.shape)}")
+        nan = np.isnan(poses)
+        partial = nan.any(-1) & ~nan.all(-1)
+        if partial.any():
+            i, j = (int(v) for v in np.argwhere(partial)[0])
+            bad(f"'truth_poses' row for object {j} at scan {i} is partly NaN (absent objects need an all-NaN row)")
+        if np.isinf(poses).any():
+            bad("'truth_poses' has an infinite value")
+
+
+def to_scans(log: ScanLog, n_beams: int | None = None):
+    """The log as one stacked :class:`~gtsjax.Scan` (leading axis: scans), float32, padded to ``n_beams``.
+
+    ``valid`` marks beams with a return (see :meth:`ScanLog.valid`); ranges and intensities are 0
+    elsewhere and in the padding. ``dt`` is the time since the previous scan (0 for the first).
+    """
+    import jax.numpy as jnp
+
+    from .._scan import Scan
+
+    n = log.n_beams if n_beams is None else n_beams
+    if n < log.n_beams:
+        raise InputError("scan log", f"has {log.n_beams} beams, more than the {n} the sensor model allows")
+    valid = log.valid()
+    ranges = np.where(valid, log.ranges, 0.0).astype(np.float32)
+    inten = np.zeros_like(ranges) if log.intensities is None else np.where(valid, log.intensities, 0.0).astype(np.float32)
+    pad = ((0, 0), (0, n - log.n_beams))
+    dt = np.diff(log.stamps, prepend=log.stamps[:1]).astype(np.float32)
+    t = log.n_scans
+    return Scan(
+        ranges=jnp.asarray(np.pad(ranges, pad)),
+        intensities=jnp.asarray(np.pad(inten, pad)),
+        valid=jnp.asarray(np.pad(valid, pad)),
+        angle_min=jnp.full((t,), log.angle_min, dtype=jnp.float32),
+        angle_increment=jnp.full((t,), log.angle_increment, dtype=jnp.float32),
+        dt=jnp.asarray(dt),
+    )
+
+
+def from_scans(scans, stamps: np.ndarray, n_beams: int, *, angle_min: float, angle_increment: float,
+               range_min: float = DEFAULT_RANGE_MIN, range_max: float = DEFAULT_RANGE_MAX,
+               sensor_model: str | None = None, with_intensities: bool = True) -> ScanLog:
+    """Back from stacked :class:`~gtsjax.Scan` arrays to a log: the first ``n_beams`` beams, 0 where
+    there was no return. Angles come as float64 arguments, since the scans hold them in float32."""
+    valid = np.asarray(scans.valid)[:, :n_beams]
+    ranges = np.where(valid, np.asarray(scans.ranges)[:, :n_beams], 0.0).astype(np.float32)
+    inten = np.where(valid, np.asarray(scans.intensities)[:, :n_beams], 0.0).astype(np.float32)
+    return ScanLog(
+        ranges=ranges,
+        stamps=np.asarray(stamps, dtype=np.float64),
+        angle_min=float(angle_min),
+        angle_increment=float(angle_increment),
+        intensities=inten if with_intensities else None,
+        range_min=range_min,
+        range_max=range_max,
+        sensor_model=sensor_model,
+    )
