@@ -28,5 +28,5 @@ class Scan(eqx.Module):
 
     def angles(self) -> Float[Array, "*scans beams"]:
         """Beam angles in S, radians."""
-        i = jnp.arange(self.n_beams, dtype=self.ranges.dtype)
+        i = jnp.arange(self.n_beams, dtype=self.ranges.dtype).reshape((1,) * (self.ranges.ndim - 1) + (-1,))
         return self.angle_min[..., None] + i * self.angle_increment[..., None]

@@ -1,0 +1,65 @@
+"""``gtsjax info FILE...``: validate scan logs and site files and summarise them; ``gtsjax sensors``:
+the sensor models gtsjax knows."""
+
+from pathlib import Path
+
+import numpy as np
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from ..io import load_log, load_site
+from ..sensors import MODELS
+from ._app import app
+
+
+@app.command()
+def info(files: list[Path] = typer.Argument(..., help="Scan logs (.npz) and site files (.json) to check.")):
+    """Check scan logs and site files against the format and print what they hold."""
+    console = Console(soft_wrap=True)
+    for path in files:
+        if path.suffix.lower() == ".json":
+            site = load_site(path)
+            console.print(f"{path}: site, {len(site.landmarks)} landmarks", soft_wrap=True)
+            table = Table()
+            for col in ("class", "x [m]", "y [m]"):
+                table.add_column(col)
+            for lm in site.landmarks:
+                table.add_row(lm.cls, f"{lm.x:.3f}", f"{lm.y:.3f}")
+            console.print(table)
+            x, y, th = site.sensor_pose
+            console.print(f"  sensor pose guess: x={x:.3f} m  y={y:.3f} m  θ={np.degrees(th):.1f}°"
+                          f"   bounds: {site.bounds if site.bounds is not None else 'none'}")
+        else:
+            log = load_log(path)
+            dur = float(log.stamps[-1] - log.stamps[0])
+            rate = (log.n_scans - 1) / dur if dur > 0 else float("nan")
+            valid = log.valid().mean()
+            console.print(
+                f"{path}: {log.n_scans} scans × {log.n_beams} beams, {dur:.1f} s ({rate:.1f} Hz), "
+                f"sensor {log.sensor_model or 'unknown'}, fov {np.degrees(log.angle_increment * (log.n_beams - 1)):.1f}°, "
+                f"{100 * valid:.0f}% returns, intensities {'yes' if log.intensities is not None else 'no'}"
+            )
+            if log.labelled:
+                present = ~np.isnan(log.truth_poses[..., 0])
+                labels = ", ".join(f"{c} ({100 * present[:, m].mean():.0f}% of scans)"
+                                   for m, c in enumerate(log.truth_classes))
+                console.print(f"  labelled objects: {labels}")
+            if log.extra:
+                console.print(f"  extra keys: {', '.join(sorted(log.extra))}")
+
+
+@app.command()
+def sensors():
+    """List the sensor models gtsjax knows (as their PP reply would describe them)."""
+    table = Table(title="sensor models")
+    for col in ("model", "beams", "steps", "front", "fov [°]", "range [m]", "rate [Hz]", "intensity", "noise σ"):
+        table.add_column(col)
+    for m in MODELS.values():
+        n = m.noise
+        far = f"{100 * n.frac_far:.0f}%" if n.frac_far else f"{1000 * n.sigma_far:.0f} mm"
+        noise = f"{1000 * n.sigma:.0f} mm" + ("" if n.knee == float("inf") else f" ≤ {n.knee:g} m, then {far}")
+        table.add_row(m.name, str(m.n_beams), f"{m.amin}–{m.amax}/{m.ares}", str(m.afrt),
+                      f"{np.degrees(m.angle_max - m.angle_min):.1f}", f"{m.range_min:g}–{m.range_max:g}",
+                      f"{m.rate_hz:g}", "yes" if m.has_intensity else "no", noise)
+    Console().print(table)
