@@ -6,6 +6,8 @@ link, files, command line) lives in ``gtsjax.io``, ``gtsjax.sim`` and ``gtsjax.c
 
 from ._scan import Scan as Scan
 from .errors import InputError as InputError
-from .sensors import MODELS as MODELS, SensorModel as SensorModel, get_model as get_model
+from .sensors import MODELS as MODELS
+from .sensors import SensorModel as SensorModel
+from .sensors import get_model as get_model
 
 __version__ = "0.1.0"

@@ -4,10 +4,11 @@ codes live here and nowhere else."""
 import sys
 
 from ..errors import InputError
-from ._app import app
 
 # Each import registers its command(s) on ``app``.
 from . import info as _info  # noqa: E402,F401
+from ._app import app
+
 # from . import simulate as _simulate  # noqa: E402,F401  (registered once gtsjax.sim lands)
 
 

@@ -1,0 +1,133 @@
+"""Stage f, map transformation: the affine map from the sensor frame S to the field frame O,
+re-estimated every scan from the detected landmarks (eq. 2, 18), and its use (eq. 10).
+
+The map is ``p_O = μo + A (p_S − μs)`` with a general 2×2 ``A``: a tilted scan plane stretches and
+shears what the sensor sees, and a general linear map absorbs that where a rigid transform cannot.
+
+Association is not described in the paper. Here each site landmark takes the nearest detected
+landmark candidate of its class, mapped into O with the previous transform, if it lies within a gate
+and the landmark is also that candidate's nearest landmark of the class (mutual nearest neighbour, so
+one candidate never serves two landmarks). At least three associated landmarks, spread in 2-D, are
+needed; otherwise the previous transform is kept and the scan is marked degraded.
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int
+
+_F32 = jnp.float32
+
+
+class Transform(eqx.Module):
+    """``p_O = mu_o + A (p_S − mu_s)`` (eq. 10), with what the last estimate was based on."""
+
+    A: Float[Array, "2 2"]
+    mu_s: Float[Array, "2"]
+    mu_o: Float[Array, "2"]
+    degraded: Bool[Array, ""]  # True when this scan's landmarks could not support a new estimate
+    n_landmarks: Int[Array, ""]  # landmarks associated in this scan
+
+    @classmethod
+    def from_sensor_pose(cls, pose: Float[Array, "3"]) -> "Transform":
+        """The first iteration (READING-NOTES): ``A = Rot(s′θ)``, ``μs = 0``, ``μo = (s′x, s′y)``."""
+        pose = jnp.asarray(pose, dtype=_F32)
+        return cls(
+            A=rot(pose[2]),
+            mu_s=jnp.zeros(2, _F32),
+            mu_o=pose[:2],
+            degraded=jnp.asarray(False),
+            n_landmarks=jnp.asarray(0, jnp.int32),
+        )
+
+    def apply(self, p: Float[Array, "*n 2"]) -> Float[Array, "*n 2"]:
+        """Points from S to O (eq. 10)."""
+        lead = (1,) * (p.ndim - 1)
+        return self.mu_o.reshape(lead + (2,)) + jnp.einsum("ij,...j->...i", self.A, p - self.mu_s.reshape(lead + (2,)))
+
+    def heading(self) -> Float[Array, ""]:
+        """The rotation part of ``A``, ``atan2(A10, A00)``: added to headings measured in S (eq. 10)."""
+        return jnp.arctan2(self.A[1, 0], self.A[0, 0])
+
+    def sensor_pose(self) -> Float[Array, "3"]:
+        """The sensor's pose in O as this transform sees it: where S's origin lands, and the heading."""
+        return jnp.concatenate([self.apply(jnp.zeros(2, self.A.dtype)), self.heading()[None]])
+
+
+def rot(theta: Float[Array, ""]) -> Float[Array, "2 2"]:
+    c, s = jnp.cos(theta), jnp.sin(theta)
+    return jnp.stack([jnp.stack([c, -s]), jnp.stack([s, c])])
+
+
+def associate(
+    prev: Transform,
+    det_s: Float[Array, "dets 2"],
+    det_class: Int[Array, " dets"],
+    det_mask: Bool[Array, " dets"],
+    map_o: Float[Array, "landmarks 2"],
+    map_class: Int[Array, " landmarks"],
+    gate: Float[Array, ""],
+) -> tuple[Int[Array, " landmarks"], Bool[Array, " landmarks"]]:
+    """Each map landmark's detection: index into the candidates and whether it is associated.
+
+    Mutual nearest neighbour of the same class within ``gate`` metres, after mapping the detections
+    into O with ``prev``.
+    """
+    det_o = prev.apply(det_s)
+    d2 = jnp.sum((map_o[:, None, :] - det_o[None, :, :]) ** 2, axis=-1)  # [L, K]
+    ok = (map_class[:, None] == det_class[None, :]) & det_mask[None, :]
+    d2 = jnp.where(ok, d2, jnp.inf)
+    best_det = jnp.argmin(d2, axis=1)  # per landmark
+    best_map = jnp.argmin(d2, axis=0)  # per detection
+    mutual = best_map[best_det] == jnp.arange(map_o.shape[0])
+    hit = mutual & (jnp.min(d2, axis=1) <= gate**2)
+    return best_det, hit
+
+
+def fit_transform(
+    det_s: Float[Array, "landmarks 2"], map_o: Float[Array, "landmarks 2"], weight: Bool[Array, " landmarks"], min_spread: Float[Array, ""]
+) -> tuple[Transform, Bool[Array, ""]]:
+    """OLS with centring (eq. 18, 2): ``μs, μo`` the means of the associated pairs, ``Aᵀ = (XᵀX)⁻¹XᵀY``
+    solved as a 2×2 linear system, never inverted. Also whether the fit is supported: at least three
+    pairs, and the detections spread in 2-D (the smaller eigenvalue of ``XᵀX / n`` above
+    ``min_spread²``), so that ``XᵀX`` is well conditioned."""
+    w = weight.astype(det_s.dtype)
+    n = jnp.sum(w)
+    n_safe = jnp.maximum(n, 1.0)
+    mu_s = jnp.sum(w[:, None] * det_s, axis=0) / n_safe
+    mu_o = jnp.sum(w[:, None] * map_o, axis=0) / n_safe
+    X = w[:, None] * (det_s - mu_s[None])
+    Y = w[:, None] * (map_o - mu_o[None])
+    XtX = X.T @ X
+    XtY = X.T @ Y
+    # Smallest eigenvalue of the symmetric 2x2 XtX / n, in closed form.
+    a, b, c = XtX[0, 0] / n_safe, XtX[0, 1] / n_safe, XtX[1, 1] / n_safe
+    lam_min = 0.5 * (a + c) - jnp.sqrt(jnp.maximum(0.25 * (a - c) ** 2 + b**2, 0.0))
+    ok = (n >= 3) & (lam_min > min_spread**2)
+    # Keep the solve well posed when the fit is rejected, so no NaN leaks into gradients or outputs.
+    XtX_safe = jnp.where(ok, XtX, jnp.eye(2, dtype=XtX.dtype))
+    At = jnp.linalg.solve(XtX_safe, XtY)
+    tf = Transform(A=At.T, mu_s=mu_s, mu_o=mu_o, degraded=~ok, n_landmarks=n.astype(jnp.int32))
+    return tf, ok
+
+
+def update_transform(
+    prev: Transform,
+    det_s: Float[Array, "dets 2"],
+    det_class: Int[Array, " dets"],
+    det_mask: Bool[Array, " dets"],
+    map_o: Float[Array, "landmarks 2"],
+    map_class: Int[Array, " landmarks"],
+    gate: Float[Array, ""],
+    min_spread: Float[Array, ""],
+) -> tuple[Transform, Float[Array, "landmarks 2"], Bool[Array, " landmarks"]]:
+    """Stage f for one scan: associate, fit, and keep ``prev`` (marked degraded) if the fit is not
+    supported. Returns the transform, each landmark's residual in O (detected minus map position,
+    under the new transform; 0 where not associated), and the association mask."""
+    idx, hit = associate(prev, det_s, det_class, det_mask, map_o, map_class, gate)
+    matched_s = det_s[idx]
+    new, ok = fit_transform(matched_s, map_o, hit, min_spread)
+    tf = jax.tree.map(lambda a, b: jnp.where(ok, a, b), new, prev)
+    tf = eqx.tree_at(lambda t: (t.degraded, t.n_landmarks), tf, (~ok, jnp.sum(hit).astype(jnp.int32)))
+    residual = jnp.where(hit[:, None], tf.apply(matched_s) - map_o, 0.0)
+    return tf, residual, hit

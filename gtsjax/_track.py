@@ -1,0 +1,249 @@
+"""Stage g, pose tracking: a fixed table of ``M`` tracks, one extended Kalman filter each over
+``(x, y, θ, vx, vy, ω)``, with per-class Mahalanobis gating and one-to-one assignment, all in JAX.
+
+The paper's tracker predicts by inflating the covariance only and observes ``(x, y, θ)`` directly; it
+is available as ``constant_velocity=False``. The default is a constant-velocity model (piecewise
+white acceleration), which follows a walking robot with less lag. The observation is linear; what
+makes the filter "extended" is the heading: innovations are wrapped to (−π, π], and the state's
+heading is re-wrapped after each update.
+
+Track life cycle (the paper leaves it open): an unassigned detection of a tracked class starts a
+tentative track in a free slot unless a live track of its class is closer than ``birth_exclusion``;
+``n_confirm`` hits confirm it; a tentative track dies after ``m_tentative`` consecutive misses, a
+confirmed one after ``m_delete``. Ids are integers handed out in order and never reused.
+
+Assignment is greedy on the Mahalanobis distance (repeatedly take the globally closest gated pair):
+one-to-one, deterministic, and ``min(K, M)`` cheap iterations of fixed shape. With well-separated
+robots it equals the optimal assignment; when two robots cross, the per-class gates and the velocity
+state keep the pairs apart.
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int
+
+_F32 = jnp.float32
+NX = 6  # x, y, theta, vx, vy, omega
+
+
+def wrap(a: Float[Array, "*n"]) -> Float[Array, "*n"]:
+    """Angle to (−π, π]."""
+    return jnp.pi - jnp.mod(jnp.pi - a, 2 * jnp.pi)
+
+
+class TrackerParams(eqx.Module):
+    """Tuning of the tracker. All arrays, so that changing a value does not recompile the step."""
+
+    q_pos: Float[Array, ""]  # acceleration noise density, (m/s²)²·s (constant velocity) or m²/s (inflate-only)
+    q_theta: Float[Array, ""]  # same for heading, rad²/s³ (or rad²/s)
+    vel_var0: Float[Array, ""]  # initial velocity variance of a new track, (m/s)²
+    omega_var0: Float[Array, ""]  # initial turn-rate variance, (rad/s)²
+    gate: Float[Array, " classes"]  # per-class Mahalanobis gate (χ², 3 dof)
+    tracked: Bool[Array, " classes"]  # which classes are mobile (tracked); landmarks and background are not
+    n_confirm: Int[Array, ""]
+    m_tentative: Int[Array, ""]
+    m_delete: Int[Array, ""]
+    birth_exclusion: Float[Array, ""]  # metres
+    constant_velocity: Bool[Array, ""]
+
+    @classmethod
+    def default(cls, tracked, *, rate_hz: float = 10.0, gate: float = 16.27, **overrides) -> "TrackerParams":
+        """Defaults for a scanner at ``rate_hz``: confirmation after 3 hits, deletion of a confirmed
+        track after 1 s without detections, of a tentative one after 0.3 s; gate χ²₃(0.999) = 16.27."""
+        tracked = jnp.asarray(tracked, dtype=bool)
+        vals = dict(
+            q_pos=0.5,
+            q_theta=2.0,
+            vel_var0=0.25,
+            omega_var0=1.0,
+            gate=jnp.full(tracked.shape, gate),
+            tracked=tracked,
+            n_confirm=3,
+            m_tentative=max(1, round(0.3 * rate_hz)),
+            m_delete=max(2, round(1.0 * rate_hz)),
+            birth_exclusion=0.25,
+            constant_velocity=True,
+        )
+        vals.update(overrides)
+        ints = {"n_confirm", "m_tentative", "m_delete"}
+        return cls(**{
+            k: (jnp.asarray(v, jnp.int32) if k in ints else jnp.asarray(v, bool) if k in ("tracked", "constant_velocity")
+                else jnp.asarray(v, _F32))
+            for k, v in vals.items()
+        })
+
+
+class TrackerState(eqx.Module):
+    """``M`` track slots; a slot is in use where ``live``."""
+
+    mean: Float[Array, "tracks 6"]
+    cov: Float[Array, "tracks 6 6"]
+    class_id: Int[Array, " tracks"]
+    track_id: Int[Array, " tracks"]
+    live: Bool[Array, " tracks"]
+    confirmed: Bool[Array, " tracks"]
+    hits: Int[Array, " tracks"]
+    misses: Int[Array, " tracks"]
+    next_id: Int[Array, ""]
+
+    @classmethod
+    def empty(cls, max_tracks: int) -> "TrackerState":
+        m = max_tracks
+        return cls(
+            mean=jnp.zeros((m, NX), _F32),
+            cov=jnp.broadcast_to(jnp.eye(NX, dtype=_F32), (m, NX, NX)),
+            class_id=jnp.zeros(m, jnp.int32),
+            track_id=jnp.full(m, -1, jnp.int32),
+            live=jnp.zeros(m, bool),
+            confirmed=jnp.zeros(m, bool),
+            hits=jnp.zeros(m, jnp.int32),
+            misses=jnp.zeros(m, jnp.int32),
+            next_id=jnp.asarray(0, jnp.int32),
+        )
+
+
+class Detections(eqx.Module):
+    """Pose observations in O for one scan: ``K`` slots, used where ``mask``."""
+
+    pose: Float[Array, "dets 3"]
+    cov: Float[Array, "dets 3 3"]
+    class_id: Int[Array, " dets"]
+    mask: Bool[Array, " dets"]
+
+
+def motion_model(dt: Float[Array, ""], params: TrackerParams) -> tuple[Float[Array, "6 6"], Float[Array, "6 6"]]:
+    """Transition ``F`` and process noise ``Q`` over ``dt`` seconds.
+
+    Constant velocity: per axis ``F = [[1, dt], [0, 1]]`` and ``Q = q [[dt³/3, dt²/2], [dt²/2, dt]]``.
+    Inflate-only (the paper's): ``F = I`` and ``Q = q dt`` on the pose, velocities untouched.
+    """
+    z3, i3 = jnp.zeros((3, 3), _F32), jnp.eye(3, dtype=_F32)
+    q = jnp.stack([params.q_pos, params.q_pos, params.q_theta])
+    F_cv = jnp.block([[i3, dt * i3], [z3, i3]])
+    Q_cv = jnp.block([
+        [jnp.diag(q * dt**3 / 3), jnp.diag(q * dt**2 / 2)],
+        [jnp.diag(q * dt**2 / 2), jnp.diag(q * dt)],
+    ])
+    F_in = jnp.eye(NX, dtype=_F32)
+    Q_in = jnp.block([[jnp.diag(q * dt), z3], [z3, z3]])
+    cv = params.constant_velocity
+    return jnp.where(cv, F_cv, F_in), jnp.where(cv, Q_cv, Q_in)
+
+
+def predict(state: TrackerState, dt: Float[Array, ""], params: TrackerParams) -> TrackerState:
+    """Time update of every slot (dead slots too: they are masked everywhere else and stay finite)."""
+    F, Q = motion_model(dt, params)
+    mean = jnp.einsum("ij,mj->mi", F, state.mean)
+    mean = mean.at[:, 2].set(wrap(mean[:, 2]))
+    cov = jnp.einsum("ij,mjk,lk->mil", F, state.cov, F) + Q[None]
+    return eqx.tree_at(lambda s: (s.mean, s.cov), state, (mean, cov))
+
+
+def innovation(mean: Float[Array, "6"], cov: Float[Array, "6 6"], z: Float[Array, "3"], R: Float[Array, "3 3"]):
+    """Innovation (heading wrapped) and its covariance ``S = H P Hᵀ + R`` with ``H = [I₃ 0]``."""
+    nu = z - mean[:3]
+    nu = nu.at[2].set(wrap(nu[2]))
+    S = cov[:3, :3] + R
+    return nu, S
+
+
+def mahalanobis(mean, cov, z, R) -> Float[Array, ""]:
+    nu, S = innovation(mean, cov, z, R)
+    return nu @ jnp.linalg.solve(S, nu)
+
+
+def kalman_update(mean: Float[Array, "6"], cov: Float[Array, "6 6"], z: Float[Array, "3"], R: Float[Array, "3 3"]):
+    """Measurement update with ``H = [I₃ 0]``: gain ``K = P Hᵀ S⁻¹`` (solved), Joseph-form covariance
+    ``(I − KH) P (I − KH)ᵀ + K R Kᵀ``, which stays symmetric positive definite in float32."""
+    nu, S = innovation(mean, cov, z, R)
+    PHt = cov[:, :3]
+    K = jnp.linalg.solve(S, PHt.T).T  # S is symmetric
+    mean = mean + K @ nu
+    mean = mean.at[2].set(wrap(mean[2]))
+    IKH = jnp.eye(NX, dtype=cov.dtype).at[:, :3].add(-K)
+    cov = IKH @ cov @ IKH.T + K @ R @ K.T
+    return mean, 0.5 * (cov + cov.T)
+
+
+def assign(cost: Float[Array, "dets tracks"]) -> tuple[Int[Array, " tracks"], Bool[Array, " tracks"]]:
+    """Greedy one-to-one assignment on a cost matrix with ``inf`` for forbidden pairs: for each track,
+    the index of its detection and whether it has one."""
+    k, m = cost.shape
+
+    def body(_, carry):
+        cost, det_of_track, has = carry
+        flat = jnp.argmin(cost).astype(jnp.int32)
+        i, j = flat // m, flat % m
+        ok = jnp.isfinite(cost[i, j])
+        det_of_track = jnp.where(ok, det_of_track.at[j].set(i), det_of_track)
+        has = has | (ok & (jnp.arange(m, dtype=jnp.int32) == j))
+        cost = jnp.where(ok, cost.at[i, :].set(jnp.inf).at[:, j].set(jnp.inf), cost)
+        return cost, det_of_track, has
+
+    init = (cost, jnp.zeros(m, jnp.int32), jnp.zeros(m, bool))
+    _, det_of_track, has = jax.lax.fori_loop(0, min(k, m), body, init)
+    return det_of_track, has
+
+
+def track_step(
+    state: TrackerState, det: Detections, dt: Float[Array, ""], params: TrackerParams
+) -> tuple[TrackerState, Bool[Array, " dets"]]:
+    """Stage g for one scan: predict, gate, assign, update, start, confirm and end tracks.
+
+    Returns the new state and, per detection, whether it was used by an existing track.
+    """
+    state = predict(state, dt, params)
+    d2 = jax.vmap(lambda z, R: jax.vmap(lambda mu, P: mahalanobis(mu, P, z, R))(state.mean, state.cov))(
+        det.pose, det.cov
+    )  # [K, M]
+    tracked_det = det.mask & params.tracked[det.class_id]
+    gated = (
+        tracked_det[:, None]
+        & state.live[None, :]
+        & (det.class_id[:, None] == state.class_id[None, :])
+        & (d2 <= params.gate[det.class_id][:, None])
+    )
+    cost = jnp.where(gated, d2, jnp.inf)
+    det_of_track, has = assign(cost)
+
+    z, R = det.pose[det_of_track], det.cov[det_of_track]
+    upd_mean, upd_cov = jax.vmap(kalman_update)(state.mean, state.cov, z, R)
+    mean = jnp.where(has[:, None], upd_mean, state.mean)
+    cov = jnp.where(has[:, None, None], upd_cov, state.cov)
+    hits = state.hits + has.astype(jnp.int32)
+    misses = jnp.where(has, 0, state.misses + 1)
+    confirmed = state.live & (state.confirmed | (hits >= params.n_confirm))
+    dead = state.live & jnp.where(confirmed, misses >= params.m_delete, misses >= params.m_tentative)
+    live = state.live & ~dead
+
+    # Births: the i-th free slot takes the i-th unused detection of a tracked class.
+    used = jnp.zeros(det.mask.shape, bool).at[det_of_track].max(has)
+    dist = jnp.linalg.norm(det.pose[:, None, :2] - mean[None, :, :2], axis=-1)
+    near_live = jnp.any(live[None, :] & (det.class_id[:, None] == state.class_id[None, :]) & (dist < params.birth_exclusion), 1)
+    born_ok = tracked_det & ~used & ~near_live
+    free = ~live
+    rank_det = jnp.cumsum(born_ok, dtype=jnp.int32) - 1
+    rank_slot = jnp.cumsum(free, dtype=jnp.int32) - 1
+    match = free[:, None] & born_ok[None, :] & (rank_slot[:, None] == rank_det[None, :])  # [M, K]
+    born = jnp.any(match, axis=1)
+    src = jnp.argmax(match, axis=1)
+    z0 = det.pose[src]
+    P0 = jnp.zeros((born.shape[0], NX, NX), _F32).at[:, :3, :3].set(det.cov[src])
+    P0 = P0.at[:, 3, 3].set(params.vel_var0).at[:, 4, 4].set(params.vel_var0).at[:, 5, 5].set(params.omega_var0)
+    mean0 = jnp.zeros((born.shape[0], NX), _F32).at[:, :3].set(z0)
+    n_born = jnp.sum(born).astype(jnp.int32)
+
+    new = TrackerState(
+        mean=jnp.where(born[:, None], mean0, mean),
+        cov=jnp.where(born[:, None, None], P0, cov),
+        class_id=jnp.where(born, det.class_id[src], state.class_id),
+        track_id=jnp.where(born, state.next_id + rank_slot, jnp.where(live, state.track_id, -1)),
+        live=live | born,
+        confirmed=jnp.where(born, params.n_confirm <= 1, confirmed & live),
+        hits=jnp.where(born, 1, jnp.where(live, hits, 0)),
+        misses=jnp.where(born | ~live, 0, misses),
+        next_id=state.next_id + n_born,
+    )
+    used_by_track = used
+    return new, used_by_track

@@ -1,0 +1,89 @@
+"""Stage f: OLS recovers an affine map exactly; association, gating and the degraded fallback."""
+
+import jax.numpy as jnp
+import numpy as np
+
+from gtsjax._maptransform import Transform, fit_transform, rot, update_transform
+
+F32 = jnp.float32
+MAP = np.array([[0, 1.3], [0, 2.7], [6, 1.3], [6, 2.7]], np.float64)
+
+
+def affine(rng):
+    A = np.asarray(rot(jnp.asarray(0.3))) @ np.array([[1.02, 0.01], [0.0, 0.98]])
+    return A, np.array([3.0, 4.0]), rng.normal(size=2)
+
+
+def test_ols_recovers_affine_map_exactly():
+    rng = np.random.default_rng(0)
+    A, mu_o, mu_s = affine(rng)
+    # Landmarks in S from their map positions: p_S = mu_s + A^-1 (p_O - mu_o).
+    det_s = (np.linalg.solve(A, (MAP - mu_o).T)).T + mu_s
+    tf, ok = fit_transform(jnp.asarray(det_s, F32), jnp.asarray(MAP, F32), jnp.ones(4, bool), jnp.asarray(0.05, F32))
+    assert bool(ok) and not bool(tf.degraded)
+    np.testing.assert_allclose(np.asarray(tf.apply(jnp.asarray(det_s, F32))), MAP, atol=2e-5)
+    # Same A as NumPy's least squares on the centred data.
+    X, Y = det_s - det_s.mean(0), MAP - MAP.mean(0)
+    np.testing.assert_allclose(np.asarray(tf.A), np.linalg.lstsq(X, Y, rcond=None)[0].T, atol=2e-5)
+    # And any other point maps as the true affine map does.
+    p = rng.normal(size=(10, 2))
+    np.testing.assert_allclose(np.asarray(tf.apply(jnp.asarray(p, F32))), (A @ (p - mu_s).T).T + mu_o, atol=1e-4)
+
+
+def test_first_iteration_is_the_rigid_guess():
+    tf = Transform.from_sensor_pose(jnp.asarray([3.0, 4.0, -np.pi / 2]))
+    np.testing.assert_allclose(np.asarray(tf.apply(jnp.asarray([[1.0, 0.0]], F32))), [[3.0, 3.0]], atol=1e-6)
+    np.testing.assert_allclose(np.asarray(tf.sensor_pose()), [3.0, 4.0, -np.pi / 2], atol=1e-6)
+
+
+def scan_of(tf_true_A, mu_o, n_clutter=5, rng=None, drop=()):
+    """Detections in S: the map landmarks (minus ``drop``) plus clutter of another class."""
+    det = np.linalg.solve(tf_true_A, (MAP - mu_o).T).T
+    keep = [i for i in range(4) if i not in drop]
+    clutter = rng.uniform(-3, 3, (n_clutter, 2))
+    det_s = np.concatenate([det[keep], clutter, np.zeros((3, 2))])
+    cls = np.r_[np.zeros(len(keep)), np.ones(n_clutter), np.zeros(3)].astype(np.int32)
+    mask = np.r_[np.ones(len(keep) + n_clutter, bool), np.zeros(3, bool)]
+    perm = rng.permutation(len(det_s))
+    return jnp.asarray(det_s[perm], F32), jnp.asarray(cls[perm]), jnp.asarray(mask[perm])
+
+
+def test_bumped_sensor_is_recovered_from_a_rough_guess():
+    rng = np.random.default_rng(1)
+    guess = Transform.from_sensor_pose(jnp.asarray([3.0, 4.0, -np.pi / 2]))
+    true_A = np.asarray(rot(jnp.asarray(-np.pi / 2 + np.radians(2.0))))
+    mu_o = np.array([3.03, 4.02])
+    det_s, cls, mask = scan_of(true_A, mu_o, rng=rng)
+    tf, residual, hit = update_transform(guess, det_s, cls, mask, jnp.asarray(MAP, F32), jnp.zeros(4, jnp.int32),
+                                         jnp.asarray(0.5, F32), jnp.asarray(0.05, F32))
+    assert bool(np.all(np.asarray(hit))) and not bool(tf.degraded) and int(tf.n_landmarks) == 4
+    np.testing.assert_allclose(np.asarray(residual), 0.0, atol=1e-4)
+    np.testing.assert_allclose(np.asarray(tf.sensor_pose()), [3.03, 4.02, -np.pi / 2 + np.radians(2)], atol=1e-4)
+
+
+def test_too_few_landmarks_keeps_previous_transform():
+    rng = np.random.default_rng(2)
+    prev = Transform.from_sensor_pose(jnp.asarray([3.0, 4.0, -np.pi / 2]))
+    true_A = np.asarray(rot(jnp.asarray(-np.pi / 2)))
+    det_s, cls, mask = scan_of(true_A, np.array([3.0, 4.0]), rng=rng, drop=(0, 1))
+    tf, residual, hit = update_transform(prev, det_s, cls, mask, jnp.asarray(MAP, F32), jnp.zeros(4, jnp.int32),
+                                         jnp.asarray(0.5, F32), jnp.asarray(0.05, F32))
+    assert bool(tf.degraded) and int(tf.n_landmarks) == 2
+    np.testing.assert_array_equal(np.asarray(tf.A), np.asarray(prev.A))
+    assert np.all(np.isfinite(np.asarray(residual)))
+
+
+def test_collinear_landmarks_are_degraded():
+    det = jnp.asarray([[0.0, 0.0], [1.0, 1.0], [2.0, 2.0], [3.0, 3.0]], F32)
+    tf, ok = fit_transform(det, det, jnp.ones(4, bool), jnp.asarray(0.05, F32))
+    assert not bool(ok) and bool(tf.degraded) and np.all(np.isfinite(np.asarray(tf.A)))
+
+
+def test_gate_rejects_far_detections():
+    rng = np.random.default_rng(3)
+    prev = Transform.from_sensor_pose(jnp.asarray([3.0, 4.0, -np.pi / 2]))
+    true_A = np.asarray(rot(jnp.asarray(-np.pi / 2)))
+    det_s, cls, mask = scan_of(true_A, np.array([3.6, 4.0]), rng=rng)  # 0.6 m off the guess
+    tf, _, hit = update_transform(prev, det_s, cls, mask, jnp.asarray(MAP, F32), jnp.zeros(4, jnp.int32),
+                                  jnp.asarray(0.3, F32), jnp.asarray(0.05, F32))
+    assert not bool(np.any(np.asarray(hit))) and bool(tf.degraded)
