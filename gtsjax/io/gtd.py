@@ -1,0 +1,147 @@
+"""Ground-truth output (``shared/spec/formats.md``): the GTD CSV, per-track TUM trajectories, and
+JSON lines for streaming.
+
+CSV header ``stamp,track_id,class,x,y,theta,var_x,var_y,var_theta``; one row per confirmed track per
+processed scan, in scan order; ``theta`` wrapped to (−π, π]. The writer flushes every scan, so that
+a crash or Ctrl-C loses nothing already processed.
+"""
+
+import csv
+import io
+import json
+import math
+import os
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+
+HEADER = ("stamp", "track_id", "class", "x", "y", "theta", "var_x", "var_y", "var_theta")
+
+
+def wrap_angle(a: np.ndarray | float) -> np.ndarray:
+    """Angle to (−π, π]."""
+    return np.pi - np.mod(np.pi - np.asarray(a, dtype=np.float64), 2 * np.pi)
+
+
+@dataclass(frozen=True)
+class TrackRow:
+    stamp: float
+    track_id: int
+    cls: str
+    x: float
+    y: float
+    theta: float
+    var_x: float
+    var_y: float
+    var_theta: float
+
+    def as_dict(self) -> dict:
+        return {"stamp": self.stamp, "track_id": self.track_id, "class": self.cls, "x": self.x, "y": self.y,
+                "theta": self.theta, "var_x": self.var_x, "var_y": self.var_y, "var_theta": self.var_theta}
+
+
+def rows_from_output(stamp: float, track_id, cls_index, pose, var, mask, class_names) -> list[TrackRow]:
+    """Rows for one scan from the step's fixed-size track arrays (NumPy or JAX), confirmed tracks only."""
+    mask = np.asarray(mask)
+    if not mask.any():
+        return []
+    track_id, cls_index = np.asarray(track_id)[mask], np.asarray(cls_index)[mask]
+    pose, var = np.asarray(pose, np.float64)[mask], np.asarray(var, np.float64)[mask]
+    theta = wrap_angle(pose[:, 2])
+    order = np.argsort(track_id, kind="stable")
+    return [
+        TrackRow(float(stamp), int(track_id[i]), class_names[int(cls_index[i])], float(pose[i, 0]), float(pose[i, 1]),
+                 float(theta[i]), float(var[i, 0]), float(var[i, 1]), float(var[i, 2]))
+        for i in order
+    ]
+
+
+class GTDWriter:
+    """Appends rows to a GTD CSV, flushing after every scan. Use as a context manager."""
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = Path(path)
+        if self.path.parent and not self.path.parent.exists():
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._f = open(self.path, "w", newline="")
+        self._w = csv.writer(self._f, lineterminator="\n")
+        self._w.writerow(HEADER)
+        self.rows = 0
+
+    def write(self, rows: list[TrackRow]) -> None:
+        for r in rows:
+            self._w.writerow([repr(r.stamp), r.track_id, r.cls, f"{r.x:.6f}", f"{r.y:.6f}", f"{r.theta:.6f}",
+                              f"{r.var_x:.6e}", f"{r.var_y:.6e}", f"{r.var_theta:.6e}"])
+        self.rows += len(rows)
+        self._f.flush()
+
+    def close(self) -> None:
+        if not self._f.closed:
+            self._f.flush()
+            os.fsync(self._f.fileno())
+            self._f.close()
+
+    def __enter__(self) -> "GTDWriter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def json_line(rows: list[TrackRow], stamp: float, **extra) -> str:
+    """One scan as a JSON line: ``{"stamp": ..., "tracks": [{...}, ...], ...extra}``."""
+    return json.dumps({"stamp": stamp, "tracks": [r.as_dict() for r in rows], **extra}, separators=(",", ":"))
+
+
+def read_gtd(path: str | os.PathLike) -> list[TrackRow]:
+    """Read a GTD CSV back; a file that does not follow the format is an :class:`InputError`."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(path, "no such file")
+    try:
+        text = path.read_text()
+    except UnicodeDecodeError:
+        raise InputError(path, "not a text CSV file") from None
+    reader = csv.reader(io.StringIO(text))
+    header = next(reader, None)
+    if header is None or tuple(h.strip() for h in header) != HEADER:
+        raise InputError(path, f"header must be {','.join(HEADER)}")
+    rows = []
+    for n, rec in enumerate(reader, start=2):
+        if not rec:
+            continue
+        if len(rec) != len(HEADER):
+            raise InputError(path, f"line {n} has {len(rec)} fields, expected {len(HEADER)}")
+        try:
+            vals = [float(rec[0]), int(rec[1]), rec[2]] + [float(v) for v in rec[3:]]
+        except ValueError:
+            raise InputError(path, f"line {n} has a non-numeric field") from None
+        if not all(math.isfinite(v) for v in vals[:2] + vals[3:]):
+            raise InputError(path, f"line {n} has a non-finite value")
+        rows.append(TrackRow(*vals))
+    return rows
+
+
+def tracks_of(rows: list[TrackRow]) -> Iterator[tuple[int, str, np.ndarray]]:
+    """Per track: id, class and an array ``[n, 4]`` of (stamp, x, y, theta) in stamp order."""
+    by_id: dict[int, list[TrackRow]] = {}
+    for r in rows:
+        by_id.setdefault(r.track_id, []).append(r)
+    for tid in sorted(by_id):
+        rs = by_id[tid]
+        arr = np.array([[r.stamp, r.x, r.y, r.theta] for r in rs], dtype=np.float64)
+        yield tid, rs[0].cls, arr[np.argsort(arr[:, 0], kind="stable")]
+
+
+def write_tum(path: str | os.PathLike, track: np.ndarray) -> None:
+    """One track as a TUM trajectory: ``timestamp tx ty tz qx qy qz qw`` per line, z = 0, the
+    heading as a rotation about z."""
+    t, x, y, th = track.T
+    half = th / 2.0
+    lines = [f"{ti:.6f} {xi:.6f} {yi:.6f} 0.000000 0.000000 0.000000 {np.sin(h):.9f} {np.cos(h):.9f}"
+             for ti, xi, yi, h in zip(t, x, y, half, strict=True)]
+    Path(path).write_text("\n".join(lines) + ("\n" if lines else ""))

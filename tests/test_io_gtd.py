@@ -1,0 +1,61 @@
+"""GTD CSV per the spec, read by the csv module alone; TUM export; read-back validation."""
+
+import csv
+
+import numpy as np
+import pytest
+
+from gtsjax import InputError
+from gtsjax.io.gtd import HEADER, GTDWriter, read_gtd, rows_from_output, tracks_of, wrap_angle, write_tum
+
+
+def test_wrap_angle_half_open_interval():
+    a = np.array([np.pi, -np.pi, 3 * np.pi, 0.1, -0.1 - 2 * np.pi])
+    w = wrap_angle(a)
+    assert np.all(w > -np.pi) and np.all(w <= np.pi)
+    np.testing.assert_allclose(w, [np.pi, np.pi, np.pi, 0.1, -0.1], atol=1e-12)
+
+
+def test_csv_rows_only_for_confirmed_tracks_in_id_order(tmp_path):
+    path = tmp_path / "out" / "gtd.csv"
+    with GTDWriter(path) as w:
+        for k in range(3):
+            rows = rows_from_output(
+                1.7e9 + 0.1 * k, track_id=[5, 2, -1], cls_index=[1, 1, 0],
+                pose=[[1.0, 2.0, 4.0], [3.0, 1.0, -0.5], [0, 0, 0]], var=[[1e-4, 2e-4, 3e-3]] * 3,
+                mask=[True, True, False], class_names=("background", "robot"))
+            w.write(rows)
+    with open(path, newline="") as f:
+        recs = list(csv.reader(f))
+    assert tuple(recs[0]) == HEADER
+    assert len(recs) == 1 + 3 * 2
+    assert [r[1] for r in recs[1:3]] == ["2", "5"]
+    assert float(recs[1][0]) == 1.7e9 and recs[1][2] == "robot"
+    assert abs(float(recs[2][5]) - (4.0 - 2 * np.pi)) < 1e-6  # wrapped
+    back = read_gtd(path)
+    assert len(back) == 6 and back[0].track_id == 2
+    tracks = list(tracks_of(back))
+    assert [t[0] for t in tracks] == [2, 5] and tracks[0][2].shape == (3, 4)
+
+
+def test_tum_export(tmp_path):
+    track = np.array([[0.0, 1.0, 2.0, np.pi / 2], [0.1, 1.1, 2.0, -np.pi / 2]])
+    write_tum(tmp_path / "t.txt", track)
+    vals = np.loadtxt(tmp_path / "t.txt")
+    assert vals.shape == (2, 8)
+    # Quaternion (0, 0, sin θ/2, cos θ/2) is unit and gives back the heading.
+    np.testing.assert_allclose(np.linalg.norm(vals[:, 4:], axis=1), 1.0)
+    np.testing.assert_allclose(2 * np.arctan2(vals[:, 6], vals[:, 7]), track[:, 3])
+
+
+@pytest.mark.parametrize("text, match", [
+    ("a,b\n", "header must be"),
+    (",".join(HEADER) + "\n1.0,2,robot,1,2\n", "line 2 has 5 fields"),
+    (",".join(HEADER) + "\n1.0,x,robot,1,2,3,4,5,6\n", "non-numeric"),
+    (",".join(HEADER) + "\n1.0,1,robot,nan,2,3,4,5,6\n", "non-finite"),
+])
+def test_bad_gtd_is_one_line(tmp_path, text, match):
+    p = tmp_path / "bad.csv"
+    p.write_text(text)
+    with pytest.raises(InputError, match=match):
+        read_gtd(p)
