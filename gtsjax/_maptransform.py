@@ -131,3 +131,21 @@ def update_transform(
     tf = eqx.tree_at(lambda t: (t.degraded, t.n_landmarks), tf, (~ok, jnp.sum(hit).astype(jnp.int32)))
     residual = jnp.where(hit[:, None], tf.apply(matched_s) - map_o, 0.0)
     return tf, residual, hit
+
+
+def poses_to_field(
+    tf: Transform, pose_s: Float[Array, "dets 3"], cov_s: Float[Array, "dets 3 3"]
+) -> tuple[Float[Array, "dets 3"], Float[Array, "dets 3 3"]]:
+    """Poses from S to O (eq. 10, 16): position through the affine map, heading plus
+    ``atan2(A10, A00)``, position covariance ``A Σ Aᵀ``.
+
+    Mapping the whole regressed position through ``A``, rather than rotating the ORS-relative offset
+    by ``θ̂`` as eq. 16 prints, is the same for a rigid ``A`` and keeps the offset consistent with the
+    stretch of a tilted scan plane otherwise.
+    """
+    xy = tf.apply(pose_s[:, :2])
+    theta = pose_s[:, 2] + tf.heading()
+    theta = jnp.pi - jnp.mod(jnp.pi - theta, 2 * jnp.pi)
+    A3 = jnp.zeros((3, 3), tf.A.dtype).at[:2, :2].set(tf.A).at[2, 2].set(1.0)
+    cov = jnp.einsum("ij,njk,lk->nil", A3, cov_s, A3)
+    return jnp.concatenate([xy, theta[:, None]], -1), cov

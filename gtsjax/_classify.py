@@ -1,0 +1,45 @@
+"""Stage d, object classifier (eq. 13–14): one GP regressor per class on 1/0 targets, argmax, and a
+threshold on the winning score.
+
+The paper's classifier is GP *regression* per class (class-vs-rest), not a GP classifier; its score
+is not a calibrated probability, so the threshold is per class and chosen on held-out data. Class 0
+is always ``background``: a candidate whose best class is background, or whose winning score is
+below its class's threshold, is dropped. Prediction uses each GP's bounded-cost form (a fixed number
+of inducing points), so the cost per candidate does not grow with the training set.
+"""
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int
+
+from ._gp import GP, SparseGP
+
+BACKGROUND = 0
+
+
+class Classifier(eqx.Module):
+    """One score GP per class (index 0 is background) and a score threshold per class."""
+
+    gps: tuple[SparseGP | GP, ...]
+    threshold: Float[Array, " classes"]
+
+    @property
+    def n_classes(self) -> int:
+        return len(self.gps)
+
+
+def class_scores(clf: Classifier, vectors: Float[Array, "cands features"]) -> Float[Array, "cands classes"]:
+    """``p_{j,k} = f_k(v_j)`` (eq. 13) for every candidate and class: each GP's predictive mean."""
+    return jnp.stack([gp.predict(vectors)[0].astype(vectors.dtype) for gp in clf.gps], axis=-1)
+
+
+def classify(
+    clf: Classifier, vectors: Float[Array, "cands features"], keep: Bool[Array, " cands"]
+) -> tuple[Float[Array, "cands classes"], Int[Array, " cands"], Bool[Array, " cands"]]:
+    """Scores, the argmax class of each candidate, and which candidates survive: kept by the binary
+    filters, not background, and with a winning score at or above the class's threshold."""
+    scores = class_scores(clf, vectors)
+    cls = jnp.argmax(scores, axis=-1).astype(jnp.int32)
+    best = jnp.take_along_axis(scores, cls[:, None], axis=-1)[:, 0]
+    ok = keep & (cls != BACKGROUND) & (best >= clf.threshold[cls])
+    return scores, cls, ok

@@ -1,0 +1,599 @@
+"""SCIP 2.0 codec: known answers from the specification, real captures, round trips, and a stream
+decoder that survives whatever the link delivers."""
+
+import json
+import math
+import os
+import random
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from gtsjax.io import scip
+from gtsjax.sensors import MODELS, URG_04LX, UTM_30LX
+
+# GTSJAX_FUZZ_EXAMPLES=2000 for a longer search than the quick default.
+FUZZ = settings(
+    max_examples=int(os.environ.get("GTSJAX_FUZZ_EXAMPLES", "60")),
+    deadline=None,
+    suppress_health_check=[HealthCheck.too_slow],
+)
+
+
+@pytest.fixture(scope="module")
+def scip_dir(shared_dir):
+    d = shared_dir / "data" / "scip"
+    if not d.is_dir():
+        pytest.skip(f"no SCIP captures at {d}")
+    return d
+
+
+@pytest.fixture(scope="module")
+def vectors(scip_dir):
+    return json.loads((scip_dir / "spec_vectors.json").read_text())
+
+
+def _read(scip_dir, name):
+    return (scip_dir / name).read_bytes()
+
+
+# ----------------------------------------------------------------------------- reference (obvious) code
+
+
+def ref_decode(text: bytes, chars: int) -> list[int]:
+    out = []
+    for i in range(0, len(text), chars):
+        v = 0
+        for c in text[i : i + chars]:
+            v = (v << 6) | (c - 0x30)
+        out.append(v)
+    return out
+
+
+def ref_sum(text: bytes) -> int:
+    return (sum(text) & 0x3F) + 0x30
+
+
+# ----------------------------------------------------------------------------- spec vectors
+
+
+def test_checksum_vectors(vectors):
+    for v in vectors["checksum"]:
+        assert scip.checksum(v["text"]) == v["sum_char"], v
+        assert scip.verify_line(v["text"] + v["sum_char"])
+
+
+def test_decode_vectors(vectors):
+    for v in vectors["decode"]:
+        assert scip.decode_value(v["enc"]) == v["value"]
+        assert scip.decode_values(v["enc"], v["chars"]).tolist() == [v["value"]]
+        assert scip.encode_value(v["value"], v["chars"]) == v["enc"].encode()
+
+
+def test_time_field_with_semicolon_in_value(vectors):
+    (time_vec,) = [v for v in vectors["checksum"] if v["text"].startswith("TIME")]
+    line = time_vec["text"] + ";" + time_vec["sum_char"]
+    fields = scip.parse_fields([line])
+    assert fields == {"TIME": "j;o["}
+    reply = scip.parse_reply(b"II\n00P\n" + line.encode() + b"\n\n")
+    assert reply.fields["TIME"] == "j;o["
+    assert scip.decode_value(reply.fields["TIME"]) == ref_decode(b"j;o[", 4)[0]
+
+
+def test_field_whose_sum_char_is_semicolon():
+    body = next(f"SERI:H{i:07d}" for i in range(10000) if scip.checksum(f"SERI:H{i:07d}") == ";")
+    assert scip.parse_fields([body + ";;"]) == {"SERI": body[5:]}
+    assert scip.format_fields({"SERI": body[5:]}) == (body + ";;\n").encode()
+
+
+def test_status_tables(vectors):
+    md, gd = vectors["status_codes_MD_MS"], vectors["status_codes_GD_GS"]
+    for code in ("01", "02", "03", "04", "05", "06", "07", "98"):
+        assert scip.status_message("MD", code) == md[code]
+    assert scip.status_message("GD", "10") == gd["10"]
+    assert scip.status_message("MS", "30") == md["21-49"]
+    assert scip.status_message("GS", "98") == gd["50-98"]
+    assert scip.status_message("BM", "02") == "laser already on"
+    assert scip.status_ok("MD", "99") and scip.status_ok("GD", "00") and not scip.status_ok("GD", "99")
+
+
+# ----------------------------------------------------------------------------- characters and lines
+
+
+@FUZZ
+@given(chars=st.sampled_from([2, 3, 4]), data=st.data())
+def test_encode_decode_round_trip(chars, data):
+    values = data.draw(st.lists(st.integers(0, (1 << (6 * chars)) - 1), max_size=300))
+    text = scip.encode_values(values, chars)
+    assert len(text) == chars * len(values)
+    assert all(0x30 <= c <= 0x6F for c in text)
+    assert ref_decode(text, chars) == values
+    decoded = scip.decode_values(text, chars)
+    assert decoded.dtype == np.int32 and decoded.tolist() == values
+
+
+def test_encode_rejects_out_of_range():
+    for chars in (2, 3, 4):
+        with pytest.raises(scip.ScipError):
+            scip.encode_values([1 << (6 * chars)], chars)
+        with pytest.raises(scip.ScipError):
+            scip.encode_values([-1], chars)
+    with pytest.raises(scip.ScipError):
+        scip.encode_values([1], 5)
+    with pytest.raises(scip.ScipError):
+        scip.decode_values(b"0000", 3)  # not a whole number of values
+    with pytest.raises(scip.ScipError):
+        scip.decode_values(b"0p", 2)  # 'p' is above the 6-bit range
+
+
+@FUZZ
+@given(payload=st.binary(max_size=400).map(lambda b: bytes(0x30 + (c & 0x3F) for c in b)))
+def test_data_lines_split_and_join(payload):
+    block = scip.data_lines(payload)
+    lines = block.split(b"\n")
+    assert lines[-1] == b""
+    lines = lines[:-1]
+    assert len(lines) == math.ceil(len(payload) / 64)
+    for i, line in enumerate(lines):
+        assert len(line) == (65 if i < len(lines) - 1 else len(payload) - 64 * i + 1)
+        assert line[-1] == ref_sum(line[:-1])
+    joined, bad = scip.join_data_lines(lines)
+    assert joined == payload and bad == 0
+
+
+def test_value_split_across_lines():
+    values = np.arange(100, 100 + 30)  # 90 characters: value 21 straddles the first line break
+    block = scip.data_lines(scip.encode_values(values, 3))
+    lines = block.split(b"\n")[:-1]
+    assert len(lines[0]) == 65 and (64 % 3) != 0
+    payload, _ = scip.join_data_lines(lines)
+    assert scip.decode_values(payload, 3).tolist() == values.tolist()
+
+
+def test_timestamp_line_wraps():
+    line = scip.format_timestamp_line((1 << 24) + 5)
+    assert scip.decode_timestamp_line(line[:-1]) == 5
+    assert scip.decode_timestamp_line(b"m2@0" + scip.checksum("m2@0").encode()) == 16000000
+    with pytest.raises(scip.ScipError) as err:
+        scip.decode_timestamp_line(b"1l4l")
+    assert err.value.reason == "truncated"
+
+
+def test_timestamp_unwrapper():
+    unwrap = scip.TimestampUnwrapper()
+    stamps = np.arange(0, 3 * (1 << 24), 997_001, dtype=np.int64)
+    out = [unwrap(int(s % (1 << 24))) for s in stamps]
+    assert out == stamps.tolist()
+    assert unwrap.wraps == 2
+    last = out[-1]
+    assert unwrap(int((stamps[-1] - 10) % (1 << 24))) == last  # a step back holds, never decreases
+    assert unwrap.backsteps == 1
+    assert unwrap(int((stamps[-1] + 25) % (1 << 24))) == last + 25
+    unwrap.reset()
+    assert unwrap.last_ms is None and unwrap(7) == 7
+
+
+# ----------------------------------------------------------------------------- commands
+
+
+def test_command_builders():
+    assert scip.scip2_command() == b"SCIP2.0\n"
+    assert scip.vv_command() == b"VV\n" and scip.pp_command() == b"PP\n" and scip.ii_command() == b"II\n"
+    assert scip.bm_command() == b"BM\n" and scip.qt_command() == b"QT\n" and scip.rs_command() == b"RS\n"
+    assert scip.tm_command(1) == b"TM1\n"
+    assert scip.gd_command(44, 725) == b"GD0044072501\n"
+    assert scip.gs_command(44, 725, 3) == b"GS0044072503\n"
+    assert scip.ge_command(0, 1080, 0) == b"GE0000108000\n"
+    assert scip.md_command(44, 725, cluster=1, skip=0, count=3) == b"MD0044072501003\n"
+    assert scip.ms_command(384, 384, count=1) == b"MS0384038401001\n"
+    assert scip.me_command(0, 1080, string="abc") == b"ME0000108001000;abc\n"
+    assert scip.qt_command(string="x y") == b"QT;x y\n"
+    for bad in (
+        lambda: scip.md_command(10, 5),
+        lambda: scip.md_command(0, 10000),
+        lambda: scip.md_command(0, 10, cluster=100),
+        lambda: scip.md_command(0, 10, skip=10),
+        lambda: scip.md_command(0, 10, count=100),
+        lambda: scip.md_command(0, 10, string="x" * 17),
+        lambda: scip.gd_command(0, 10, string="a\nb"),
+        lambda: scip.tm_command(3),
+    ):
+        with pytest.raises(scip.ScipError):
+            bad()
+
+
+def test_parse_command_round_trip():
+    for raw in (b"MD0044072501003;hello", b"GE0000108000", b"VV", b"SCIP2.0", b"TM2", b"MS0384038400000"):
+        cmd = scip.parse_command(raw)
+        assert cmd.encode() == raw + b"\n"
+    cmd = scip.parse_command(b"MD0044072503103")
+    assert (cmd.code, cmd.start, cmd.end, cmd.cluster, cmd.interval, cmd.count) == ("MD", 44, 725, 3, 1, 3)
+    assert cmd.n_values == math.ceil(682 / 3) and cmd.chars == 3 and not cmd.has_intensity
+    assert cmd.with_remaining(2).text == "MD0044072503102"
+    with pytest.raises(scip.ScipError):
+        scip.parse_command(b"XX0044072501")
+
+
+# ----------------------------------------------------------------------------- frame round trips
+
+
+def _raw_ranges(rng, n, hi):
+    raw = rng.integers(20, hi, size=n)
+    errors = rng.random(n) < 0.1
+    raw[errors] = rng.integers(0, 20, size=int(errors.sum()))
+    raw[:5] = [0, 1, 7, 19, 20]
+    return raw
+
+
+@pytest.mark.parametrize(
+    "code,model,string,cluster",
+    [
+        ("MD", URG_04LX, None, 1),
+        ("MS", URG_04LX, None, 1),
+        ("GD", URG_04LX, None, 1),
+        ("GS", URG_04LX, "ab;c", 1),
+        ("GD", URG_04LX, None, 3),
+        ("ME", UTM_30LX, None, 1),
+        ("GE", UTM_30LX, None, 1),
+        ("ME", UTM_30LX, "x", 2),
+    ],
+)
+def test_scan_frame_round_trip(code, model, string, cluster):
+    rng = np.random.default_rng(0)
+    builder = {
+        "MD": scip.md_command,
+        "MS": scip.ms_command,
+        "ME": scip.me_command,
+        "GD": scip.gd_command,
+        "GS": scip.gs_command,
+        "GE": scip.ge_command,
+    }[code]
+    cmd = scip.parse_command(builder(model.amin, model.amax, cluster, string=string)[:-1])
+    n = cmd.n_values
+    assert n == math.ceil(model.n_beams / cluster)
+    chars = cmd.chars
+    raw = _raw_ranges(rng, n, min(1 << (6 * chars), model.dmax_mm + 1))
+    inten = rng.integers(0, 1 << 18, size=n) if cmd.has_intensity else None
+    stamp = 16_777_000 + 500  # beyond 2**24: written wrapped
+    if cmd.is_continuous:
+        echo = cmd.with_remaining(7)
+        data = scip.format_md_frame(echo, stamp, raw, inten)
+    else:
+        echo = cmd
+        data = scip.format_gd_frame(echo, stamp, raw, inten)
+    for line in data.split(b"\n")[1:-2]:
+        assert scip.verify_line(line)
+    frame = scip.parse_reply(data)
+    assert isinstance(frame, scip.ScanFrame)
+    assert frame.command == echo.text
+    assert frame.status == ("99" if cmd.is_continuous else "00")
+    assert frame.timestamp_ms == stamp % (1 << 24)
+    assert frame.remaining_scans == (7 if cmd.is_continuous else None)
+    assert frame.raw_ranges.tolist() == raw.tolist()
+    np.testing.assert_array_equal(frame.valid, raw >= 20)
+    np.testing.assert_array_equal(frame.ranges_mm, np.where(raw >= 20, raw, 0))
+    assert frame.ranges_mm.dtype == np.int32
+    if inten is None:
+        assert frame.intensities is None
+    else:
+        assert frame.intensities.tolist() == inten.tolist()
+    assert frame.bad_lines == 0
+    # The stream decoder agrees, fed in one go.
+    dec = scip.StreamDecoder()
+    (again,) = dec.feed(data)
+    assert again.raw_ranges.tolist() == raw.tolist()
+
+
+def test_format_scan_frame_checks_its_arguments():
+    cmd = scip.parse_command(b"MS0044072501000")
+    with pytest.raises(scip.ScipError):
+        scip.format_md_frame(cmd, 0, np.zeros(682, int), chars=3)  # MS is 2-character
+    with pytest.raises(scip.ScipError):
+        scip.format_md_frame(cmd, 0, np.zeros(681, int))
+    with pytest.raises(scip.ScipError):
+        scip.format_md_frame(cmd, 0, np.full(682, 4096))  # does not fit 2 characters
+    with pytest.raises(scip.ScipError):
+        scip.format_md_frame("ME0000108001000", 0, np.zeros(1081, int))  # ME needs intensities
+
+
+def test_pp_round_trip_every_known_model():
+    for model in MODELS.values():
+        assert scip.sensor_model_from_pp(scip.format_pp_reply(model)) == model
+
+
+def test_simple_replies_round_trip():
+    data = scip.format_reply("QT", "00")
+    assert data == b"QT\n00P\n\n"
+    assert scip.parse_reply(data) == scip.Reply("QT", "00", ())
+    data = scip.format_field_reply(b"VV", {"VEND": "Hokuyo", "PROT": "SCIP 2.0"})
+    assert scip.parse_reply(data).fields == {"VEND": "Hokuyo", "PROT": "SCIP 2.0"}
+
+
+# ----------------------------------------------------------------------------- real captures
+
+
+def test_capture_gd(scip_dir):
+    frame = scip.parse_reply(_read(scip_dir, "GD0044072501_urg04lx_capture.bin"))
+    assert isinstance(frame, scip.ScanFrame)
+    assert frame.command == "GD0044072501" and frame.status == "00"
+    assert frame.timestamp_ms == 4106836 and frame.remaining_scans is None
+    assert frame.n_values == 682 and frame.ranges_mm.min() == 90 and frame.ranges_mm.max() == 178
+    assert frame.valid.all()
+    text = _read(scip_dir, "GD0044072501_urg04lx_capture.bin").split(b"\n")
+    assert frame.raw_ranges.tolist() == ref_decode(b"".join(line[:-1] for line in text[3:-2]), 3)
+
+
+def test_capture_ms(scip_dir):
+    frame = scip.parse_reply(_read(scip_dir, "MS0044072501003_urg04lx_capture.bin"))
+    assert frame.code == "MS" and frame.status == "99" and frame.remaining_scans == 3
+    assert frame.timestamp_ms == 508219
+    assert frame.n_values == 682 and frame.raw_ranges.min() == 0 and frame.raw_ranges.max() == 4095
+    errors = frame.raw_ranges < 20
+    assert errors.any() and (frame.ranges_mm[errors] == 0).all() and not frame.valid[errors].any()
+
+
+def test_capture_md_one_step(scip_dir):
+    ack, frame = scip.parse_replies(_read(scip_dir, "omnimobot2_MD0384038400001_urg04lx.bin"))
+    assert ack == scip.Reply("MD0384038400001", "00", ()) and ack.ok
+    assert frame.command == "MD0384038400000" and frame.status == "99" and frame.remaining_scans == 0
+    assert frame.ranges_mm.tolist() == [254]
+
+
+def test_capture_vv_bm_pp(scip_dir):
+    vv = scip.parse_reply(_read(scip_dir, "VV_urg04lx-ug01_FRM-G5.bin"))
+    assert vv.fields == {
+        "VEND": "Hokuyo Automatic Co.,Ltd.",
+        "PROD": "SOKUIKI Sensor URG-04LX-UG01(Simple-URG)",
+        "FIRM": "3.4.03(17/Dec./2012)",
+        "PROT": "SCIP 2.0",
+        "SERI": "H1510998",
+    }
+    bm = scip.parse_reply(_read(scip_dir, "BM_laser_already_on_urg04lx-ug01_FRM-G5.bin"))
+    assert (bm.code, bm.status, bm.ok, bm.message) == ("BM", "02", False, "laser already on")
+    pp = scip.parse_reply(_read(scip_dir, "PP_utm30lx-ew_from_comment.bin"))
+    assert pp.fields["MODL"] == "UTM-30LX-EW" and pp.fields["DMAX"] == "60000"
+    model = scip.sensor_model_from_pp(pp)
+    assert (model.name, model.amin, model.amax, model.ares, model.afrt) == ("UTM-30LX", 0, 1080, 1440, 540)
+    assert (model.dmin_mm, model.dmax_mm, model.scan_rpm, model.has_intensity) == (23, 60000, 2400, True)
+    assert model.n_beams == 1081
+
+
+def test_capture_ts_truncated_strict_and_stream(scip_dir):
+    data = _read(scip_dir, "omnimobot2_MD0370045000001_urg04lx_ts_truncated.bin")
+    with pytest.raises(scip.ScipError) as err:
+        scip.parse_replies(data)
+    assert err.value.reason == "truncated"
+    good = _read(scip_dir, "omnimobot2_MD0384038400001_urg04lx.bin") + b"\n\n"
+    for glue in (b"\n\n", b""):
+        dec = scip.StreamDecoder()
+        out = dec.decode(data + glue + good)
+        assert [type(o).__name__ for o in out] == ["Reply", "Reply", "ScanFrame"]
+        assert out[-1].ranges_mm.tolist() == [254]
+        assert dec.stats.truncated == 1 and dec.stats.dropped == 1 and dec.stats.frames_ok == 3
+
+
+def test_capture_bad_sums_strict_lenient_and_stream(scip_dir):
+    data = _read(scip_dir, "omnimobot2_MD0046060000001_urg04lx_5badsum.bin")
+    with pytest.raises(scip.ScipError) as err:
+        scip.parse_replies(data)
+    assert err.value.reason == "checksum"
+    _, lenient = scip.parse_replies(data, strict=False)
+    assert lenient.bad_lines == 5 and lenient.n_values == 555
+    assert lenient.valid.sum() < (lenient.raw_ranges >= 20).sum()
+    good = _read(scip_dir, "GD0044072501_urg04lx_capture.bin")
+    for glue in (b"\n\n", b""):  # with the closing blank line restored, and with the next reply glued on
+        dec = scip.StreamDecoder()
+        out = dec.decode(data + glue + good)
+        assert [o.command for o in out] == ["MD0046060000001", "GD0044072501"]
+        assert out[-1].timestamp_ms == 4106836 and out[-1].n_values == 682
+        assert dec.stats.checksum_errors == 1 and dec.stats.dropped == 1 and dec.stats.frames_ok == 2
+
+
+# ----------------------------------------------------------------------------- stream decoder
+
+
+def _stream(n_frames=4, seed=1):
+    """A realistic exchange: PP, MD ack, MD data blocks (3-char), and a GS reply."""
+    rng = np.random.default_rng(seed)
+    parts = [scip.format_pp_reply(URG_04LX), scip.format_reply("MD0044072501003", "00")]
+    cmd = scip.parse_command(b"MD0044072501003")
+    for k in range(n_frames):
+        parts.append(
+            scip.format_md_frame(cmd.with_remaining(max(2 - k, 0)), 1000 + 100 * k, rng.integers(0, 5600, 682))
+        )
+    parts.append(scip.format_gd_frame("GS0100020002", 7, rng.integers(0, 4096, 51)))
+    return parts
+
+
+def _summary(out):
+    return [(o.command, getattr(o, "timestamp_ms", None)) for o in out]
+
+
+def test_stream_split_at_every_byte_boundary():
+    parts = _stream(2)
+    data = b"".join(parts)
+    want = _summary(scip.parse_replies(data))
+    assert len(want) == len(parts)
+    for cut in range(len(data) + 1):
+        dec = scip.StreamDecoder()
+        out = dec.feed(data[:cut]) + dec.feed(data[cut:]) + dec.flush()
+        assert _summary(out) == want, cut
+        assert dec.stats.dropped == 0 and dec.stats.garbage_bytes == 0
+
+
+def test_stream_byte_by_byte_and_random_chunks():
+    data = b"".join(_stream(3))
+    want = _summary(scip.parse_replies(data))
+    dec = scip.StreamDecoder()
+    out = [o for i in range(len(data)) for o in dec.feed(data[i : i + 1])]
+    assert _summary(out) == want
+    rng = random.Random(3)
+    for _ in range(20):
+        dec = scip.StreamDecoder()
+        out, i = [], 0
+        while i < len(data):
+            j = i + rng.randint(0, 200)
+            out += dec.feed(data[i:j])
+            i = j
+        assert _summary(out) == want
+
+
+@FUZZ
+@given(
+    garbage=st.lists(st.binary(max_size=80).map(lambda b: b.replace(b";", b"")), min_size=7, max_size=7),
+    ends=st.lists(st.booleans(), min_size=7, max_size=7),
+)
+def test_stream_garbage_between_frames(garbage, ends):
+    parts = _stream(4)
+    data = b"".join(g + (b"\n" if e else b"") + p for g, e, p in zip(garbage, ends, parts, strict=True))
+    dec = scip.StreamDecoder()
+    out = dec.decode(data)
+    assert _summary(out) == _summary(scip.parse_replies(b"".join(parts)))
+    assert dec.stats.garbage_bytes <= sum(len(g) + 1 for g in garbage)
+
+
+def test_stream_bad_sum_drops_only_that_frame():
+    parts = _stream(4)
+    bad = bytearray(parts[3])
+    i = bad.index(b"\n", bad.index(b"\n", bad.index(b"\n") + 1) + 1) + 10  # a character of the 1st data line
+    bad[i] = 0x30 + ((bad[i] - 0x30 + 1) & 0x3F)
+    parts[3] = bytes(bad)
+    dec = scip.StreamDecoder()
+    out = dec.decode(b"".join(parts))
+    assert len(out) == len(parts) - 1
+    assert dec.stats.checksum_errors == 1 and dec.stats.frames_ok == len(parts) - 1
+    assert [o.timestamp_ms for o in out if isinstance(o, scip.ScanFrame) and o.code == "MD"] == [1000, 1200, 1300]
+
+
+def test_stream_truncated_frames_resynchronise():
+    parts = _stream(3)
+    victim = 3
+    rng = random.Random(0)
+    for cut in sorted(rng.sample(range(1, len(parts[victim])), 60)):
+        damaged = parts[:victim] + [parts[victim][:cut]] + parts[victim + 1 :]
+        dec = scip.StreamDecoder()
+        out = dec.decode(b"".join(damaged))
+        others = _summary(scip.parse_replies(b"".join(parts[:victim] + parts[victim + 1 :])))
+        got = _summary(out)
+        assert [g for g in got if g[1] != 1100] == others, cut
+        assert dec.stats.dropped + dec.stats.garbage_bytes > 0 or len(got) == len(parts)
+
+
+def test_stream_memory_is_bounded():
+    dec = scip.StreamDecoder(max_line=256, max_lines=64)
+    for _ in range(100):
+        assert dec.feed(b"x" * 1000) == []
+    assert len(dec._partial) <= 256
+    dec.feed(b"\nGD0000001001\n00P\n" + b"0000\n" * 500)
+    assert len(dec._lines) <= 64 and dec.stats.oversize == 1
+    (frame,) = dec.feed(scip.format_gd_frame("GD0000001001", 5, np.arange(20, 31)))
+    assert frame.ranges_mm.tolist() == list(range(20, 31))
+
+
+# ----------------------------------------------------------------------------- fuzzing
+
+
+def _only_scip_errors(fn, *args, **kw):
+    try:
+        return fn(*args, **kw)
+    except scip.ScipError:
+        return None
+
+
+@FUZZ
+@given(data=st.binary(max_size=2000))
+def test_fuzz_random_bytes(data):
+    _only_scip_errors(scip.parse_reply, data)
+    _only_scip_errors(scip.parse_replies, data)
+    _only_scip_errors(scip.parse_replies, data, strict=False)
+    _only_scip_errors(scip.decode_values, data, 3)
+    _only_scip_errors(scip.parse_fields, data.split(b"\n"))
+    _only_scip_errors(scip.sensor_model_from_pp, data)
+    dec = scip.StreamDecoder()
+    out = dec.decode(data)
+    assert dec.stats.frames_ok == len(out)
+
+
+_VALID = [
+    scip.format_md_frame("MD0044072501002", 123456, np.arange(682) % 5000),
+    scip.format_md_frame("ME0000108001000", 654321, np.arange(1081) % 30000, np.arange(1081)),
+    scip.format_gd_frame("GS0044072501", 99, np.arange(682) % 4096),
+    scip.format_pp_reply(UTM_30LX),
+    scip.format_reply("BM", "02"),
+]
+
+
+@FUZZ
+@given(
+    which=st.integers(0, len(_VALID) - 1),
+    edits=st.lists(
+        st.tuples(st.sampled_from(["flip", "ins", "del"]), st.integers(0, 10**6), st.integers(0, 255)),
+        min_size=1,
+        max_size=4,
+    ),
+)
+def test_fuzz_mutated_frames(which, edits):
+    data = bytearray(_VALID[which])
+    for op, pos, byte in edits:
+        pos %= len(data) + 1
+        if op == "ins":
+            data[pos:pos] = bytes([byte])
+        elif data and pos < len(data):
+            if op == "flip":
+                data[pos] = byte
+            else:
+                del data[pos]
+    data = bytes(data)
+    for strict in (True, False):
+        _only_scip_errors(scip.parse_replies, data, strict=strict)
+    good = _VALID[2]
+    dec = scip.StreamDecoder()
+    out = dec.decode(data + b"\n\n" + good)
+    assert out and out[-1].command == "GS0044072501" and out[-1].timestamp_ms == 99
+
+
+@FUZZ
+@given(
+    edits=st.lists(st.tuples(st.integers(0, 10**6), st.integers(0, 255)), max_size=6),
+    cuts=st.lists(st.integers(0, 10**6), max_size=12),
+)
+def test_fuzz_stream_is_independent_of_chunking(edits, cuts):
+    data = bytearray(b"".join(_VALID) + b"".join(_stream(2)))
+    for pos, byte in edits:
+        data[pos % len(data)] = byte
+    data = bytes(data)
+    whole = scip.StreamDecoder(max_line=200)
+    want = _summary(whole.decode(data))
+    bounds = sorted({c % (len(data) + 1) for c in cuts} | {0, len(data)})
+    chunked = scip.StreamDecoder(max_line=200)
+    got = [o for a, b in zip(bounds[:-1], bounds[1:], strict=True) for o in chunked.feed(data[a:b])]
+    got += chunked.flush()
+    assert _summary(got) == want
+    assert chunked.stats == whole.stats
+
+
+def test_stream_counts_missing_data_line_as_truncated():
+    frame = scip.format_gd_frame("GD0044072501", 42, np.full(682, 1000))
+    lines = frame.split(b"\n")
+    damaged = b"\n".join(lines[:5] + lines[6:])  # one whole 64-character line lost
+    with pytest.raises(scip.ScipError) as err:
+        scip.parse_reply(damaged)
+    assert err.value.reason == "truncated"
+    dec = scip.StreamDecoder()
+    (out,) = dec.decode(damaged + frame)
+    assert out.timestamp_ms == 42 and dec.stats.truncated == 1 and dec.stats.frames_ok == 1
+
+
+def test_scip11_and_tm_replies():
+    assert scip.parse_reply(b"QT\nE\n\n") == scip.Reply("QT", "E", ())
+    assert scip.status_message("QT", "0E") == "sensor in time-adjust (TM) mode"
+    tm = scip.format_reply("TM1", "00", scip.format_timestamp_line(123456))
+    reply = scip.parse_reply(tm)
+    assert reply.code == "TM1"[:3] and scip.decode_timestamp_line(reply.lines[0]) == 123456
+    dec = scip.StreamDecoder()
+    assert [r.command for r in dec.decode(b"QT\nE\n\n" + tm)] == ["QT", "TM1"]
+    with pytest.raises(scip.ScipError) as err:
+        scip.parse_reply(tm.replace(b"00P", b"00Q"))
+    assert err.value.reason == "checksum"
