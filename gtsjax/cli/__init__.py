@@ -7,6 +7,8 @@ from ..errors import InputError
 
 # Each import registers its command(s) on ``app``.
 from . import info as _info  # noqa: E402,F401
+from . import replay as _replay  # noqa: E402,F401
+from . import train as _train  # noqa: E402,F401
 from ._app import app
 
 # from . import simulate as _simulate  # noqa: E402,F401  (registered once gtsjax.sim lands)

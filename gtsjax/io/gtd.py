@@ -40,8 +40,17 @@ class TrackRow:
     var_theta: float
 
     def as_dict(self) -> dict:
-        return {"stamp": self.stamp, "track_id": self.track_id, "class": self.cls, "x": self.x, "y": self.y,
-                "theta": self.theta, "var_x": self.var_x, "var_y": self.var_y, "var_theta": self.var_theta}
+        return {
+            "stamp": self.stamp,
+            "track_id": self.track_id,
+            "class": self.cls,
+            "x": self.x,
+            "y": self.y,
+            "theta": self.theta,
+            "var_x": self.var_x,
+            "var_y": self.var_y,
+            "var_theta": self.var_theta,
+        }
 
 
 def rows_from_output(stamp: float, track_id, cls_index, pose, var, mask, class_names) -> list[TrackRow]:
@@ -54,8 +63,17 @@ def rows_from_output(stamp: float, track_id, cls_index, pose, var, mask, class_n
     theta = wrap_angle(pose[:, 2])
     order = np.argsort(track_id, kind="stable")
     return [
-        TrackRow(float(stamp), int(track_id[i]), class_names[int(cls_index[i])], float(pose[i, 0]), float(pose[i, 1]),
-                 float(theta[i]), float(var[i, 0]), float(var[i, 1]), float(var[i, 2]))
+        TrackRow(
+            float(stamp),
+            int(track_id[i]),
+            class_names[int(cls_index[i])],
+            float(pose[i, 0]),
+            float(pose[i, 1]),
+            float(theta[i]),
+            float(var[i, 0]),
+            float(var[i, 1]),
+            float(var[i, 2]),
+        )
         for i in order
     ]
 
@@ -74,8 +92,19 @@ class GTDWriter:
 
     def write(self, rows: list[TrackRow]) -> None:
         for r in rows:
-            self._w.writerow([repr(r.stamp), r.track_id, r.cls, f"{r.x:.6f}", f"{r.y:.6f}", f"{r.theta:.6f}",
-                              f"{r.var_x:.6e}", f"{r.var_y:.6e}", f"{r.var_theta:.6e}"])
+            self._w.writerow(
+                [
+                    repr(r.stamp),
+                    r.track_id,
+                    r.cls,
+                    f"{r.x:.6f}",
+                    f"{r.y:.6f}",
+                    f"{r.theta:.6f}",
+                    f"{r.var_x:.6e}",
+                    f"{r.var_y:.6e}",
+                    f"{r.var_theta:.6e}",
+                ]
+            )
         self.rows += len(rows)
         self._f.flush()
 
@@ -142,6 +171,8 @@ def write_tum(path: str | os.PathLike, track: np.ndarray) -> None:
     heading as a rotation about z."""
     t, x, y, th = track.T
     half = th / 2.0
-    lines = [f"{ti:.6f} {xi:.6f} {yi:.6f} 0.000000 0.000000 0.000000 {np.sin(h):.9f} {np.cos(h):.9f}"
-             for ti, xi, yi, h in zip(t, x, y, half, strict=True)]
+    lines = [
+        f"{ti:.6f} {xi:.6f} {yi:.6f} 0.000000 0.000000 0.000000 {np.sin(h):.9f} {np.cos(h):.9f}"
+        for ti, xi, yi, h in zip(t, x, y, half, strict=True)
+    ]
     Path(path).write_text("\n".join(lines) + ("\n" if lines else ""))

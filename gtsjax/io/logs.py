@@ -119,7 +119,9 @@ def load_log(path: str | os.PathLike) -> ScanLog:
                 try:
                     data[key] = npz[key]
                 except ValueError:
-                    raise InputError(path, f"key '{key}' holds pickled Python objects, which the format forbids") from None
+                    raise InputError(
+                        path, f"key '{key}' holds pickled Python objects, which the format forbids"
+                    ) from None
     except InputError:
         raise
     except (zipfile.BadZipFile, ValueError, OSError, EOFError) as err:
@@ -239,7 +241,9 @@ def to_scans(log: ScanLog, n_beams: int | None = None):
         raise InputError("scan log", f"has {log.n_beams} beams, more than the {n} the sensor model allows")
     valid = log.valid()
     ranges = np.where(valid, log.ranges, 0.0).astype(np.float32)
-    inten = np.zeros_like(ranges) if log.intensities is None else np.where(valid, log.intensities, 0.0).astype(np.float32)
+    inten = (
+        np.zeros_like(ranges) if log.intensities is None else np.where(valid, log.intensities, 0.0).astype(np.float32)
+    )
     pad = ((0, 0), (0, n - log.n_beams))
     dt = np.diff(log.stamps, prepend=log.stamps[:1]).astype(np.float32)
     t = log.n_scans
@@ -253,9 +257,18 @@ def to_scans(log: ScanLog, n_beams: int | None = None):
     )
 
 
-def from_scans(scans, stamps: np.ndarray, n_beams: int, *, angle_min: float, angle_increment: float,
-               range_min: float = DEFAULT_RANGE_MIN, range_max: float = DEFAULT_RANGE_MAX,
-               sensor_model: str | None = None, with_intensities: bool = True) -> ScanLog:
+def from_scans(
+    scans,
+    stamps: np.ndarray,
+    n_beams: int,
+    *,
+    angle_min: float,
+    angle_increment: float,
+    range_min: float = DEFAULT_RANGE_MIN,
+    range_max: float = DEFAULT_RANGE_MAX,
+    sensor_model: str | None = None,
+    with_intensities: bool = True,
+) -> ScanLog:
     """Back from stacked :class:`~gtsjax.Scan` arrays to a log: the first ``n_beams`` beams, 0 where
     there was no return. Angles come as float64 arguments, since the scans hold them in float32."""
     valid = np.asarray(scans.valid)[:, :n_beams]

@@ -1,0 +1,192 @@
+"""The whole of Fig. 1 as one pure function: ``step(model, state, scan) -> (state, output)``, and the
+batch driver ``process_log`` that runs the same computation over a log.
+
+The step splits in two:
+
+* ``perceive`` (stages a–e): front end, classifier and pose regression, everything that depends on
+  the scan alone. Batch replay ``vmap``s it over chunks of scans.
+* ``update`` (stages f–g): map transformation and tracking, which carry state from scan to scan.
+  Batch replay runs it under ``lax.scan``.
+
+``step`` is ``update ∘ perceive``; ``process_log`` is ``scan(update) ∘ vmap(perceive)`` chunk by
+chunk, so that memory is bounded by the chunk size for logs of any length.
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int
+
+from ._classify import classify
+from ._frontend import front_end_unjitted
+from ._maptransform import Transform, poses_to_field, update_transform
+from ._pose import regress, to_sensor_frame
+from ._scan import Scan
+from ._track import Detections, TrackerState, track_step
+from .model import Model
+
+_F32 = jnp.float32
+
+
+class PipelineState(eqx.Module):
+    """What carries over from one scan to the next: the map transformation and the track table."""
+
+    transform: Transform
+    tracker: TrackerState
+    n_scans: Int[Array, ""]
+
+
+class Perception(eqx.Module):
+    """Stages a–e of one scan: every candidate's class and pose in S, before the map transformation."""
+
+    cls: Int[Array, " cands"]
+    ok: Bool[Array, " cands"]  # kept by the filters and classified as an object (not background)
+    scores: Float[Array, "cands classes"]
+    pose_s: Float[Array, "cands 3"]
+    cov_s: Float[Array, "cands 3 3"]
+    n_segments: Int[Array, ""]
+    n_kept: Int[Array, ""]
+    overflow: Int[Array, ""]
+    too_long: Int[Array, ""]
+
+
+class Output(eqx.Module):
+    """One scan's result, fixed size. Tracks: ``M`` slots, reported where ``track_mask`` (confirmed)."""
+
+    track_id: Int[Array, " tracks"]
+    track_class: Int[Array, " tracks"]
+    track_pose: Float[Array, "tracks 3"]
+    track_var: Float[Array, "tracks 3"]
+    track_mask: Bool[Array, " tracks"]
+    transform: Transform
+    landmark_residual: Float[Array, "landmarks 2"]
+    landmark_seen: Bool[Array, " landmarks"]
+    det_pose: Float[Array, "cands 3"]  # detections of tracked classes in O (diagnostics, evaluation)
+    det_class: Int[Array, " cands"]
+    det_mask: Bool[Array, " cands"]
+    n_segments: Int[Array, ""]
+    n_kept: Int[Array, ""]  # candidates passing the binary filters
+    n_objects: Int[Array, ""]  # candidates classified as landmarks or tracked objects
+    overflow: Int[Array, ""]  # segments beyond K, dropped
+    too_long: Int[Array, ""]  # segments longer than L beams, filtered
+    degraded: Bool[Array, ""]  # too few landmarks: the previous transform was kept
+
+
+def init_state(model: Model) -> PipelineState:
+    """Before the first scan: the user's rough sensor pose as the first transform, no tracks."""
+    return PipelineState(
+        transform=Transform.from_sensor_pose(model.site.sensor_pose),
+        tracker=TrackerState.empty(model.max_tracks),
+        n_scans=jnp.asarray(0, jnp.int32),
+    )
+
+
+def perceive(model: Model, scan: Scan) -> Perception:
+    """Stages a–e (segmentation … pose regression) of one scan; no state."""
+    fe = front_end_unjitted(model.frontend, scan)
+    f = fe.features
+    scores, cls, ok = classify(model.classifier, f.vector, fe.keep)
+    rel, var = regress(model.pose, f.vector, cls)
+    pose_s, cov_s = to_sensor_frame(f.origin, f.heading, rel, var)
+    d = fe.diagnostics
+    return Perception(cls, ok, scores, pose_s, cov_s, d.n_segments, d.n_kept, d.overflow_count, d.too_long_count)
+
+
+def update(model: Model, state: PipelineState, p: Perception, dt: Float[Array, ""]) -> tuple[PipelineState, Output]:
+    """Stages f–g: re-estimate the map transformation from this scan's landmarks, map detections into
+    O, and track. The transform estimated from a scan is used for that same scan's detections."""
+    site = model.site
+    is_landmark = p.ok & model.landmark_mask[p.cls]
+    tf, residual, seen = update_transform(
+        state.transform, p.pose_s[:, :2], p.cls, is_landmark, site.landmark_xy, site.landmark_class,
+        model.map_gate, model.map_min_spread,
+    )
+    pose_o, cov_o = poses_to_field(tf, p.pose_s, p.cov_s)
+    cov_o = cov_o + jnp.diag(model.meas_var_floor)[None]
+    x, y = pose_o[:, 0], pose_o[:, 1]
+    b = site.bounds
+    inside = ~site.has_bounds | ((x >= b[0]) & (y >= b[1]) & (x <= b[2]) & (y <= b[3]))
+    tracked = p.ok & model.tracker.tracked[p.cls] & inside
+    det = Detections(pose_o, cov_o, p.cls, tracked)
+    tracker, _ = track_step(state.tracker, det, dt, model.tracker)
+    ts = tracker
+    out = Output(
+        track_id=ts.track_id,
+        track_class=ts.class_id,
+        track_pose=ts.mean[:, :3],
+        track_var=jnp.diagonal(ts.cov, axis1=1, axis2=2)[:, :3],
+        track_mask=ts.live & ts.confirmed,
+        transform=tf,
+        landmark_residual=residual,
+        landmark_seen=seen,
+        det_pose=pose_o,
+        det_class=p.cls,
+        det_mask=tracked,
+        n_segments=p.n_segments,
+        n_kept=p.n_kept,
+        n_objects=jnp.sum(p.ok, dtype=jnp.int32),
+        overflow=p.overflow,
+        too_long=p.too_long,
+        degraded=tf.degraded,
+    )
+    return PipelineState(tf, tracker, state.n_scans + 1), out
+
+
+def step_unjitted(model: Model, state: PipelineState, scan: Scan) -> tuple[PipelineState, Output]:
+    return update(model, state, perceive(model, scan), scan.dt)
+
+
+@jax.jit
+def step(model: Model, state: PipelineState, scan: Scan) -> tuple[PipelineState, Output]:
+    """The whole pipeline for one scan (Fig. 1, stages a–g), jitted once per model shape."""
+    return step_unjitted(model, state, scan)
+
+
+def _pad_chunk(scans: Scan, start: int, stop: int, size: int) -> Scan:
+    """Scans ``start:stop`` padded to ``size`` by repeating the last one (so shapes never change)."""
+    part = jax.tree.map(lambda a: a[start:stop], scans)
+    pad = size - (stop - start)
+    if pad == 0:
+        return part
+    return jax.tree.map(lambda a: jnp.concatenate([a, jnp.repeat(a[-1:], pad, axis=0)]), part)
+
+
+@jax.jit
+def process_chunk(model: Model, state: PipelineState, scans: Scan, n_real: Int[Array, ""]) -> tuple[PipelineState, Output]:
+    """A chunk of scans (leading axis): ``perceive`` vmapped over it, ``update`` under ``lax.scan``.
+    Scans at index ``>= n_real`` (padding of the last chunk) leave the state as it was."""
+    percepts = jax.vmap(perceive, in_axes=(None, 0))(model, scans)
+
+    def body(s, inp):
+        p, dt, i = inp
+        new, out = update(model, s, p, dt)
+        keep = i < n_real
+        return jax.tree.map(lambda a, b: jnp.where(keep, a, b), new, s), out
+
+    idx = jnp.arange(scans.dt.shape[0], dtype=jnp.int32)
+    return jax.lax.scan(body, state, (percepts, scans.dt, idx))
+
+
+def process_log(model: Model, scans: Scan, *, chunk: int = 256, state: PipelineState | None = None,
+                callback=None) -> tuple[PipelineState, Output]:
+    """Run a stack of scans through the pipeline ``chunk`` at a time. Returns the final state and the
+    stacked outputs as NumPy arrays on the host; ``callback(n_done)`` is called after each chunk.
+
+    Device memory is bounded by the chunk size whatever the log's length (the last chunk is padded,
+    and its padding does not touch the state); the outputs accumulate on the host.
+    """
+    import numpy as np
+
+    state = init_state(model) if state is None else state
+    n = scans.ranges.shape[0]
+    chunk = max(1, min(chunk, n))
+    outs = []
+    for start in range(0, n, chunk):
+        stop = min(start + chunk, n)
+        part = _pad_chunk(scans, start, stop, chunk)
+        state, out = process_chunk(model, state, part, jnp.asarray(stop - start, jnp.int32))
+        real = stop - start
+        outs.append(jax.tree.map(lambda a, real=real: np.asarray(a)[:real], out))
+        if callback is not None:
+            callback(stop)
+    return state, jax.tree.map(lambda *a: np.concatenate(a), *outs)

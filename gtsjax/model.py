@@ -1,0 +1,73 @@
+"""The trained model and the site, as the arrays the step needs.
+
+A :class:`Model` is what ``gtsjax train`` produces (front-end settings, one score GP per class, pose
+GPs per class, tracker tuning) plus the site it runs on (landmarks, the rough sensor pose, bounds),
+attached with :meth:`Model.with_site` at load time: the same trained model serves any field with the
+same kinds of landmarks. Shapes that must be static (class count, maximum tracks) are static fields;
+everything a user may tune is an array, so tuning does not recompile the step.
+"""
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float, Int
+
+from ._classify import Classifier
+from ._frontend import FrontEndConfig
+from ._pose import PoseRegressor
+from ._track import TrackerParams
+from .errors import InputError
+
+_F32 = jnp.float32
+
+
+class SiteArrays(eqx.Module):
+    """A site file as arrays: landmark positions in O and their class indices in the model."""
+
+    landmark_xy: Float[Array, "landmarks 2"]
+    landmark_class: Int[Array, " landmarks"]
+    sensor_pose: Float[Array, "3"]
+    bounds: Float[Array, "4"]
+    has_bounds: Bool[Array, ""]
+
+
+class Model(eqx.Module):
+    """Everything the step needs, as a pytree of arrays."""
+
+    frontend: FrontEndConfig
+    classifier: Classifier
+    pose: tuple[PoseRegressor | None, ...]
+    tracker: TrackerParams
+    landmark_mask: Bool[Array, " classes"]  # which classes are static landmarks
+    map_gate: Float[Array, ""]  # metres: landmark association gate of stage f
+    map_min_spread: Float[Array, ""]  # metres: landmarks must spread at least this much in 2-D
+    meas_var_floor: Float[Array, "3"]  # added to the GP variances: m², m², rad²
+    site: SiteArrays | None
+    classes: tuple[str, ...] = eqx.field(static=True)
+    max_tracks: int = eqx.field(static=True)
+    sensor_model: str = eqx.field(static=True)
+    n_beams: int = eqx.field(static=True)
+
+    @property
+    def n_classes(self) -> int:
+        return len(self.classes)
+
+    def class_index(self, name: str) -> int:
+        return self.classes.index(name)
+
+    def with_site(self, site, *, where: str = "site") -> "Model":
+        """Attach a :class:`~gtsjax.io.site.Site`. Every landmark class must be one the model knows
+        as a landmark class; otherwise it could never be detected."""
+        lm_classes = [c for c, is_lm in zip(self.classes, np.asarray(self.landmark_mask), strict=True) if is_lm]
+        unknown = sorted({c for c in site.landmark_classes if c not in lm_classes})
+        if unknown:
+            raise InputError(where, f"landmark class(es) {', '.join(unknown)} unknown to the model "
+                                    f"(it knows {', '.join(lm_classes) or 'none'})")
+        arrays = SiteArrays(
+            landmark_xy=jnp.asarray(site.landmark_xy, _F32),
+            landmark_class=jnp.asarray([self.classes.index(c) for c in site.landmark_classes], jnp.int32),
+            sensor_pose=jnp.asarray(site.sensor_pose, _F32),
+            bounds=jnp.asarray(site.bounds if site.bounds is not None else (0.0, 0.0, 0.0, 0.0), _F32),
+            has_bounds=jnp.asarray(site.bounds is not None),
+        )
+        return eqx.tree_at(lambda m: m.site, self, arrays, is_leaf=lambda x: x is None)

@@ -1,0 +1,188 @@
+"""Scenes and their rendering into laser scans.
+
+A :class:`Scene` is what stands on the field at the laser's height: static circles and polygons
+(posts, walls, clutter) and moving things (robots as polygons with a pose per scan, people's legs as
+circles with a position per scan). :func:`render` casts a sensor model's beams from a sensor pose
+per scan and returns ranges as the sensor reports them: nearest hit, stretched by a tilted scan
+plane, with the model's range noise and 1 mm quantisation, dropouts, grazing-angle misses, 0 for no
+return; and intensities from reflectivity, incidence and range where the model reports them.
+"""
+
+import dataclasses
+
+import numpy as np
+
+from ..sensors import SensorModel
+from .geometry import beam_directions, polygon_edges, ray_circles, ray_segments
+
+# Nao at the height of the body extension, just below the shoulders: a chest about 0.27 m wide and
+# 0.13 m deep, with a plate behind its left shoulder that breaks the front/back and left/right
+# symmetry (the paper's "body extension"), so that the heading is observable from any side.
+NAO_OUTLINE = np.array([
+    [0.065, -0.135], [0.065, 0.135], [-0.150, 0.135], [-0.150, 0.030], [-0.065, 0.030], [-0.065, -0.135],
+])
+NAO_REFLECTIVITY = np.array([0.55, 0.5, 0.9, 0.9, 0.5, 0.5])  # per edge: front, left, plate…
+
+
+@dataclasses.dataclass(frozen=True)
+class Circle:
+    x: float
+    y: float
+    radius: float
+    reflectivity: float = 0.7
+
+
+@dataclasses.dataclass(frozen=True)
+class Polygon:
+    vertices: np.ndarray  # [V, 2] counter-clockwise, in O (static) or in the body frame (moving)
+    reflectivity: np.ndarray  # [V] per edge (edge i joins vertex i and i+1)
+
+
+@dataclasses.dataclass
+class Mover:
+    """A polygon with a pose per scan ``[T, 3]`` in O; NaN rows where absent."""
+
+    shape: Polygon
+    poses: np.ndarray
+
+
+@dataclasses.dataclass
+class MovingCircle:
+    """A circle with a centre per scan ``[T, 2]`` (legs); NaN rows where absent."""
+
+    radius: float
+    centres: np.ndarray
+    reflectivity: float = 0.4
+
+
+@dataclasses.dataclass
+class Scene:
+    circles: list[Circle] = dataclasses.field(default_factory=list)
+    polygons: list[Polygon] = dataclasses.field(default_factory=list)
+    movers: list[Mover] = dataclasses.field(default_factory=list)
+    moving_circles: list[MovingCircle] = dataclasses.field(default_factory=list)
+
+
+def robot_shape() -> Polygon:
+    return Polygon(NAO_OUTLINE, NAO_REFLECTIVITY)
+
+
+def box(x0, y0, x1, y1, reflectivity=0.6) -> Polygon:
+    v = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], dtype=np.float64)
+    return Polygon(v, np.full(4, reflectivity))
+
+
+def walls(x0, y0, x1, y1, reflectivity=0.5) -> list[Polygon]:
+    """A rectangular room as four thin wall segments (each a degenerate polygon of 2 vertices)."""
+    c = [(x0, y0), (x1, y0), (x1, y1), (x0, y1)]
+    return [Polygon(np.array([c[i], c[(i + 1) % 4]], np.float64), np.array([reflectivity, reflectivity]))
+            for i in range(4)]
+
+
+def _segments(scene: Scene, sl: slice, t: int):
+    """All segments for scans ``sl`` as arrays ``[T, S]`` (x0, y0, x1, y1) and reflectivity ``[S]``."""
+    xs, refl = [], []
+    for poly in scene.polygons:
+        v = poly.vertices
+        n = len(v)
+        if n == 2:  # a wall: one segment
+            e = [np.full((t, 1), v[0, 0]), np.full((t, 1), v[0, 1]), np.full((t, 1), v[1, 0]), np.full((t, 1), v[1, 1])]
+            r = poly.reflectivity[:1]
+        else:
+            nxt = np.roll(v, -1, axis=0)
+            e = [np.broadcast_to(a[None, :], (t, n)) for a in (v[:, 0], v[:, 1], nxt[:, 0], nxt[:, 1])]
+            r = poly.reflectivity
+        xs.append(e)
+        refl.append(r)
+    for mv in scene.movers:
+        xs.append(list(polygon_edges(mv.shape.vertices, mv.poses[sl])))
+        refl.append(mv.shape.reflectivity)
+    if not xs:
+        z = np.zeros((t, 0))
+        return (z, z, z, z), np.zeros(0)
+    cat = [np.concatenate([e[i] for e in xs], axis=1) for i in range(4)]
+    return cat, np.concatenate(refl)
+
+
+def _circles(scene: Scene, sl: slice, t: int):
+    cx = [np.full((t, 1), c.x) for c in scene.circles] + [m.centres[sl, 0:1] for m in scene.moving_circles]
+    cy = [np.full((t, 1), c.y) for c in scene.circles] + [m.centres[sl, 1:2] for m in scene.moving_circles]
+    r = [c.radius for c in scene.circles] + [m.radius for m in scene.moving_circles]
+    refl = [c.reflectivity for c in scene.circles] + [m.reflectivity for m in scene.moving_circles]
+    if not r:
+        z = np.zeros((t, 0))
+        return z, z, np.zeros(0), np.zeros(0)
+    return np.concatenate(cx, 1), np.concatenate(cy, 1), np.asarray(r, float), np.asarray(refl, float)
+
+
+def cast(scene: Scene, model: SensorModel, sensor_poses: np.ndarray, tilt: np.ndarray | None = None,
+         sl: slice | None = None):
+    """Noise-free geometry for scans ``sl``: true range ``[T, N]`` (inf for no hit), cosine of the
+    incidence angle and the reflectivity of what each beam hit."""
+    sl = slice(None) if sl is None else sl
+    poses = sensor_poses[sl]
+    t = poses.shape[0]
+    tilt = np.zeros((t, 2)) if tilt is None else tilt[sl]
+    dx, dy, stretch = beam_directions(model.angles, poses[:, 2], tilt[:, 0], tilt[:, 1])
+    ox, oy = poses[:, 0:1], poses[:, 1:2]
+    best = np.full(dx.shape, np.inf)
+    cos_inc = np.zeros(dx.shape)
+    refl = np.zeros(dx.shape)
+    cx, cy, cr, crefl = _circles(scene, sl, t)
+    if cr.size:
+        tc, cc = ray_circles(ox, oy, dx, dy, cx, cy, cr)
+        i = np.argmin(tc, axis=-1)
+        tmin = np.take_along_axis(tc, i[..., None], -1)[..., 0]
+        upd = tmin < best
+        best = np.where(upd, tmin, best)
+        cos_inc = np.where(upd, np.take_along_axis(cc, i[..., None], -1)[..., 0], cos_inc)
+        refl = np.where(upd, crefl[i], refl)
+    (x0, y0, x1, y1), srefl = _segments(scene, sl, t)
+    if srefl.size:
+        ts, cs = ray_segments(ox, oy, dx, dy, x0, y0, x1, y1)
+        ts = np.where(np.isnan(ts), np.inf, ts)
+        i = np.argmin(ts, axis=-1)
+        tmin = np.take_along_axis(ts, i[..., None], -1)[..., 0]
+        upd = tmin < best
+        best = np.where(upd, tmin, best)
+        cos_inc = np.where(upd, np.take_along_axis(cs, i[..., None], -1)[..., 0], cos_inc)
+        refl = np.where(upd, srefl[i], refl)
+    return best * stretch, cos_inc, refl
+
+
+@dataclasses.dataclass(frozen=True)
+class Effects:
+    """What makes a simulated scan imperfect. ``noise=False`` gives exact, unquantised ranges."""
+
+    noise: bool = True
+    dropout: float = 0.003  # probability that any beam returns nothing
+    grazing_cos: float = 0.08  # below this cosine of incidence the return is lost
+    intensity_noise: float = 0.02  # relative
+
+
+def render(scene: Scene, model: SensorModel, sensor_poses: np.ndarray, *, tilt: np.ndarray | None = None,
+           rng: np.random.Generator, effects: Effects = Effects(), chunk: int = 512):
+    """Scans as the sensor reports them: ranges ``[T, N]`` float32 (0 = no return) and intensities
+    (``None`` for a model without them), rendered ``chunk`` scans at a time."""
+    t_total = sensor_poses.shape[0]
+    ranges = np.zeros((t_total, model.n_beams), np.float32)
+    inten = np.zeros((t_total, model.n_beams), np.float32) if model.has_intensity else None
+    for start in range(0, t_total, chunk):
+        sl = slice(start, min(start + chunk, t_total))
+        r, cos_inc, refl = cast(scene, model, sensor_poses, tilt, sl)
+        hit = np.isfinite(r)
+        r = np.where(hit, r, 0.0)
+        if effects.noise:
+            r = r + rng.standard_normal(r.shape) * model.noise.std(r)
+            res = model.noise.resolution
+            r = np.round(r / res) * res
+            hit &= rng.random(r.shape) >= effects.dropout
+        hit &= cos_inc >= effects.grazing_cos
+        hit &= (r >= model.range_min) & (r <= model.range_max)
+        ranges[sl] = np.where(hit, r, 0.0)
+        if inten is not None:
+            i = 6000.0 * refl * np.sqrt(np.clip(cos_inc, 0, 1)) / np.sqrt(np.maximum(r, 0.5))
+            if effects.noise:
+                i = i * (1 + effects.intensity_noise * rng.standard_normal(i.shape))
+            inten[sl] = np.where(hit, np.maximum(i, 0.0), 0.0)
+    return ranges, inten
