@@ -1,0 +1,295 @@
+"""Crash-safe recording of raw scans: an append-only journal while recording, a scan log at the end.
+
+Why a journal: a ``.npz`` is a zip archive written whole, so a recording kept only in memory is
+lost to a crash, a ``kill -9`` or a pulled power cable. :class:`Recorder` appends every scan to
+``RAW.npz.journal`` next to the target as one fixed-size binary record, written with a single
+``write()`` (so ``kill -9`` loses nothing already appended: the data sits in the kernel's page
+cache) and ``fsync``'d at least every ``sync_interval`` seconds (so a power cut loses at most the
+last second). On a clean :meth:`Recorder.close` the journal becomes ``RAW.npz`` in the scan-log
+format of ``shared/spec/formats.md`` (written atomically by :func:`~gtsjax.io.logs.save_log`) and
+the journal is removed.
+
+After a crash, turn the journal into a scan log with one command::
+
+    python -m gtsjax.io.record RAW.npz.journal RAW.npz
+
+(:func:`recover`; ``gtsjax recover RAW.npz.journal`` calls the same function). A torn last record
+is cut off, and a record whose CRC fails is skipped and counted.
+
+Journal layout (little-endian): ``b"GTSJRNL1"``, ``uint32`` header length, a JSON header
+(``n_beams``, ``angle_min``, ``angle_increment``, ``range_min``, ``range_max``, ``sensor_model``,
+``intensities``), then records of ``float64 stamp, float32 ranges[n_beams], [float32
+intensities[n_beams]], uint32 crc32`` (the CRC covers the bytes of the record before it).
+"""
+
+import json
+import os
+import struct
+import sys
+import threading
+import time
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..sensors import SensorModel
+from .logs import DEFAULT_RANGE_MAX, DEFAULT_RANGE_MIN, ScanLog, save_log
+
+MAGIC = b"GTSJRNL1"
+JOURNAL_SUFFIX = ".journal"
+
+
+def journal_path(path: "str | os.PathLike") -> Path:
+    """Where the journal of a recording to ``path`` lives."""
+    p = Path(path)
+    return p.with_name(p.name + JOURNAL_SUFFIX)
+
+
+def _record_dtype(n_beams: int, intensities: bool) -> np.dtype:
+    fields = [("stamp", "<f8"), ("ranges", "<f4", (n_beams,))]
+    if intensities:
+        fields.append(("intensities", "<f4", (n_beams,)))
+    fields.append(("crc", "<u4"))
+    return np.dtype(fields)
+
+
+class Recorder:
+    """Append raw scans to a journal as they arrive; ``close()`` writes the scan log.
+
+    Geometry comes from ``model`` (a :class:`~gtsjax.sensors.SensorModel`) or from ``n_beams``,
+    ``angle_min``, ``angle_increment`` (and the optional range window and model name). Stamps are
+    host seconds (float64); a stamp earlier than the previous one is raised to it (the format needs
+    non-decreasing stamps; a reconnect may restart the sensor's clock) and counted in ``clamped``.
+    """
+
+    def __init__(
+        self,
+        path: "str | os.PathLike",
+        model: SensorModel | None = None,
+        *,
+        n_beams: int | None = None,
+        angle_min: float | None = None,
+        angle_increment: float | None = None,
+        range_min: float | None = None,
+        range_max: float | None = None,
+        sensor_model: str | None = None,
+        intensities: bool = False,
+        sync_interval: float = 0.5,
+    ):
+        self.path = Path(path)
+        self.journal = journal_path(self.path)
+        if model is not None:
+            n_beams = model.n_beams if n_beams is None else n_beams
+            angle_min = model.angle_min if angle_min is None else angle_min
+            angle_increment = model.angle_increment if angle_increment is None else angle_increment
+            range_min = model.range_min if range_min is None else range_min
+            range_max = model.range_max if range_max is None else range_max
+            sensor_model = model.name if sensor_model is None else sensor_model
+        if n_beams is None or angle_min is None or angle_increment is None:
+            raise InputError(self.path, "a recorder needs a sensor model or n_beams, angle_min and angle_increment")
+        if self.journal.exists():
+            raise InputError(
+                self.journal,
+                "a journal from an earlier recording is here; recover it first "
+                f"(python -m gtsjax.io.record {self.journal} OUT.npz) or remove it",
+            )
+        self.header = {
+            "n_beams": int(n_beams),
+            "angle_min": float(angle_min),
+            "angle_increment": float(angle_increment),
+            "range_min": float(DEFAULT_RANGE_MIN if range_min is None else range_min),
+            "range_max": float(DEFAULT_RANGE_MAX if range_max is None else range_max),
+            "sensor_model": sensor_model,
+            "intensities": bool(intensities),
+        }
+        self._dtype = _record_dtype(int(n_beams), bool(intensities))
+        self.sync_interval = float(sync_interval)
+        self.count = 0
+        self.clamped = 0
+        self._last_stamp = -np.inf
+        self._lock = threading.Lock()
+        self._dirty = False
+        self._closed = False
+        self.journal.parent.mkdir(parents=True, exist_ok=True)
+        self._fd = os.open(self.journal, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_APPEND, 0o644)
+        head = json.dumps(self.header).encode()
+        os.write(self._fd, MAGIC + struct.pack("<I", len(head)) + head)
+        os.fsync(self._fd)
+        _fsync_dir(self.journal.parent)  # so that the journal's name itself survives a power cut
+        self._stop = threading.Event()
+        # fsync from a timer as well, so that the guarantee holds when scans pause.
+        self._syncer = threading.Thread(target=self._sync_loop, name="gtsjax-recorder-sync", daemon=True)
+        self._syncer.start()
+
+    def append(self, ranges_m: np.ndarray, stamp: float, intensities: np.ndarray | None = None) -> None:
+        """Append one scan: ranges in metres (0 for no return), host stamp in seconds."""
+        rec = np.zeros((), dtype=self._dtype)
+        r = np.asarray(ranges_m, dtype=np.float32)
+        if r.shape != (self.header["n_beams"],):
+            raise InputError(self.path, f"scan has {r.shape} ranges, the recording has {self.header['n_beams']} beams")
+        stamp = float(stamp)
+        if stamp < self._last_stamp:
+            stamp = self._last_stamp
+            self.clamped += 1
+        self._last_stamp = stamp
+        rec["stamp"] = stamp
+        rec["ranges"] = r
+        if self.header["intensities"]:
+            rec["intensities"] = 0.0 if intensities is None else np.asarray(intensities, dtype=np.float32)
+        body = rec.tobytes()[:-4]
+        rec["crc"] = zlib.crc32(body)
+        with self._lock:
+            if self._closed:
+                raise InputError(self.path, "recorder is closed")
+            os.write(self._fd, rec.tobytes())
+            self.count += 1
+            self._dirty = True
+
+    def append_frame(self, frame) -> None:
+        """Append a :class:`~gtsjax.io.serial.LinkFrame` (its ``ranges_m``, ``intensities``, ``stamp``)."""
+        self.append(frame.ranges_m, frame.stamp, frame.intensities)
+
+    def sync(self) -> None:
+        """Force the journal to disk now."""
+        with self._lock:
+            if not self._closed and self._dirty:
+                os.fsync(self._fd)
+                self._dirty = False
+
+    def _sync_loop(self) -> None:
+        while not self._stop.wait(self.sync_interval):
+            try:
+                self.sync()
+            except OSError:
+                pass
+
+    def close(self, keep_journal: bool = False) -> ScanLog | None:
+        """Finish: write the scan log to :attr:`path` (atomically), remove the journal, return the log.
+
+        With no scan recorded there is nothing to write (a scan log needs at least one scan): the
+        journal is removed and ``None`` returned.
+        """
+        if self._closed:
+            return None
+        self._stop.set()
+        self._syncer.join(timeout=2.0)
+        with self._lock:
+            os.fsync(self._fd)
+            os.close(self._fd)
+            self._closed = True
+        if self.count == 0:
+            if not keep_journal:
+                self.journal.unlink(missing_ok=True)
+            return None
+        log, _ = read_journal(self.journal)
+        save_log(log, self.path)
+        if not keep_journal:
+            self.journal.unlink(missing_ok=True)
+        return log
+
+    def __enter__(self) -> "Recorder":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def read_journal(path: "str | os.PathLike") -> tuple[ScanLog, dict]:
+    """The scan log held by a journal, and a report: ``records``, ``torn_bytes``, ``bad_crc``."""
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as err:
+        raise InputError(path, f"cannot read the journal ({err.strerror or err})") from None
+    if len(raw) < len(MAGIC) + 4 or raw[: len(MAGIC)] != MAGIC:
+        raise InputError(path, "not a gtsjax recording journal (bad magic)")
+    (hlen,) = struct.unpack_from("<I", raw, len(MAGIC))
+    start = len(MAGIC) + 4 + hlen
+    try:
+        header = json.loads(raw[len(MAGIC) + 4 : start].decode())
+        n_beams = int(header["n_beams"])
+        has_inten = bool(header["intensities"])
+    except (ValueError, KeyError, TypeError, UnicodeDecodeError):
+        raise InputError(path, "journal header is damaged") from None
+    dtype = _record_dtype(n_beams, has_inten)
+    body = raw[start:]
+    n = len(body) // dtype.itemsize
+    torn = len(body) - n * dtype.itemsize
+    recs = np.frombuffer(body, dtype=dtype, count=n)
+    as_bytes = np.frombuffer(body, dtype=np.uint8, count=n * dtype.itemsize).reshape(n, dtype.itemsize)
+    crc_ok = np.array([zlib.crc32(row[:-4].tobytes()) == c for row, c in zip(as_bytes, recs["crc"], strict=True)], bool)
+    good = recs[crc_ok] if n else recs
+    report = {"records": int(np.count_nonzero(crc_ok)), "torn_bytes": int(torn), "bad_crc": int(n - crc_ok.sum())}
+    if good.shape[0] == 0:
+        raise InputError(path, "the journal holds no complete scan")
+    stamps = np.maximum.accumulate(good["stamp"].astype(np.float64))
+    log = ScanLog(
+        ranges=np.ascontiguousarray(good["ranges"], dtype=np.float32),
+        stamps=stamps,
+        angle_min=float(header["angle_min"]),
+        angle_increment=float(header["angle_increment"]),
+        intensities=np.ascontiguousarray(good["intensities"], dtype=np.float32) if has_inten else None,
+        range_min=float(header.get("range_min", DEFAULT_RANGE_MIN)),
+        range_max=float(header.get("range_max", DEFAULT_RANGE_MAX)),
+        sensor_model=header.get("sensor_model"),
+    )
+    return log, report
+
+
+def recover(journal: "str | os.PathLike", out_path: "str | os.PathLike | None" = None) -> ScanLog:
+    """Turn a journal (possibly with a torn last record) into a valid scan log at ``out_path``.
+
+    ``out_path`` defaults to the journal's name without ``.journal``. The journal is left in place.
+    """
+    log, _ = _recover(journal, out_path)
+    return log
+
+
+def _recover(journal: "str | os.PathLike", out_path: "str | os.PathLike | None") -> tuple[ScanLog, dict]:
+    journal = Path(journal)
+    if out_path is None:
+        if not journal.name.endswith(JOURNAL_SUFFIX):
+            raise InputError(journal, f"name does not end in {JOURNAL_SUFFIX}; give the output path")
+        out_path = journal.with_name(journal.name[: -len(JOURNAL_SUFFIX)])
+    log, report = read_journal(journal)
+    save_log(log, out_path)
+    report["out"] = str(out_path)
+    return log, report
+
+
+def _fsync_dir(path: Path) -> None:
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m gtsjax.io.record JOURNAL [OUT.npz]``: recover a recording; exit 0, or 2 on bad input."""
+    args = sys.argv[1:] if argv is None else argv
+    if len(args) not in (1, 2) or args[0] in ("-h", "--help"):
+        print("usage: python -m gtsjax.io.record RAW.npz.journal [OUT.npz]", file=sys.stderr)
+        return 2
+    t0 = time.monotonic()
+    try:
+        log, report = _recover(args[0], args[1] if len(args) == 2 else None)
+    except InputError as err:
+        print(f"gtsjax: {err}", file=sys.stderr)
+        return 2
+    print(
+        f"recovered {log.n_scans} scans to {report['out']} ({report['torn_bytes']} torn bytes cut, "
+        f"{report['bad_crc']} damaged records skipped) in {time.monotonic() - t0:.2f} s"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

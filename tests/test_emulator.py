@@ -1,0 +1,262 @@
+"""The pty sensor emulator, spoken to through a real pseudo-terminal with real pyserial, and checked
+with the strict codec: each reply must parse exactly as a real scanner's would."""
+
+import time
+
+import numpy as np
+import pytest
+import serial
+
+from gtsjax.io import scip
+from gtsjax.io.logs import ScanLog
+from gtsjax.sensors import URG_04LX, UTM_30LX
+from gtsjax.sim.emulator import Faults, SensorEmulator, log_source
+
+
+def _source(model):
+    """Scan i: beam b at 500 + (7 b + 13 i) % 3000 mm, every 50th beam no return; beam 0 holds i."""
+    b = np.arange(model.n_beams)
+
+    def source(i):
+        r = 500 + (7 * b + 13 * i) % 3000
+        r = np.where(b % 50 == 49, 0, r)
+        r[0] = 1000 + i % 1000
+        inten = (b * 3 + i) % 4000 if model.has_intensity else None
+        return r, inten
+
+    return source
+
+
+class Client:
+    """A bare SCIP client: write a command, read until enough replies came (or a deadline)."""
+
+    def __init__(self, path):
+        self.ser = serial.serial_for_url(path, baudrate=115200, timeout=0.02)
+        self.dec = scip.StreamDecoder()
+        self.raw = bytearray()
+
+    def read_replies(self, n, timeout=2.0):
+        out = []
+        deadline = time.monotonic() + timeout
+        while len(out) < n and time.monotonic() < deadline:
+            chunk = self.ser.read(self.ser.in_waiting or 1)
+            if chunk:
+                self.raw += chunk
+                out += self.dec.feed(chunk)
+        return out
+
+    def ask(self, command: bytes, n=1, timeout=2.0):
+        self.ser.write(command)
+        return self.read_replies(n, timeout)
+
+    def close(self):
+        self.ser.close()
+
+
+@pytest.fixture
+def urg():
+    with SensorEmulator(URG_04LX, _source(URG_04LX)) as emu:
+        client = Client(emu.path)
+        yield emu, client
+        client.close()
+
+
+def test_handshake_replies_parse_as_the_codec_expects(urg):
+    emu, c = urg
+    c.ser.write(b"\n")
+    time.sleep(0.1)
+    assert c.ser.read(c.ser.in_waiting or 1) == b"\n"  # an empty line is answered with an empty line
+    (r,) = c.ask(scip.scip2_command())
+    assert (r.command, r.status) == ("SCIP2.0", "00")
+    (vv,) = c.ask(scip.vv_command())
+    assert vv.ok and set(vv.fields) == {"VEND", "PROD", "FIRM", "PROT", "SERI"}
+    assert vv.fields["PROT"] == "SCIP 2.0" and URG_04LX.name in vv.fields["PROD"]
+    (pp,) = c.ask(scip.pp_command())
+    assert scip.sensor_model_from_pp(pp) == URG_04LX
+    assert set(pp.fields) == {"MODL", "DMIN", "DMAX", "ARES", "AMIN", "AMAX", "AFRT", "SCAN"}
+    (ii,) = c.ask(scip.ii_command())
+    assert ii.fields["LASR"] == "OFF" and ii.fields["MODL"] == URG_04LX.name
+    for cmd in (scip.qt_command(), scip.rs_command()):
+        (r,) = c.ask(cmd)
+        assert r.status == "00" and r.ok
+    (r,) = c.ask(scip.pp_command(string="tag"))
+    assert r.command == "PP;tag" and r.ok  # the optional string is echoed back
+    assert emu.commands[:2] == ["", "SCIP2.0"]
+
+
+def test_one_shot_needs_the_laser_and_reports_errors_like_the_urg(urg):
+    emu, c = urg
+    (r,) = c.ask(scip.gd_command(44, 725))
+    assert r.status == "10"  # laser off
+    (r,) = c.ask(scip.bm_command())
+    assert r.status == "00"
+    (r,) = c.ask(scip.bm_command())
+    assert r.status == "02"  # already on, as the real URG-04LX-UG01 capture shows
+    (f,) = c.ask(scip.gd_command(44, 725))
+    assert isinstance(f, scip.ScanFrame) and f.status == "00" and f.n_values == URG_04LX.n_beams
+    (r,) = c.ask(scip.ge_command(44, 725))
+    assert r.status == "0E"  # no intensity on a URG-04LX
+    (r,) = c.ask(scip.md_command(44, 800))
+    assert r.status == "04"
+    assert c.dec.stats.dropped == 0 and c.dec.stats.garbage_bytes == 0
+    c.raw.clear()
+    assert c.ask(b"XY\n", timeout=0.3) == []  # not a command the codec knows, so garbage to it
+    assert bytes(c.raw) == b"XY\n0Ee\n\n"  # echo and status 0E: undefined command
+
+
+def test_md_streams_at_the_model_rate_with_remaining_counts(urg):
+    emu, c = urg
+    t0 = time.monotonic()
+    replies = c.ask(scip.md_command(44, 725, count=5), n=6, timeout=3.0)
+    elapsed = time.monotonic() - t0
+    ack, *frames = replies
+    assert (ack.command, ack.status) == ("MD0044072501005", "00")
+    assert [f.remaining_scans for f in frames] == [4, 3, 2, 1, 0]
+    assert all(f.status == "99" for f in frames)
+    stamps = np.array([f.timestamp_ms for f in frames])
+    assert np.all(np.abs(np.diff(stamps) - 100) <= 1)  # 10 Hz, from the sensor's clock
+    assert 0.35 < elapsed < 1.0
+    source = _source(URG_04LX)
+    for f in frames:
+        i = int(f.ranges_mm[0]) - 1000
+        np.testing.assert_array_equal(f.ranges_mm, source(i)[0])
+    assert c.read_replies(1, timeout=0.3) == []  # a finite count ends the stream
+    assert emu.frames_sent == 5
+
+
+def test_me_carries_intensities_and_clusters_steps():
+    model = UTM_30LX
+    src = _source(model)
+    with SensorEmulator(model, src) as emu:
+        c = Client(emu.path)
+        ack, f1, f2 = c.ask(scip.me_command(0, 1080, count=2), n=3)
+        assert ack.status == "00" and f1.remaining_scans == 1 and f2.remaining_scans == 0
+        assert abs((f2.timestamp_ms - f1.timestamp_ms) - 25) <= 1  # 40 Hz
+        r, inten = src(int(f1.ranges_mm[0]) - 1000)
+        np.testing.assert_array_equal(f1.ranges_mm, r)
+        np.testing.assert_array_equal(f1.intensities, inten)
+        # A sub-range, clustered by 3: the nearest non-zero return of each group, as a loop computes it.
+        ack, f = c.ask(scip.md_command(100, 210, cluster=3, count=1), n=2)
+        r, _ = src(int(f.timestamp_ms / model.period / 1000 + 0.5))
+        steps = list(range(100, 211))
+        expected = []
+        for k in range(0, len(steps), 3):
+            group = [int(r[s - model.amin]) for s in steps[k : k + 3]]
+            nonzero = [v for v in group if v > 0]
+            expected.append(min(nonzero) if nonzero else 0)
+        assert f.n_values == 37
+        np.testing.assert_array_equal(f.raw_ranges, expected)
+        c.close()
+
+
+def test_scan_log_replays_in_a_loop_in_millimetres():
+    n = URG_04LX.n_beams
+    ranges = np.full((3, n), 1.5, np.float32)
+    ranges[:, 10] = 0.0  # no return
+    ranges[1] = 2.25
+    ranges[2, 5] = np.nan
+    log = ScanLog(
+        ranges=ranges, stamps=np.arange(3.0), angle_min=URG_04LX.angle_min, angle_increment=URG_04LX.angle_increment
+    )
+    src = log_source(log)
+    assert src(0)[0][0] == 1500 and src(0)[0][10] == 0 and src(4)[0][0] == 2250 and src(2)[0][5] == 0
+    with SensorEmulator(URG_04LX, log) as emu:
+        c = Client(emu.path)
+        ack, *frames = c.ask(scip.md_command(44, 725, count=3), n=4)
+        assert sorted(int(f.ranges_mm[0]) for f in frames) == [1500, 1500, 2250]
+        c.close()
+
+
+def test_checksum_faults_are_seeded_and_caught_by_the_decoder():
+    faults = Faults(checksum_p=0.5, seed=3)
+    counts = []
+    for _ in range(2):
+        with SensorEmulator(URG_04LX, _source(URG_04LX), faults=faults) as emu:
+            c = Client(emu.path)
+            frames = [r for r in c.ask(scip.md_command(44, 725, count=8)) if isinstance(r, scip.ScanFrame)]
+            deadline = time.monotonic() + 3.0
+            while len(frames) + c.dec.stats.checksum_errors < 8 and time.monotonic() < deadline:
+                frames += [r for r in c.read_replies(1, timeout=0.1) if isinstance(r, scip.ScanFrame)]
+            assert len(frames) + c.dec.stats.checksum_errors == 8 == emu.frames_sent
+            assert c.dec.stats.checksum_errors == emu.faults.checksum > 0
+            counts.append(emu.faults.checksum)
+            c.close()
+    assert counts[0] == counts[1]
+
+
+def test_disconnect_hangs_up_the_client_and_replugs_under_the_same_path(urg):
+    emu, c = urg
+    old = emu.pty_name
+    c.ask(scip.md_command(44, 725), n=2)
+    emu.inject_disconnect(reopen_after_s=0.2)
+    with pytest.raises((serial.SerialException, OSError)):  # in_waiting's ioctl raises a bare EIO
+        deadline = time.monotonic() + 2.0
+        while time.monotonic() < deadline:
+            c.ser.read(c.ser.in_waiting or 1)
+    c.close()
+    assert emu.faults.disconnects == 1
+    deadline = time.monotonic() + 2.0
+    while not emu.connected and time.monotonic() < deadline:
+        time.sleep(0.02)
+    c2 = Client(emu.path)
+    (pp,) = c2.ask(scip.pp_command())
+    assert scip.sensor_model_from_pp(pp) == URG_04LX
+    assert emu.pty_name != old or emu.connected
+    (ii,) = c2.ask(scip.ii_command())
+    assert ii.fields["LASR"] == "OFF"  # powered up afresh
+    c2.close()
+
+
+def test_stall_sends_nothing_for_its_duration(urg):
+    emu, c = urg
+    c.ask(scip.md_command(44, 725), n=2)
+    emu.inject_stall(0.5)
+    deadline = time.monotonic() + 1.0
+    while emu.faults.stalls == 0 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    c.ser.reset_input_buffer()
+    c.dec = scip.StreamDecoder()
+    assert c.read_replies(1, timeout=0.3) == []
+    assert len(c.read_replies(2, timeout=1.0)) >= 2  # and then the stream resumes
+    assert emu.faults.stalls == 1
+
+
+def test_serve_prints_the_path_and_serves_a_saved_log_until_stopped(tmp_path):
+    import threading
+
+    from gtsjax.io.logs import save_log
+    from gtsjax.sim.emulator import serve
+
+    n = UTM_30LX.n_beams
+    log = ScanLog(
+        ranges=np.full((2, n), 3.0, np.float32),
+        stamps=np.array([0.0, 0.025]),
+        angle_min=UTM_30LX.angle_min,
+        angle_increment=UTM_30LX.angle_increment,
+        sensor_model="UTM-30LX",
+    )
+    save_log(log, tmp_path / "scene.npz")
+    lines, stop = [], threading.Event()
+    t = threading.Thread(
+        target=serve,
+        args=(str(tmp_path / "scene.npz"), None, Faults()),
+        kwargs={"print_fn": lines.append, "stop": stop, "link_dir": tmp_path},
+        daemon=True,
+    )
+    t.start()
+    try:
+        deadline = time.monotonic() + 3.0
+        while not lines and time.monotonic() < deadline:
+            time.sleep(0.02)
+        path = str(tmp_path / "ttyEMU0")
+        assert lines and path in lines[0]
+        c = Client(path)
+        (pp,) = c.ask(scip.pp_command())
+        assert scip.sensor_model_from_pp(pp) == UTM_30LX
+        ack, f = c.ask(scip.md_command(0, 1080, count=1), n=2)
+        assert np.all(f.ranges_mm == 3000)
+        c.close()
+    finally:
+        stop.set()
+        t.join(timeout=3.0)
+    assert not t.is_alive()

@@ -1,0 +1,192 @@
+"""Crash-safe recording: the clean-close round trip, a child killed with SIGKILL and recovered, torn
+and damaged journals, and the one-line recovery command."""
+
+import os
+import select
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import numpy as np
+import pytest
+
+from gtsjax.errors import InputError
+from gtsjax.io.logs import load_log
+from gtsjax.io.record import Recorder, journal_path, main, read_journal, recover
+from gtsjax.sensors import URG_04LX, UTM_30LX
+
+
+def _scan(k, n):
+    r = ((np.arange(n) * 7 + k * 13) % 3000 / 500.0 + 0.1).astype(np.float32)
+    r[k % 50 :: 50] = 0.0
+    return r
+
+
+def test_clean_close_writes_a_log_that_round_trips_exactly(tmp_path):
+    out = tmp_path / "raw.npz"
+    rng = np.random.default_rng(0)
+    n = UTM_30LX.n_beams
+    ranges = rng.uniform(0.1, 30.0, (25, n)).astype(np.float32)
+    ranges[rng.random((25, n)) < 0.1] = 0.0
+    inten = rng.uniform(0, 5000, (25, n)).astype(np.float32)
+    stamps = 1.7e9 + np.cumsum(rng.uniform(0.02, 0.03, 25))
+    with Recorder(out, UTM_30LX, intensities=True) as rec:
+        assert rec.journal == journal_path(out) and rec.journal.exists()
+        for k in range(25):
+            rec.append(ranges[k], stamps[k], inten[k])
+    assert out.exists() and not rec.journal.exists()
+    log = load_log(out)
+    np.testing.assert_array_equal(log.ranges, ranges)
+    np.testing.assert_array_equal(log.intensities, inten)
+    np.testing.assert_array_equal(log.stamps, stamps)
+    assert log.ranges.dtype == np.float32 and log.stamps.dtype == np.float64
+    assert log.angle_min == UTM_30LX.angle_min and log.angle_increment == UTM_30LX.angle_increment
+    assert (log.range_min, log.range_max) == (UTM_30LX.range_min, UTM_30LX.range_max)
+    assert log.sensor_model == "UTM-30LX"
+
+
+def test_geometry_without_a_model_and_clamped_stamps(tmp_path):
+    out = tmp_path / "raw.npz"
+    rec = Recorder(out, n_beams=5, angle_min=-1.0, angle_increment=0.5, sensor_model="custom")
+    rec.append(np.ones(5), 10.0)
+    rec.append(np.ones(5), 9.5)  # a clock step back after a reconnect
+    rec.append(np.ones(5), 11.0)
+    log = rec.close()
+    assert rec.clamped == 1
+    np.testing.assert_array_equal(load_log(out).stamps, [10.0, 10.0, 11.0])
+    assert log.intensities is None and log.range_max == 30.0
+    with pytest.raises(InputError):
+        Recorder(tmp_path / "x.npz")  # no geometry
+
+
+def test_empty_recording_writes_nothing_and_an_old_journal_is_never_clobbered(tmp_path):
+    out = tmp_path / "raw.npz"
+    assert Recorder(out, URG_04LX).close() is None
+    assert not out.exists() and not journal_path(out).exists()
+    rec = Recorder(out, URG_04LX)
+    rec.append(np.ones(URG_04LX.n_beams), 1.0)
+    with pytest.raises(InputError, match="recover it first"):
+        Recorder(out, URG_04LX)
+    rec.close()
+
+
+CHILD = textwrap.dedent(
+    """
+    import sys, time
+    import numpy as np
+    from gtsjax.io.record import Recorder
+    from gtsjax.sensors import UTM_30LX
+    n = UTM_30LX.n_beams
+    rec = Recorder(sys.argv[1], UTM_30LX, intensities=True)
+    k = 0
+    while True:
+        r = ((np.arange(n) * 7 + k * 13) % 3000 / 500.0 + 0.1).astype(np.float32)
+        r[k % 50 :: 50] = 0.0
+        rec.append(r, 1000.0 + 0.025 * k, np.full(n, k, np.float32))
+        print(k, flush=True)
+        k += 1
+        time.sleep(0.025)
+    """
+)
+
+
+def test_sigkill_loses_at_most_the_last_second(tmp_path):
+    out = tmp_path / "raw.npz"
+    proc = subprocess.Popen([sys.executable, "-c", CHILD, str(out)], stdout=subprocess.PIPE, text=True, bufsize=1)
+    last = -1
+    deadline = time.monotonic() + 20.0
+    try:
+        while last < 40 and time.monotonic() < deadline:  # about a second of scans at 40 Hz
+            ready, _, _ = select.select([proc.stdout], [], [], 0.5)
+            if ready:
+                line = proc.stdout.readline()
+                if not line:
+                    break
+                last = int(line)
+    finally:
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=5)
+        proc.stdout.close()
+    assert last >= 40, "the recording child did not get going"
+    assert proc.returncode == -signal.SIGKILL and not out.exists()
+    log = recover(journal_path(out))  # the one documented command, as a function
+    assert log is not None and out.exists()
+    n_scans = load_log(out).n_scans
+    assert last + 1 - 40 <= n_scans <= last + 2  # at most 1 s (40 scans) lost; in fact none is
+    for k in range(n_scans):
+        np.testing.assert_array_equal(log.ranges[k], _scan(k, UTM_30LX.n_beams))
+        assert log.intensities[k, 0] == k and log.stamps[k] == 1000.0 + 0.025 * k
+
+
+def _journal_with(tmp_path, n_scans):
+    out = tmp_path / "raw.npz"
+    rec = Recorder(out, URG_04LX)
+    for k in range(n_scans):
+        rec.append(_scan(k, URG_04LX.n_beams), float(k))
+    rec.sync()
+    return out, rec
+
+
+def test_recover_cuts_a_torn_record_and_skips_a_damaged_one(tmp_path):
+    out, rec = _journal_with(tmp_path, 6)
+    j = rec.journal
+    size = j.stat().st_size
+    rec_size = 8 + 4 * URG_04LX.n_beams + 4
+    with open(j, "ab") as f:
+        f.write(b"\x01" * (rec_size // 2))  # the process died inside a write
+    log, report = read_journal(j)
+    assert log.n_scans == 6 and report["torn_bytes"] == rec_size // 2 and report["bad_crc"] == 0
+    with open(j, "r+b") as f:  # flip a byte inside record 2
+        f.seek(size - 4 * rec_size + 100)
+        b = f.read(1)
+        f.seek(-1, os.SEEK_CUR)
+        f.write(bytes([b[0] ^ 0xFF]))
+    log, report = read_journal(j)
+    assert report["bad_crc"] == 1 and log.n_scans == 5
+    np.testing.assert_array_equal(log.stamps, [0, 1, 3, 4, 5])
+    rec.close()
+
+
+def test_recovery_command_line(tmp_path, capsys):
+    out, rec = _journal_with(tmp_path, 3)
+    rec._closed = True  # as if killed: the journal stays, no log
+    rec._stop.set()
+    os.close(rec._fd)
+    target = tmp_path / "recovered.npz"
+    cmd = [sys.executable, "-m", "gtsjax.io.record", str(rec.journal), str(target)]
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert "recovered 3 scans" in done.stdout
+    assert load_log(target).n_scans == 3
+    # The same entry point in-process: default output is the journal's name without .journal.
+    assert main([str(rec.journal)]) == 0 and load_log(out).n_scans == 3
+    bad = tmp_path / "bad.journal"
+    bad.write_bytes(b"not a journal")
+    capsys.readouterr()
+    assert main([str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "bad.journal" in err and "Traceback" not in err
+    assert main([]) == 2
+
+
+def test_records_a_live_link(tmp_path):
+    from gtsjax.io.serial import Link
+    from gtsjax.sim.emulator import SensorEmulator
+
+    out = tmp_path / "live.npz"
+    with SensorEmulator(UTM_30LX) as emu, Link(emu.path, intensity=True) as link:
+        rec = Recorder(out, link.model, intensities=True)
+        frames = []
+        deadline = time.monotonic() + 0.5
+        while time.monotonic() < deadline:
+            f = link.get(timeout=0.1)
+            if f is not None:
+                rec.append_frame(f)
+                frames.append(f)
+        rec.close()
+    log = load_log(out)
+    assert log.n_scans == len(frames) >= 10
+    np.testing.assert_array_equal(log.ranges[-1], frames[-1].ranges_m)
+    np.testing.assert_array_equal(log.stamps, [f.stamp for f in frames])

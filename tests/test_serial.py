@@ -1,0 +1,268 @@
+"""The serial link end to end against the pty emulator (real pyserial, no mocks), and ClockSync
+against a synthetic clock. Every wait is bounded by a deadline."""
+
+import os
+import time
+import tty
+
+import numpy as np
+import pytest
+
+from gtsjax.io import scip
+from gtsjax.io.serial import ClockSync, Link, LinkError
+from gtsjax.sensors import URG_04LX, UTM_30LX
+from gtsjax.sim.emulator import Faults, SensorEmulator
+
+
+def _source(model):
+    """Scan i: beam b at 500 + (7 b + 13 i) % 3000 mm, every 50th beam no return; beam 0 holds i."""
+    b = np.arange(model.n_beams)
+
+    def source(i):
+        r = 500 + (7 * b + 13 * i) % 3000
+        r = np.where(b % 50 == 49, 0, r)
+        r[0] = 1000 + i % 1000
+        inten = (b * 3 + i) % 4000 if model.has_intensity else None
+        return r, inten
+
+    return source
+
+
+def collect(link, seconds, max_frames=10_000):
+    out = []
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline and len(out) < max_frames:
+        f = link.get(timeout=max(0.0, min(0.1, deadline - time.monotonic())))
+        if f is not None:
+            out.append(f)
+    return out
+
+
+def check_frames(frames, model):
+    """Every delivered frame must be exactly what the source gave for its scan: no damage slips through."""
+    src = _source(model)
+    for f in frames:
+        i = int(f.frame.ranges_mm[0]) - 1000
+        r, inten = src(i)
+        np.testing.assert_array_equal(f.frame.ranges_mm, r)
+        if f.frame.intensities is not None:
+            np.testing.assert_array_equal(f.frame.intensities, inten)
+        np.testing.assert_allclose(f.ranges_m, r / 1000.0, rtol=1e-6)
+
+
+def assert_sensor_spacing(stamps, period):
+    """Stamps follow the sensor clock (ms resolution), not arrival jitter. The offset estimate only
+    moves down while it converges (a quicker frame came through), so a gap can only shrink, never grow."""
+    d = np.diff(np.asarray(stamps))
+    assert np.all(d <= period + 0.0011)
+    assert np.median(np.abs(d - period)) <= 0.0011
+
+
+def wait_until(cond, timeout):
+    deadline = time.monotonic() + timeout
+    while not cond() and time.monotonic() < deadline:
+        time.sleep(0.02)
+    return cond()
+
+
+def test_link_streams_urg04lx_at_10hz_with_correct_ranges_and_stamps():
+    with SensorEmulator(URG_04LX, _source(URG_04LX)) as emu, Link(emu.path) as link:
+        assert link.model == URG_04LX
+        assert link.version["PROT"] == "SCIP 2.0"
+        assert link.command == scip.md_command(44, 725)
+        frames = collect(link, 1.05)
+        assert 9 <= len(frames) <= 12
+        check_frames(frames, URG_04LX)
+        idx = [int(f.frame.ranges_mm[0]) for f in frames]
+        assert np.all(np.diff(idx) == 1)  # nothing lost
+        stamps = np.array([f.stamp for f in frames])
+        assert_sensor_spacing(stamps, 0.1)
+        recv = np.array([f.recv_time for f in frames])
+        assert np.all(recv - stamps >= -1e-9) and np.median(recv - stamps) < 0.05
+        # Latency from the emulator handing a block to the pty to the frame being in our hands.
+        sent = dict(emu.sent_log)
+        lat = [f.recv_perf - sent[f.frame.timestamp_ms] for f in frames if f.frame.timestamp_ms in sent]
+        assert len(lat) >= 9 and np.median(lat) < 0.05
+        s = link.stats
+        assert s.frames == len(frames) and s.dropped == s.bad_frames == s.reconnects == s.timeouts == 0
+    assert emu.commands[:5] == ["QT", "SCIP2.0", "VV", "PP", "MD0044072501000"]
+
+
+def test_stop_sends_qt_and_the_sensor_stops_streaming():
+    with SensorEmulator(URG_04LX, _source(URG_04LX)) as emu:
+        link = Link(emu.path).start()
+        assert link.get(timeout=1.0) is not None
+        link.stop()
+        assert wait_until(lambda: emu.commands[-1] == "QT" and emu._stream is None, 1.0)
+        assert link._thread is None and link._ser is None
+
+
+def test_me_with_intensity_on_utm30lx_at_40hz():
+    with SensorEmulator(UTM_30LX, _source(UTM_30LX)) as emu, Link(emu.path, intensity=True) as link:
+        assert link.command == scip.me_command(0, 1080)
+        frames = collect(link, 0.55)
+        assert 15 <= len(frames) <= 24
+        check_frames(frames, UTM_30LX)
+        assert frames[0].intensities is not None and frames[0].intensities.dtype == np.float32
+        assert_sensor_spacing([f.stamp for f in frames], 0.025)
+
+
+def test_checksum_errors_are_dropped_counted_and_never_delivered():
+    faults = Faults(checksum_p=0.3, seed=1)
+    with SensorEmulator(UTM_30LX, _source(UTM_30LX), faults=faults) as emu, Link(emu.path) as link:
+        frames = collect(link, 0.8)
+        link_stats = link.stats
+        check_frames(frames, UTM_30LX)
+        assert emu.faults.checksum > 0
+        assert link_stats.checksum_errors > 0 and abs(link_stats.checksum_errors - emu.faults.checksum) <= 1
+        assert link_stats.reconnects == 0 and len(frames) >= 15
+
+
+def test_dropped_bytes_resynchronise_and_frames_keep_flowing():
+    faults = Faults(drop_p=0.3, seed=2)
+    with SensorEmulator(UTM_30LX, _source(UTM_30LX), faults=faults) as emu, Link(emu.path) as link:
+        frames = collect(link, 0.8)
+        s = link.stats
+        check_frames(frames, UTM_30LX)  # a damaged block is never handed on
+        assert emu.faults.dropped > 0
+        assert s.bad_frames + (s.garbage_bytes > 0) > 0
+        assert len(frames) >= emu.frames_sent - emu.faults.dropped - 3
+        assert s.reconnects == 0
+
+
+def test_stall_longer_than_the_timeout_reconnects_and_frames_resume():
+    with (
+        SensorEmulator(URG_04LX, _source(URG_04LX)) as emu,
+        Link(emu.path, timeout_periods=3, reply_timeout_s=0.3, backoff_s=0.05) as link,
+    ):
+        assert len(collect(link, 0.3)) >= 2
+        emu.inject_stall(0.8)
+        assert wait_until(lambda: link.stats.timeouts >= 1, 1.0)
+        assert wait_until(lambda: link.stats.reconnects >= 1, 3.0)
+        after = collect(link, 0.5)
+        assert len(after) >= 3
+        check_frames(after, URG_04LX)
+        assert emu.faults.stalls == 1
+
+
+def test_short_stall_is_ridden_out_without_reconnecting():
+    with SensorEmulator(URG_04LX, _source(URG_04LX)) as emu, Link(emu.path, timeout_periods=10) as link:
+        assert link.get(timeout=1.0) is not None
+        emu.inject_stall(0.3)
+        time.sleep(0.35)
+        assert len(collect(link, 0.4)) >= 2
+        assert link.stats.timeouts == link.stats.reconnects == 0
+
+
+def test_disconnect_reconnects_with_backoff_and_frames_resume():
+    with (
+        SensorEmulator(UTM_30LX, _source(UTM_30LX)) as emu,
+        Link(emu.path, reply_timeout_s=0.3, backoff_s=0.05, backoff_max_s=0.2) as link,
+    ):
+        assert len(collect(link, 0.2)) >= 3
+        emu.inject_disconnect(reopen_after_s=0.4)
+        assert wait_until(lambda: link.stats.io_errors >= 1, 1.0)
+        assert wait_until(lambda: link.stats.reconnects >= 1, 3.0)
+        after = collect(link, 0.3)
+        assert len(after) >= 5
+        check_frames(after, UTM_30LX)
+        assert emu.faults.disconnects == 1 and link.model == UTM_30LX
+
+
+def test_random_faults_all_at_once_are_survived():
+    faults = Faults(
+        checksum_p=0.1, drop_p=0.1, stall_p=0.02, stall_s=0.4, disconnect_p=0.02, reopen_after_s=0.2, seed=7
+    )
+    with (
+        SensorEmulator(UTM_30LX, _source(UTM_30LX), faults=faults) as emu,
+        Link(emu.path, timeout_periods=8, reply_timeout_s=0.3, backoff_s=0.05, backoff_max_s=0.2) as link,
+    ):
+        frames = collect(link, 2.5)
+        check_frames(frames, UTM_30LX)
+        assert emu.faults.total > 0 and len(frames) > 20
+        s = link.stats
+        assert s.frames == len(frames) + link.queue.qsize()
+        assert s.reconnects >= emu.faults.disconnects - 1
+
+
+def test_full_queue_drops_the_oldest_frames():
+    with SensorEmulator(UTM_30LX, _source(UTM_30LX)) as emu, Link(emu.path, queue_size=4) as link:
+        time.sleep(0.6)  # the consumer is busy: ~24 frames arrive, only the newest 4 are kept
+        kept = [link.get(timeout=0.01) for _ in range(4)]
+        s = link.stats
+        assert all(f is not None for f in kept)
+        seqs = [f.seq for f in kept]
+        assert seqs == list(range(seqs[0], seqs[0] + 4))
+        assert s.dropped >= 15 and s.frames - s.dropped <= 4 + link.queue.maxsize
+        fresh = link.get(timeout=0.2)
+        assert fresh is not None and fresh.seq > seqs[-1]
+
+
+def test_timestamps_wrapping_past_24_bits_stay_monotonic():
+    offset = scip.TIMESTAMP_MODULUS - 250  # the sensor clock wraps ~0.25 s into the stream
+    with (
+        SensorEmulator(URG_04LX, _source(URG_04LX), timestamp_offset_ms=offset) as emu,
+        Link(emu.path) as link,
+    ):
+        frames = collect(link, 0.8)
+        raw = [f.frame.timestamp_ms for f in frames]
+        assert any(r < 1000 for r in raw) and any(r > offset for r in raw)  # it did wrap
+        assert np.allclose(np.diff([f.sensor_ms for f in frames]), 100, atol=1)
+        assert_sensor_spacing([f.stamp for f in frames], 0.1)
+
+
+def test_start_fails_cleanly_on_a_missing_port_or_a_silent_one(tmp_path):
+    with pytest.raises(LinkError, match="cannot open"):
+        Link(str(tmp_path / "ttyNOPE")).start()
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    try:
+        t0 = time.monotonic()
+        with pytest.raises(LinkError, match="no reply to QT"):
+            Link(os.ttyname(slave), reply_timeout_s=0.2).start()
+        assert time.monotonic() - t0 < 2.0
+    finally:
+        os.close(master)
+        os.close(slave)
+
+
+# ---------------------------------------------------------------------------- ClockSync
+
+
+def _synthetic(n, *, rate=40.0, start_ms, offset, seed):
+    """A sensor at ``rate`` Hz whose ms counter starts at ``start_ms`` (wrapping at 2**24), seen by a
+    host ``offset`` seconds ahead, through a delay of 2 ms plus exponential jitter (mean 4 ms)."""
+    rng = np.random.default_rng(seed)
+    true_ms = start_ms + np.round(np.arange(n) * 1000.0 / rate).astype(np.int64)
+    delay = 0.002 + rng.exponential(0.004, n)
+    host = 1.7e9 + offset + true_ms / 1000.0 + delay
+    raw = true_ms % scip.TIMESTAMP_MODULUS
+    return raw, host, true_ms
+
+
+def test_clock_sync_unwraps_and_removes_jitter():
+    start = scip.TIMESTAMP_MODULUS - 3000  # wraps 3 s in
+    raw, host, true_ms = _synthetic(800, start_ms=start, offset=12.5, seed=0)
+    sync = ClockSync(window=100)
+    stamps = np.array([sync.update(int(r), float(h)) for r, h in zip(raw, host, strict=True)])
+    truth = 1.7e9 + 12.5 + true_ms / 1000.0
+    err = stamps - truth
+    assert np.all(np.diff(stamps) > 0)  # monotonic across the wrap
+    assert raw[200] < raw[100]  # the wrap is in the data
+    # After the window fills the error is the minimum delay (2 ms) plus the window's smallest jitter.
+    assert np.all(err[100:] >= 0.002 - 1e-9) and np.all(err[100:] < 0.0025)
+    # Host arrival times scatter by ~4 ms; the mapped stamps keep the sensor's 25 ms spacing.
+    assert np.std(np.diff(host)) > 0.003 and np.std(np.diff(stamps[100:])) < 0.0005
+    assert sync._unwrap.wraps == 1
+
+
+def test_clock_sync_matches_a_sliding_minimum_loop():
+    raw, host, _ = _synthetic(300, start_ms=5000, offset=-3.0, seed=1)
+    sync = ClockSync(window=20)
+    got = [sync.update(int(r), float(h)) for r, h in zip(raw, host, strict=True)]
+    s = raw / 1000.0
+    d = host - s
+    for k in (0, 5, 19, 20, 150, 299):
+        assert got[k] == pytest.approx(s[k] + min(d[max(0, k - 19) : k + 1]), abs=1e-9)
+    sync.reset()
+    assert sync.offset is None
