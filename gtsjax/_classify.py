@@ -17,6 +17,21 @@ from ._gp import GP, SparseGP
 BACKGROUND = 0
 
 
+def gp_inputs(
+    vector: Float[Array, "*cands features"], origin: Float[Array, "*cands 2"], height: Float[Array, "*cands"]
+) -> Float[Array, "*cands inputs"]:
+    """What the GPs of stages d and e see: the characteristic vector (eq. 11–12) plus the candidate's
+    depth (its bounding box along x′) and its range from the sensor.
+
+    The paper's vector is scale-free along the beam: a flat 0.27 m stretch of wall and a robot's chest
+    seen face on give the same width and distance profile. The depth separates flat from angular
+    shapes, and the range tells the GPs how dense and how noisy the points are (so that the pose
+    regressors can learn how far behind the visible surface the centre lies at each distance).
+    """
+    rng = jnp.sqrt(jnp.sum(origin**2, axis=-1))
+    return jnp.concatenate([vector, height[..., None], rng[..., None]], axis=-1)
+
+
 class Classifier(eqx.Module):
     """One score GP per class (index 0 is background) and a score threshold per class."""
 

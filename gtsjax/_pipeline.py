@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from ._classify import classify
+from ._classify import classify, gp_inputs
 from ._frontend import front_end_unjitted
 from ._maptransform import Transform, poses_to_field, update_transform
 from ._pose import regress, to_sensor_frame
@@ -85,8 +85,9 @@ def perceive(model: Model, scan: Scan) -> Perception:
     """Stages a–e (segmentation … pose regression) of one scan; no state."""
     fe = front_end_unjitted(model.frontend, scan)
     f = fe.features
-    scores, cls, ok = classify(model.classifier, f.vector, fe.keep)
-    rel, var = regress(model.pose, f.vector, cls)
+    x = gp_inputs(f.vector, f.origin, f.height)
+    scores, cls, ok = classify(model.classifier, x, fe.keep)
+    rel, var = regress(model.pose, x, cls)
     pose_s, cov_s = to_sensor_frame(f.origin, f.heading, rel, var)
     d = fe.diagnostics
     return Perception(cls, ok, scores, pose_s, cov_s, d.n_segments, d.n_kept, d.overflow_count, d.too_long_count)

@@ -27,7 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._classify import Classifier, class_scores
+from ._classify import Classifier, class_scores, gp_inputs
 from ._frontend import FrontEndConfig, front_end_log
 from ._gp import fit
 from ._maptransform import Transform, update_transform
@@ -54,6 +54,7 @@ class TrainConfig:
     holdout: float = 0.2  # fraction of one-second blocks held out for evaluation
     label_radius: float = 0.3  # m: a candidate this close to a labelled object is that object
     landmark_radius: float = 0.25  # m: a candidate this close to a site landmark is that landmark
+    bounds_margin: float = 0.5  # m: background examples only this far outside the site's bounds
     threshold: float = 0.5  # winning class score needed to keep a candidate
     map_gate: float = 0.4  # m: landmark association gate of stage f
     map_min_spread: float = 0.3  # m: associated landmarks must spread this much in 2-D
@@ -93,14 +94,16 @@ def class_list(logs: Sequence[ScanLog], site: Site) -> tuple[tuple[str, ...], tu
 
 
 def run_front_end(log: ScanLog, cfg: FrontEndConfig, n_beams: int, chunk: int = 1024):
-    """Stages a–c over a log, chunk by chunk; returns host arrays origin, heading, vector, keep."""
+    """Stages a–c over a log, chunk by chunk; returns host arrays origin, heading, keep and ``vector``,
+    the GP inputs of each candidate (:func:`~gtsjax._classify.gp_inputs`)."""
     outs = {"origin": [], "heading": [], "vector": [], "keep": []}
     for start in range(0, log.n_scans, chunk):
         scans = to_scans(log.slice(start, start + chunk), n_beams)
         fe = front_end_log(cfg, scans)
         outs["origin"].append(np.asarray(fe.features.origin, np.float64))
         outs["heading"].append(np.asarray(fe.features.heading, np.float64))
-        outs["vector"].append(np.asarray(fe.features.vector, np.float64))
+        f = fe.features
+        outs["vector"].append(np.asarray(gp_inputs(f.vector, f.origin, f.height), np.float64))
         outs["keep"].append(np.asarray(fe.keep))
     return {k: np.concatenate(v) for k, v in outs.items()}
 
@@ -183,8 +186,16 @@ def label_log(log: ScanLog, fe: dict, tf: dict, site: Site, classes: tuple[str, 
         target[hit, 2] = th[hit]
         best[hit] = d[hit]
 
-    # A scan whose transform could not be estimated gives no labels worth having.
+    # A scan whose transform could not be estimated gives no labels worth having. With bounds, the
+    # background is what the step could confuse with an object on the field: candidates inside the
+    # bounds (plus a margin), not the walls and furniture around it, which the step drops anyway.
     use = fe["keep"] & ~tf["degraded"][:, None]
+    if site.bounds is not None:
+        x0, y0, x1, y1 = site.bounds
+        mg = cfg.bounds_margin
+        inside = ((origin_o[..., 0] >= x0 - mg) & (origin_o[..., 0] <= x1 + mg)
+                  & (origin_o[..., 1] >= y0 - mg) & (origin_o[..., 1] <= y1 + mg))
+        use &= inside | (cls != 0)
     t_idx, k_idx = np.nonzero(use)
     period = np.median(np.diff(log.stamps)) if log.n_scans > 1 else 0.1
     block = max(1, int(round(1.0 / max(period, 1e-3))))

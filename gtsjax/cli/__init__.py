@@ -6,12 +6,13 @@ import sys
 from ..errors import InputError
 
 # Each import registers its command(s) on ``app``.
+from . import demo as _demo  # noqa: E402,F401
 from . import info as _info  # noqa: E402,F401
 from . import replay as _replay  # noqa: E402,F401
+from . import run as _run  # noqa: E402,F401
+from . import simulate as _simulate  # noqa: E402,F401
 from . import train as _train  # noqa: E402,F401
 from ._app import app
-
-# from . import simulate as _simulate  # noqa: E402,F401  (registered once gtsjax.sim lands)
 
 
 def main(argv: list[str] | None = None) -> int:

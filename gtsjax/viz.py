@@ -1,0 +1,75 @@
+"""Figures (matplotlib, headless): the field with its landmarks and sensor, true and estimated
+trajectories, and error over time."""
+
+import math
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+
+def draw_site(ax, site, sensor_pose=None) -> None:
+    """Bounds, landmarks and the sensor (the site's guess, or ``sensor_pose`` if given)."""
+    if site.bounds is not None:
+        x0, y0, x1, y1 = site.bounds
+        ax.add_patch(plt.Rectangle((x0, y0), x1 - x0, y1 - y0, fill=True, fc="#e8f4e8", ec="#3a7d3a", lw=1.5,
+                                   zorder=0))
+    xy = site.landmark_xy
+    ax.scatter(xy[:, 0], xy[:, 1], marker="o", s=60, c="#222", zorder=3, label="landmarks")
+    sx, sy, sth = site.sensor_pose if sensor_pose is None else sensor_pose
+    ax.scatter([sx], [sy], marker="s", s=80, c="#c33", zorder=4, label="laser")
+    ax.arrow(sx, sy, 0.35 * math.cos(sth), 0.35 * math.sin(sth), width=0.02, color="#c33", zorder=4)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+
+
+def trajectory_figure(site, tracks: dict, truth=None, errors=None, title: str = "", sensor_pose=None):
+    """``tracks``: track id -> array [n, 4] (stamp, x, y, θ); ``truth``: list of arrays [n, 3] (x, y, θ)
+    per labelled object; ``errors``: (t [n], position error [n] m, heading error [n] rad) or None."""
+    rows = 2 if errors is not None else 1
+    fig = plt.figure(figsize=(9, 7.5 if rows == 2 else 5.5), constrained_layout=True)
+    gs = fig.add_gridspec(rows, 1, height_ratios=[3, 1.2][:rows])
+    ax = fig.add_subplot(gs[0])
+    draw_site(ax, site, sensor_pose)
+    for k, tr in enumerate(truth or []):
+        ok = ~np.isnan(tr[:, 0])
+        ax.plot(tr[ok, 0], tr[ok, 1], "-", c="#999", lw=3, alpha=0.6, label="truth" if k == 0 else None)
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for k, (tid, tr) in enumerate(sorted(tracks.items())):
+        c = colours[k % len(colours)]
+        ax.plot(tr[:, 1], tr[:, 2], "-", c=c, lw=1.2, label=f"track {tid}")
+        step = max(1, len(tr) // 25)
+        ax.quiver(tr[::step, 1], tr[::step, 2], np.cos(tr[::step, 3]), np.sin(tr[::step, 3]), color=c, scale=30,
+                  width=0.003)
+    ax.legend(loc="upper right", fontsize=8, ncol=2)
+    ax.set_title(title)
+    if errors is not None:
+        t, e_pos, e_th = errors
+        ax2 = fig.add_subplot(gs[1])
+        ax2.plot(t, 100 * e_pos, c="#1f77b4", lw=1)
+        ax2.set_ylabel("position error [cm]", color="#1f77b4")
+        ax2.set_xlabel("time [s]")
+        ax3 = ax2.twinx()
+        ax3.plot(t, np.degrees(np.abs(e_th)), c="#d62728", lw=1, alpha=0.7)
+        ax3.set_ylabel("|heading error| [°]", color="#d62728")
+        ax2.grid(alpha=0.3)
+    return fig
+
+
+def error_map_figure(site, points, pos_rmse, head_rmse, title: str = ""):
+    """Fig. 6 of the paper: error by place on the field (position and heading RMSE per point)."""
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.8), constrained_layout=True)
+    for ax, vals, label, scale in ((axes[0], pos_rmse, "position RMSE [cm]", 100.0),
+                                   (axes[1], head_rmse, "heading RMSE [°]", 1.0)):
+        draw_site(ax, site)
+        v = np.asarray(vals) * scale
+        sc = ax.scatter(points[:, 0], points[:, 1], c=v, s=250, cmap="viridis", ec="k", zorder=5)
+        for (x, y), val in zip(points, v, strict=True):
+            ax.annotate(f"{val:.1f}", (x, y), textcoords="offset points", xytext=(0, 12), ha="center", fontsize=8)
+        fig.colorbar(sc, ax=ax, label=label, shrink=0.8)
+        ax.set_title(label)
+    fig.suptitle(title)
+    return fig

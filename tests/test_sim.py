@@ -1,0 +1,139 @@
+"""The simulator against hand-computed geometry, and its files against the spec read with numpy+json."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from gtsjax.cli import main
+from gtsjax.sensors import URG_04LX, UTM_30LX
+from gtsjax.sim import SCENARIOS, Effects, Scene, render, simulate
+from gtsjax.sim.scene import Circle, Polygon, box, cast
+
+EXACT = Effects(noise=False, dropout=0.0, grazing_cos=0.0)
+
+
+def expected_circle_ranges(angles, sensor, cx, cy, r):
+    """Closed form, beam by beam: distance from the sensor to a circle along each beam, or inf."""
+    out = []
+    sx, sy, sth = sensor
+    for a in angles:
+        d = np.array([math.cos(sth + a), math.sin(sth + a)])
+        w = np.array([cx - sx, cy - sy])
+        b = d @ w
+        disc = b * b - (w @ w - r * r)
+        out.append(b - math.sqrt(disc) if disc >= 0 and b - math.sqrt(disc) > 0 else math.inf)
+    return np.array(out)
+
+
+def test_circle_ranges_exact_and_with_noise():
+    sensor = np.array([[3.0, 4.0, -math.pi / 2]])
+    scene = Scene(circles=[Circle(2.5, 2.0, 0.05)])
+    r, _, _ = cast(scene, URG_04LX, sensor)
+    exp = expected_circle_ranges(URG_04LX.angles, sensor[0], 2.5, 2.0, 0.05)
+    hit = np.isfinite(exp)
+    assert 5 <= hit.sum() <= 20
+    np.testing.assert_array_equal(np.isfinite(r[0]), hit)
+    np.testing.assert_allclose(r[0][hit], exp[hit], atol=1e-9)
+    # With the URG-04LX noise (1 % at 2 m), 1 mm quantisation, no dropouts: within 4 σ, multiple of 1 mm.
+    rng = np.random.default_rng(0)
+    noisy, inten = render(scene, URG_04LX, np.repeat(sensor, 50, 0), rng=rng,
+                          effects=Effects(dropout=0.0, grazing_cos=0.0))
+    assert inten is None  # the URG-04LX reports no intensity
+    err = noisy[:, hit] - exp[hit]
+    assert np.all(np.abs(err) < 4 * 0.01 * 2.1)
+    assert abs(err.mean()) < 0.005 and 0.01 < err.std() < 0.03
+    np.testing.assert_allclose(noisy * 1000, np.round(noisy * 1000), atol=1e-3)
+    assert np.all(noisy[:, ~hit] == 0)  # nothing else in the scene: no return
+
+
+def test_pitch_stretches_forward_range_by_one_over_cos():
+    wall = Polygon(np.array([[5.0, -3.0], [5.0, 3.0]]), np.array([0.5, 0.5]))
+    scene = Scene(polygons=[wall])
+    sensor = np.array([[0.0, 0.0, 0.0]])
+    front = URG_04LX.afrt - URG_04LX.amin
+    for pitch_deg in (0.0, 2.0, 5.0):
+        tilt = np.array([[0.0, math.radians(pitch_deg)]])
+        r, _, _ = cast(scene, URG_04LX, sensor, tilt)
+        assert r[0, front] == pytest.approx(5.0 / math.cos(math.radians(pitch_deg)), abs=1e-9)
+    # A roll leaves the forward beam alone but stretches the beam at 90°.
+    r, _, _ = cast(Scene(polygons=[Polygon(np.array([[-3.0, 2.0], [3.0, 2.0]]), np.array([0.5, 0.5]))]), URG_04LX,
+                   sensor, np.array([[math.radians(4.0), 0.0]]))
+    left = int(np.argmin(np.abs(URG_04LX.angles - math.pi / 2)))
+    a = URG_04LX.angles[left]
+    assert r[0, left] == pytest.approx(2.0 / (math.cos(math.radians(4.0)) * math.sin(a)), rel=1e-9)
+
+
+def test_hidden_edges_are_not_seen():
+    square = box(1.8, -0.2, 2.2, 0.2)
+    scene = Scene(polygons=[square])
+    sensor = np.array([[0.0, 0.0, 0.0]])
+    r, _, _ = cast(scene, URG_04LX, sensor)
+    hit = np.isfinite(r[0])
+    a = URG_04LX.angles[hit]
+    x, y = r[0, hit] * np.cos(a), r[0, hit] * np.sin(a)
+    # From the origin only the face x = 1.8 is visible; no hit lies on the back face x = 2.2 or
+    # on the side faces beyond the front corner.
+    np.testing.assert_allclose(x, 1.8, atol=1e-9)
+    assert np.all(np.abs(y) <= 0.2 + 1e-9)
+
+
+def test_range_window_and_dropouts():
+    scene = Scene(circles=[Circle(0.015, 0.0, 0.005), Circle(7.0, 0.5, 0.3)])  # too close; beyond 5.6 m
+    ranges, _ = render(scene, URG_04LX, np.zeros((3, 3)), rng=np.random.default_rng(0), effects=EXACT)
+    assert np.all(ranges == 0)
+    wall = Polygon(np.array([[2.0, -50.0], [2.0, 50.0]]), np.array([0.5, 0.5]))
+    ranges, inten = render(Scene(polygons=[wall]), UTM_30LX, np.zeros((200, 3)), rng=np.random.default_rng(1),
+                           effects=Effects(dropout=0.05))
+    front = np.abs(UTM_30LX.angles) < 1.0
+    lost = np.mean(ranges[:, front] == 0)
+    assert 0.04 < lost < 0.06
+    assert inten is not None and np.all(inten[ranges > 0] > 0) and np.all(inten[ranges == 0] == 0)
+
+
+@pytest.mark.parametrize("name", list(SCENARIOS))
+def test_every_scenario_writes_files_per_the_spec(tmp_path, name):
+    log_path, site_path = tmp_path / "log.npz", tmp_path / "site.json"
+    assert main(["simulate", name, "--out", str(log_path), "--site", str(site_path), "--scans", "12",
+                 "--seed", "3"]) == 0
+    # Read with numpy and json only, as another program would.
+    with np.load(log_path, allow_pickle=False) as z:
+        ranges, stamps = z["ranges"], z["stamps"]
+        assert ranges.dtype == np.float32 and ranges.shape[0] == 12 and stamps.dtype == np.float64
+        assert np.all(np.diff(stamps) > 0)
+        assert z["angle_increment"].shape == () and z["angle_increment"] > 0
+        poses, classes = z["truth_poses"], z["truth_classes"]
+        assert poses.shape == (12, classes.shape[0], 3) and classes.dtype.kind == "U"
+        assert np.all(np.isnan(poses).all(-1) | ~np.isnan(poses).any(-1))  # all-NaN rows or none
+        valid = ranges > 0
+        assert 0.3 < valid.mean() and np.all(ranges[valid] >= z["range_min"]) and np.all(ranges[valid] <= z["range_max"])
+        true_sensor = z["truth_sensor_pose"]
+    site = json.loads(site_path.read_text())
+    assert len(site["landmarks"]) >= 3 and len(site["sensor_pose"]) == 3
+    guess_err = np.hypot(*(np.array(site["sensor_pose"][:2]) - true_sensor[0, :2]))
+    assert 0 < guess_err < 0.15  # a rough guess, not the truth
+
+
+def test_bumped_scenario_moves_the_sensor():
+    log, _ = simulate("spl-bumped", seed=0, n_scans=None)
+    sp = log.extra["truth_sensor_pose"]
+    jump = np.diff(sp, axis=0)
+    (i,) = np.nonzero(np.any(np.abs(jump) > 1e-12, axis=1))
+    assert len(i) == 1
+    assert np.hypot(*jump[i[0], :2]) == pytest.approx(0.03) and abs(jump[i[0], 2]) == pytest.approx(math.radians(2))
+
+
+def test_seeds_differ_and_repeat():
+    a, _ = simulate("spl-trajectory", seed=1, n_scans=20)
+    b, _ = simulate("spl-trajectory", seed=1, n_scans=20)
+    c, _ = simulate("spl-trajectory", seed=2, n_scans=20)
+    np.testing.assert_array_equal(a.ranges, b.ranges)
+    assert not np.allclose(a.truth_poses, c.truth_poses)
+
+
+def test_robot_speed_within_limit():
+    log, _ = simulate("spl-trajectory", seed=4)
+    p = log.truth_poses[:, 0, :2]
+    v = np.linalg.norm(np.diff(p, axis=0), axis=1) / np.diff(log.stamps)
+    assert v.max() <= 0.4 + 1e-6 and v.min() >= 0.1 - 1e-6
