@@ -1,0 +1,306 @@
+"""GP library (paper section 3b, eqs 3-7) against scikit-learn and against itself (autodiff, padding,
+exact vs sparse). Small N throughout: the machine is shared."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from gtsjax import _gp, gp
+
+sk_gp = pytest.importorskip("sklearn.gaussian_process")
+sk_k = pytest.importorskip("sklearn.gaussian_process.kernels")
+
+
+def _sk_kernel(params: gp.Hyperparameters, noise: float, *, fixed: bool):
+    bounds = "fixed" if fixed else (1e-5, 1e5)
+    return sk_k.ConstantKernel(float(params.signal_var), bounds) * sk_k.RBF(
+        np.asarray(params.lengthscale), bounds
+    ) + sk_k.WhiteKernel(noise, bounds)
+
+
+def _params(d, seed=0):
+    rng = np.random.default_rng(seed)
+    return gp.Hyperparameters(
+        jnp.asarray(rng.uniform(-0.5, 0.8, d)),
+        jnp.asarray(rng.uniform(-0.5, 0.5)),
+        jnp.asarray(rng.uniform(-4.0, -2.0)),
+    )
+
+
+# --------------------------------------------------------------------------------------- data sets
+
+
+def _sin1d(rng):
+    x = rng.uniform(-3.0, 3.0, (40, 1))
+    return x, np.sin(2.0 * x[:, 0]) + 0.05 * rng.normal(size=40)
+
+
+def _friedman3(rng):
+    x = rng.uniform(0.0, 1.0, (60, 3))
+    return x, 10.0 * np.sin(np.pi * x[:, 0] * x[:, 1]) + 20.0 * (x[:, 2] - 0.5) ** 2 + 0.5 * rng.normal(size=60)
+
+
+def _noisy_linear(rng):
+    x = rng.normal(size=(50, 3))
+    return x, x @ np.array([1.0, -2.0, 0.5]) + 0.3 * rng.normal(size=50)
+
+
+def _step(rng):
+    x = rng.uniform(-2.0, 2.0, (50, 2))
+    return x, (np.sum(x * x, axis=1) < 1.5).astype(np.float64)
+
+
+def _profiles(rng, n=60):
+    """Laser-characteristic-like vectors: 16 depth-profile cells of an ellipse seen at heading phi,
+    plus width, mean intensity, point count and range (20 features); target cos(phi)."""
+    phi = rng.uniform(-np.pi, np.pi, n)
+    rng_m = rng.uniform(0.5, 3.5, n)
+    cells = np.linspace(-1.0, 1.0, 16)
+    half_w = 0.6 + 0.3 * np.abs(np.cos(phi))
+    depth = (
+        np.sqrt(np.clip(1.0 - (cells[None, :] / half_w[:, None]) ** 2, 0.0, None)) * (0.4 + 0.2 * np.sin(phi))[:, None]
+    )
+    depth += 0.01 * rng.normal(size=depth.shape)
+    extra = np.stack([2.0 * half_w, 0.5 + 0.1 * np.cos(phi), 40.0 / rng_m, rng_m], axis=1)
+    return np.concatenate([depth, extra], axis=1), np.cos(phi) + 0.02 * rng.normal(size=n)
+
+
+DATASETS = {
+    "sin1d": _sin1d,
+    "friedman3": _friedman3,
+    "noisy_linear": _noisy_linear,
+    "step": _step,
+    "profiles": _profiles,
+}
+
+
+# ------------------------------------------------------------------------------- kernel-level match
+
+
+@pytest.mark.parametrize("d", [1, 4])
+def test_kernel_lml_and_predictions_match_sklearn(d):
+    rng = np.random.default_rng(d)
+    x = rng.normal(size=(25, d))
+    y = np.sin(x[:, 0]) + 0.1 * rng.normal(size=25)
+    y = y - y.mean()
+    xs = rng.normal(size=(7, d))
+    params = _params(d)
+    noise = float(params.noise_var)
+
+    k_ours = np.asarray(gp.gram(params, jnp.asarray(x), jnp.asarray(xs)))
+    k_sk = (sk_k.ConstantKernel(float(params.signal_var)) * sk_k.RBF(np.asarray(params.lengthscale)))(x, xs)
+    np.testing.assert_allclose(k_ours, k_sk, rtol=1e-12, atol=1e-14)
+
+    ours = gp.condition(params, x, y, jitter=0.0)
+    lml = float(gp.log_marginal_likelihood(params, jnp.asarray(x), jnp.asarray(y), jitter=0.0))
+    reg = sk_gp.GaussianProcessRegressor(_sk_kernel(params, noise, fixed=True), alpha=0.0, optimizer=None).fit(x, y)
+    assert abs(lml - reg.log_marginal_likelihood_value_) < 1e-6
+    assert abs(float(ours.log_marginal_likelihood()) - reg.log_marginal_likelihood_value_) < 1e-6
+
+    mean, var = ours.predict(jnp.asarray(xs), include_noise=True)
+    m_sk, s_sk = reg.predict(xs, return_std=True)
+    np.testing.assert_allclose(np.asarray(mean), m_sk, atol=1e-6)
+    np.testing.assert_allclose(np.asarray(var), s_sk**2, atol=1e-6)
+    _, var_f = ours.predict(jnp.asarray(xs))
+    np.testing.assert_allclose(np.asarray(var_f), s_sk**2 - noise, atol=1e-6)
+
+
+def test_closed_form_gradient_matches_autodiff():
+    rng = np.random.default_rng(3)
+    x = jnp.asarray(rng.normal(size=(20, 3)))
+    y = jnp.asarray(rng.normal(size=20))
+    mask = jnp.asarray(np.arange(20) < 16)
+    params = _params(3, seed=1)
+    jit_ = jnp.asarray(1e-3)
+    g = jax.grad(lambda p, a, b, j: gp.log_marginal_likelihood(p, a, b, mask, jitter=j), argnums=(0, 1, 2, 3))
+    g_ref = jax.grad(_gp._lml_autodiff, argnums=(0, 1, 2, 4))
+    for a, b in zip(
+        jax.tree.leaves(g(params, x, y, jit_)), jax.tree.leaves(g_ref(params, x, y, mask, jit_)), strict=True
+    ):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-9, atol=1e-10)
+
+
+# ------------------------------------------------------------------------------- optimum vs sklearn
+
+
+@pytest.mark.filterwarnings("ignore::sklearn.exceptions.ConvergenceWarning")
+@pytest.mark.parametrize("name", sorted(DATASETS))
+def test_fit_optimum_at_least_sklearn(name):
+    rng = np.random.default_rng(42)
+    x, y = DATASETS[name](rng)
+    ours = gp.fit(x, y, key=jax.random.key(0), restarts=3)
+    xs, yc = np.asarray(ours.x), np.asarray(ours.y)  # same representation for both: standardised, centred
+    np.testing.assert_allclose(yc, y - y.mean(), atol=1e-12)
+
+    d = x.shape[1]
+    init = gp.Hyperparameters(jnp.zeros(d), jnp.asarray(0.0), jnp.asarray(np.log(0.1)))
+    reg = sk_gp.GaussianProcessRegressor(
+        _sk_kernel(init, 0.1, fixed=False), n_restarts_optimizer=2, random_state=0, normalize_y=False
+    ).fit(xs, yc)
+    lml_ours = float(ours.log_marginal_likelihood())
+    lml_sk = float(reg.log_marginal_likelihood_value_)
+    print(f"{name}: ours {lml_ours:.6f} sklearn {lml_sk:.6f}")
+    assert lml_ours >= lml_sk - 1e-3
+
+    # sklearn evaluates our optimum to the same value: both really are on the same data and model.
+    noise = float(_gp._effective_noise(ours.params, ours.jitter))
+    theta = _sk_kernel(ours.params, noise, fixed=False).theta
+    assert abs(float(reg.log_marginal_likelihood(theta)) - lml_ours) < 1e-4 * max(1.0, abs(lml_ours))
+
+
+# ------------------------------------------------------------------------------ padding, degeneracy
+
+
+def _lml_and_grad(params, x, y, mask):
+    return jax.value_and_grad(gp.log_marginal_likelihood)(params, x, y, mask)
+
+
+def test_padding_leaves_lml_and_gradient_unchanged_and_finite():
+    rng = np.random.default_rng(5)
+    x = rng.normal(size=(12, 3))
+    y = rng.normal(size=12)
+    params = _params(3, seed=2)
+    v0, g0 = _lml_and_grad(params, jnp.asarray(x), jnp.asarray(y), jnp.ones(12, bool))
+    xp = np.full((20, 3), np.nan)
+    yp = np.full((20,), np.inf)
+    xp[:12], yp[:12] = x, y
+    mask = jnp.asarray(np.arange(20) < 12)
+    v1, g1 = _lml_and_grad(params, jnp.asarray(xp), jnp.asarray(yp), mask)
+    assert abs(float(v0 - v1)) < 1e-10
+    for a, b in zip(jax.tree.leaves(g0), jax.tree.leaves(g1), strict=True):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-10, atol=1e-12)
+    gx = jax.grad(gp.log_marginal_likelihood, argnums=(1, 2))(params, jnp.asarray(xp), jnp.asarray(yp), mask)
+    assert all(bool(jnp.all(jnp.isfinite(leaf))) for leaf in jax.tree.leaves(gx))
+
+
+@pytest.mark.parametrize(
+    "case",
+    ["duplicates", "constant_column", "one_point", "all_padding_but_one", "tiny_noise"],
+)
+def test_degenerate_inputs_give_finite_lml_and_gradient(case):
+    rng = np.random.default_rng(6)
+    params = _params(2, seed=3)
+    x = rng.normal(size=(8, 2))
+    y = rng.normal(size=8)
+    mask = np.ones(8, bool)
+    if case == "duplicates":
+        x[:] = x[0]
+    elif case == "constant_column":
+        x[:, 1] = 0.0
+    elif case == "one_point":
+        x, y, mask = x[:1], y[:1], mask[:1]
+    elif case == "all_padding_but_one":
+        mask[1:] = False
+    elif case == "tiny_noise":
+        x[4:] = x[:4]
+        params = eqx.tree_at(lambda p: p.log_noise_var, params, jnp.asarray(-60.0))
+    v, g = _lml_and_grad(params, jnp.asarray(x), jnp.asarray(y), jnp.asarray(mask))
+    assert bool(jnp.isfinite(v))
+    assert all(bool(jnp.all(jnp.isfinite(leaf))) for leaf in jax.tree.leaves(g))
+
+
+def test_fit_degenerate_data_is_finite():
+    rng = np.random.default_rng(7)
+    x = rng.normal(size=(15, 3))
+    x[:, 1] = 2.5  # constant feature
+    y = np.sin(x[:, 0])
+    g = gp.fit(x, y, key=jax.random.key(1), restarts=2)
+    assert np.all(np.isfinite(np.asarray(g.x)))
+    m, v = g.predict(jnp.asarray(x[:4]))
+    assert np.all(np.isfinite(np.asarray(m))) and np.all(np.isfinite(np.asarray(v)))
+    for xx, yy in [(x[:1], y[:1]), (x, np.full(15, 0.7))]:  # one point; constant target
+        g = gp.fit(xx, yy, key=jax.random.key(1), restarts=2)
+        m, v = g.predict(jnp.asarray(x[:3]))
+        np.testing.assert_allclose(np.asarray(m), yy[0], atol=1e-9)
+        assert np.all(np.isfinite(np.asarray(v)))
+
+
+def test_padded_fit_matches_unpadded_and_compiles_once():
+    rng = np.random.default_rng(8)
+    x, y = _sin1d(rng)
+    a = gp.fit(x, y, key=jax.random.key(2), restarts=1)
+    b = gp.fit(x, y, key=jax.random.key(2), restarts=1, pad_to=48)
+    assert b.n_points == 48
+    assert abs(float(a.log_marginal_likelihood() - b.log_marginal_likelihood())) < 1e-6
+    xs = jnp.asarray(rng.uniform(-3, 3, (5, 1)))
+    for u, w in zip(a.predict(xs), b.predict(xs), strict=True):
+        np.testing.assert_allclose(np.asarray(u), np.asarray(w), rtol=1e-5, atol=1e-7)
+
+    c = gp.fit(x[:30], -y[:30], key=jax.random.key(3), restarts=1, pad_to=48)
+    predict = eqx.filter_jit(eqx.debug.assert_max_traces(lambda g, t: g.predict(t), max_traces=1))
+    predict(b, xs)
+    predict(c, xs + 1.0)  # another GP of the same padded size: no retrace
+    stacked = jax.tree.map(lambda *leaves: jnp.stack(leaves), b, c)
+    means, _ = eqx.filter_vmap(lambda g: g.predict(xs))(stacked)
+    assert means.shape == (2, 5)
+
+
+# ------------------------------------------------------------------------------ API and behaviour
+
+
+def test_predict_shapes_float32_copy_and_determinism():
+    rng = np.random.default_rng(9)
+    x, y = _friedman3(rng)
+    g1 = gp.fit(x, y, key=jax.random.key(4), restarts=2)
+    g2 = gp.fit(x, y, key=jax.random.key(4), restarts=2)
+    for a, b in zip(jax.tree.leaves(g1), jax.tree.leaves(g2), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    xs = jnp.asarray(rng.uniform(0, 1, (11, 3)))
+    mean, var = g1.predict(xs)
+    assert mean.shape == (11,) and var.shape == (11,) and mean.dtype == jnp.float64
+    assert bool(jnp.all(var >= 0.0))
+    _, var_n = g1.predict(xs, include_noise=True)
+    np.testing.assert_allclose(np.asarray(var_n - var), float(g1.params.noise_var), rtol=1e-10)
+
+    g32 = g1.astype(jnp.float32)
+    assert g32.alpha.dtype == jnp.float32 and g32.mask.dtype == jnp.bool_
+    m32, v32 = g32.predict(xs.astype(jnp.float32))
+    assert m32.dtype == jnp.float32 and v32.dtype == jnp.float32
+    np.testing.assert_allclose(np.asarray(m32), np.asarray(mean), rtol=1e-3, atol=1e-3 * float(np.std(y)))
+
+
+def test_subsample_cap():
+    rng = np.random.default_rng(10)
+    x = rng.uniform(-3, 3, (300, 1))
+    y = np.sin(x[:, 0]) + 0.05 * rng.normal(size=300)
+    g = gp.fit(x, y, key=jax.random.key(5), restarts=2, max_points=80, screen_points=40)
+    assert g.n_points == 80
+    m, _ = g.predict(jnp.asarray(x[:20]))
+    assert float(jnp.max(jnp.abs(m - jnp.asarray(np.sin(x[:20, 0]))))) < 0.1
+
+
+def test_sparse_full_rank_matches_exact_and_low_rank_is_close():
+    rng = np.random.default_rng(11)
+    x = rng.uniform(-3, 3, (60, 2))
+    y = np.sin(x[:, 0]) * np.cos(0.5 * x[:, 1]) + 0.05 * rng.normal(size=60)
+    g = gp.fit(x, y, key=jax.random.key(6), restarts=2)
+    xs = jnp.asarray(rng.uniform(-3, 3, (15, 2)))
+    mean, var = g.predict(xs)
+
+    full = g.sparse(60)  # slots whose residual falls below the jitter stay masked: they add nothing
+    assert int(jnp.sum(full.z_mask)) >= 50
+    m_f, v_f = full.predict(xs)
+    np.testing.assert_allclose(np.asarray(m_f), np.asarray(mean), atol=1e-5)
+    np.testing.assert_allclose(np.asarray(v_f), np.asarray(var), atol=1e-5)
+
+    low = g.sparse(25)
+    assert low.z.shape == (25, 2)
+    m_l, v_l = low.predict(xs)
+    assert float(jnp.max(jnp.abs(m_l - mean))) < 0.05
+    assert float(jnp.max(jnp.abs(v_l - var))) < 0.05 * float(g.params.signal_var)
+    m32, _ = low.astype(jnp.float32).predict(xs.astype(jnp.float32))
+    assert m32.dtype == jnp.float32
+
+
+def test_all_restarts_failing_raises_clear_error():
+    rng = np.random.default_rng(12)
+    x, y = _sin1d(rng)
+    with pytest.raises(gp.GPFitError, match="all GP hyperparameter restarts failed"):
+        gp.fit(x, y, key=jax.random.key(0), restarts=2, max_steps=1)
+
+
+def test_fit_rejects_bad_input():
+    with pytest.raises(ValueError, match="need x"):
+        gp.fit(np.zeros((3, 2)), np.zeros(4), key=jax.random.key(0))

@@ -1,0 +1,156 @@
+"""The whole pipeline: one step compiled once, batch replay bit-for-bit equal to stepping, model files,
+and the replay command's contract (CSV per spec; bad input is one line and exit 2)."""
+
+import csv
+import dataclasses
+import subprocess
+import sys
+
+import equinox as eqx
+import jax
+import numpy as np
+import pytest
+
+from gtsjax import InputError
+from gtsjax._pipeline import init_state, process_log, step
+from gtsjax.cli import main
+from gtsjax.io import save_log, save_site, to_scans
+from gtsjax.io.gtd import HEADER
+from gtsjax.io.modelfile import load_model, read_header, save_model
+from gtsjax.sim import simulate
+from gtsjax.training import TrainConfig, train
+
+TINY = dataclasses.replace(TrainConfig(), max_per_class=60, max_pose_examples=80, n_inducing=32, restarts=1)
+
+
+@pytest.fixture(scope="session")
+def tiny(tmp_path_factory):
+    """A small model trained on a subsample of the SPL training grid and a log with legs."""
+    d = tmp_path_factory.mktemp("tiny")
+    train_log, site = simulate("spl-train", seed=11, n_scans=500)
+    legs, _ = simulate("spl-legs", seed=12, n_scans=150)
+    model, report = train([train_log, legs], site, TINY)
+    path = d / "model.npz"
+    save_model(model, path, summary=report)
+    save_site(site, d / "site.json")
+    return {"dir": d, "model": model, "path": path, "site": site, "report": report}
+
+
+def test_training_report_is_complete(tiny):
+    rep = tiny["report"]
+    assert rep["classes"] == ["background", "post", "robot"]
+    assert all(rep["examples_used"][c] > 0 for c in rep["classes"])
+    held = rep["heldout"]
+    assert held["n"] > 0 and 0.0 <= held["accuracy"] <= 1.0
+    assert np.isfinite(held["pose"]["robot"]["rmse_xy_m"])
+
+
+def test_model_file_round_trip(tiny):
+    loaded = load_model(tiny["path"])
+    a, b = eqx.partition(tiny["model"], eqx.is_array), eqx.partition(loaded, eqx.is_array)
+    assert jax.tree.structure(a[0]) == jax.tree.structure(b[0])
+    for x, y in zip(jax.tree.leaves(a[0]), jax.tree.leaves(b[0]), strict=True):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+        assert x.dtype == y.dtype
+    assert read_header(tiny["path"])["sensor_model"] == "URG-04LX"
+
+
+def test_bad_model_files_are_one_line(tiny, tmp_path):
+    cases = {}
+    p = tmp_path / "text.npz"
+    p.write_text("not a model")
+    cases[p] = "not a gtsjax model file"
+    log, _ = simulate("spl-eval", n_scans=3)
+    p = tmp_path / "log.npz"
+    save_log(log, p)
+    cases[p] = "no model header"
+    raw = tiny["path"].read_bytes()
+    p = tmp_path / "cut.npz"
+    p.write_bytes(raw[: len(raw) // 3])
+    cases[p] = "model file"
+    for path, match in cases.items():
+        with pytest.raises(InputError) as exc:
+            load_model(path)
+        assert match in str(exc.value) and str(path) in str(exc.value) and "\n" not in str(exc.value)
+    with pytest.raises(InputError, match="trained for sensor URG-04LX"):
+        load_model(tiny["path"], sensor_model="UTM-30LX")
+
+
+def test_step_compiles_once_and_batch_equals_stepping(tiny):
+    log, site = simulate("spl-crossing", seed=21, n_scans=45)
+    model = tiny["model"].with_site(site)
+    scans = to_scans(log, model.n_beams)
+    state = init_state(model)
+    before = step._cache_size()
+    outs = []
+    for i in range(log.n_scans):
+        state, out = step(model, state, jax.tree.map(lambda a, i=i: a[i], scans))
+        outs.append(jax.device_get(out))
+    assert step._cache_size() - before <= 1  # one compilation for all 45 scans
+    final, batch = process_log(model, scans, chunk=16)  # 45 = 16 + 16 + 13: the last chunk is padded
+    for i, o in enumerate(outs):
+        for name in ("track_id", "track_class", "track_pose", "track_var", "track_mask", "det_pose", "det_mask"):
+            np.testing.assert_array_equal(getattr(o, name), getattr(batch, name)[i], err_msg=f"{name} at scan {i}")
+    for a, b in zip(jax.tree.leaves(state), jax.tree.leaves(final), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def run_cli(*args):
+    return subprocess.run([sys.executable, "-m", "gtsjax", *map(str, args)], capture_output=True, text=True,
+                          timeout=600)
+
+
+def test_replay_writes_spec_csv(tiny, tmp_path):
+    log, site = simulate("spl-trajectory", seed=31, n_scans=60)
+    save_log(log, tmp_path / "log.npz")
+    save_site(site, tmp_path / "site.json")
+    res = run_cli("replay", tmp_path / "log.npz", "--site", tmp_path / "site.json", "--model", tiny["path"],
+                  "--out", tmp_path / "gtd.csv", "--sensor-out", tmp_path / "sensor.csv")
+    assert res.returncode == 0, res.stderr
+    with open(tmp_path / "gtd.csv", newline="") as f:
+        rows = list(csv.reader(f))
+    assert tuple(rows[0]) == HEADER
+    stamps = [float(r[0]) for r in rows[1:]]
+    assert stamps == sorted(stamps) and set(stamps) <= set(log.stamps.tolist())
+    assert all(-np.pi < float(r[5]) <= np.pi for r in rows[1:])
+    sensor = np.loadtxt(tmp_path / "sensor.csv", delimiter=",", skiprows=1)
+    assert sensor.shape == (60, 6)
+
+
+def test_replay_bad_inputs_exit_2_with_one_line(tiny, tmp_path):
+    log, site = simulate("spl-eval", seed=1, n_scans=5)
+    good_log, good_site = tmp_path / "log.npz", tmp_path / "site.json"
+    save_log(log, good_log)
+    save_site(site, good_site)
+    bad_site = tmp_path / "bad_site.json"
+    bad_site.write_text('{"landmarks": [], "sensor_pose": [0, 0, 0]}')
+    other_site = tmp_path / "other_site.json"
+    other_site.write_text('{"landmarks": [{"class": "cone", "x": 0, "y": 0}, {"class": "cone", "x": 1, "y": 0},'
+                          ' {"class": "cone", "x": 0, "y": 1}], "sensor_pose": [0, 0, 0]}')
+    utm_log = tmp_path / "utm.npz"
+    save_log(simulate("lab-eval", n_scans=3)[0], utm_log)
+    garbage = tmp_path / "garbage.npz"
+    garbage.write_bytes(b"PK\x03\x04 truncated zip")
+    cases = [
+        (tmp_path / "missing.npz", good_site, tiny["path"], "no such file"),
+        (garbage, good_site, tiny["path"], "not a NumPy .npz archive"),
+        (good_log, bad_site, tiny["path"], "at least 3 landmarks"),
+        (good_log, other_site, tiny["path"], "unknown to the model"),
+        (good_log, good_site, good_log, "no model header"),
+        (utm_log, good_site, tiny["path"], "trained for sensor URG-04LX"),
+    ]
+    for log_p, site_p, model_p, match in cases:
+        res = run_cli("replay", log_p, "--site", site_p, "--model", model_p, "--out", tmp_path / "o.csv")
+        lines = res.stderr.strip().splitlines()
+        assert res.returncode == 2, (match, res.stderr)
+        assert len(lines) == 1 and match in lines[0] and "Traceback" not in res.stderr, (match, res.stderr)
+
+
+def test_train_cli_bad_input(tmp_path):
+    log, site = simulate("spl-eval", seed=1, n_scans=5)
+    unlabelled = dataclasses.replace(log, truth_classes=None, truth_poses=None)
+    save_log(unlabelled, tmp_path / "u.npz")
+    save_site(site, tmp_path / "s.json")
+    assert main(["train", str(tmp_path / "u.npz"), "--site", str(tmp_path / "s.json"), "--out",
+                 str(tmp_path / "m.npz")]) == 2
+    assert not (tmp_path / "m.npz").exists()
