@@ -55,10 +55,14 @@ class TrainConfig:
     label_radius: float = 0.3  # m: a candidate this close to a labelled object is that object
     landmark_radius: float = 0.25  # m: a candidate this close to a site landmark is that landmark
     bounds_margin: float = 0.5  # m: background examples only this far outside the site's bounds
-    threshold: float = 0.5  # winning class score needed to keep a candidate
+    threshold: float = 0.35  # winning class score needed to keep a candidate (scores are GP means, not probabilities)
     map_gate: float = 0.4  # m: landmark association gate of stage f
     map_min_spread: float = 0.3  # m: associated landmarks must spread this much in 2-D
     meas_var_floor: tuple[float, float, float] = (2.5e-5, 2.5e-5, 3e-4)  # (5 mm)², (5 mm)², (1°)²
+    # Noise floor of every GP, relative to its signal variance. Many scans of one static pose give
+    # near-duplicate inputs with equal targets; without a floor the likelihood is maximised by
+    # interpolating them (σn² → 0, tiny length scales), which generalises badly to new poses.
+    noise_floor: float = 1e-2
     max_tracks: int = 8
     seed: int = 0
 
@@ -173,11 +177,18 @@ def label_log(log: ScanLog, fe: dict, tf: dict, site: Site, classes: tuple[str, 
         best[hit] = d[hit]
 
     poses = log.truth_poses  # [T, M, 3]
+    ambiguous = np.zeros((T, K), bool)
     for m, name in enumerate(log.truth_classes):
         p = poses[:, m]
         present = ~np.isnan(p[:, 0])
         d = np.linalg.norm(origin_o - np.nan_to_num(p[:, None, :2]), axis=-1)
-        hit = (d < cfg.label_radius) & (d < best) & present[:, None]
+        d = np.where(fe["keep"], d, np.inf)
+        near = (d < cfg.label_radius) & present[:, None]
+        # One example per object and scan: the candidate nearest its centre. Other pieces of it (a
+        # robot the scan splits in two) are neither that class nor background: left out.
+        nearest = np.arange(K)[None, :] == np.argmin(d, axis=1)[:, None]
+        hit = near & nearest & (d < best)
+        ambiguous |= near & ~nearest
         p_s = _to_s(tf, np.nan_to_num(p[:, None, :2]))  # [T, 1, 2]
         rel = _rel(origin, heading, np.broadcast_to(p_s, origin.shape))
         th = wrap(np.nan_to_num(p[:, 2])[:, None] - rot_s[:, None] - heading)
@@ -189,7 +200,7 @@ def label_log(log: ScanLog, fe: dict, tf: dict, site: Site, classes: tuple[str, 
     # A scan whose transform could not be estimated gives no labels worth having. With bounds, the
     # background is what the step could confuse with an object on the field: candidates inside the
     # bounds (plus a margin), not the walls and furniture around it, which the step drops anyway.
-    use = fe["keep"] & ~tf["degraded"][:, None]
+    use = fe["keep"] & ~tf["degraded"][:, None] & ~(ambiguous & (cls == 0))
     if site.bounds is not None:
         x0, y0, x1, y1 = site.bounds
         mg = cfg.bounds_margin
@@ -215,7 +226,7 @@ def _sample(rng, idx, cap):
 
 def _fit32(x, y, key, cfg, progress, label):
     t0 = time.perf_counter()
-    gp = fit(x, y, key=key, restarts=cfg.restarts)
+    gp = fit(x, y, key=key, restarts=cfg.restarts, jitter=cfg.noise_floor)
     sparse = gp.sparse(cfg.n_inducing).astype(jnp.float32)
     p = gp.params
     info = {"gp": label, "n": int(x.shape[0]), "seconds": round(time.perf_counter() - t0, 2),
