@@ -7,6 +7,7 @@ from ..errors import InputError
 
 # Each import registers its command(s) on ``app``.
 from . import demo as _demo  # noqa: E402,F401
+from . import evaluate as _evaluate  # noqa: E402,F401
 from . import info as _info  # noqa: E402,F401
 from . import replay as _replay  # noqa: E402,F401
 from . import run as _run  # noqa: E402,F401

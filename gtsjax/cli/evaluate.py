@@ -1,0 +1,86 @@
+"""``gtsjax evaluate``: accuracy of a model on labelled logs or simulated scenarios (the paper's
+Fig. 5–6 experiment and the moving cases), as a table, Markdown, JSON and an error-map PNG."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from ._app import app, fail
+
+COLUMNS = [("recall", "recall", "{:.1%}"), ("position_rmse_m", "pos RMSE [cm]", "{:.1f}"),
+           ("heading_rmse_deg", "heading RMSE [°]", "{:.1f}"), ("heading_median_deg", "heading median [°]", "{:.1f}"),
+           ("false_tracks_per_scan", "false tracks/scan", "{:.3f}"), ("id_switches", "id switches", "{}"),
+           ("degraded_scans", "degraded scans", "{}")]
+
+
+def _fmt(key, fmt, v):
+    if v is None or (isinstance(v, float) and not np.isfinite(v)):
+        return "–"
+    return fmt.format(100 * v if key == "position_rmse_m" else v)
+
+
+@app.command("evaluate")
+def evaluate_cmd(
+    model: Path = typer.Option(..., "--model", help="Model file from gtsjax train."),
+    logs: list[Path] = typer.Argument(None, help="Labelled scan logs (.npz); with --site."),
+    site: Path | None = typer.Option(None, "--site", help="Site file of the logs."),
+    scenario: list[str] = typer.Option(None, "--scenario", help="Simulated scenario(s) instead of logs (NAME or NAME:SEED)."),
+    out_dir: Path = typer.Option(Path("eval-out"), "--out-dir", help="Where to write results.md, results.json, PNGs."),
+):
+    """Score a model against labelled logs or held-out simulated scenarios."""
+    from ..evaluation import evaluate_log, per_point
+    from ..io import load_log, load_site
+    from ..io.modelfile import load_model
+    from ..sim import simulate
+    from ..viz import error_map_figure
+
+    jobs = []
+    for spec in scenario or []:
+        name, _, seed = spec.partition(":")
+        jobs.append((spec, lambda name=name, seed=seed: simulate(name, seed=int(seed or 1000))))
+    if logs:
+        if site is None:
+            raise fail("evaluate", "logs need --site SITE.json")
+        site_obj = load_site(site)
+        for p in logs:
+            jobs.append((str(p), lambda p=p: (load_log(p), site_obj)))
+    if not jobs:
+        raise fail("evaluate", "give labelled logs with --site, or --scenario NAME[:SEED]")
+    base = load_model(model)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    results = {}
+    table = Table(title=f"accuracy of {model}")
+    table.add_column("data")
+    for _, head, _ in COLUMNS:
+        table.add_column(head, justify="right")
+    for label, get in jobs:
+        log, site_obj = get()
+        if not log.labelled:
+            raise fail(label, "not a labelled log (no truth_poses)")
+        m = base.with_site(site_obj)
+        res = evaluate_log(m, log)
+        pts, pos, th, cnt = per_point(log, res)
+        errors = res.pop("_errors")
+        static = len(pts) <= 64 and cnt.size and cnt.min() >= 3
+        if static:
+            res["points"] = [{"x": float(p[0]), "y": float(p[1]), "n": int(c), "position_mse_m2": float(a**2),
+                              "position_rmse_m": float(a), "heading_mse_rad2": float(b**2),
+                              "heading_rmse_deg": float(np.degrees(b))} for p, a, b, c in zip(pts, pos, th, cnt, strict=True)]
+            fig = error_map_figure(site_obj, pts, pos, np.degrees(th), title=f"{label}: error by place on the field")
+            png = out_dir / f"{label.replace('/', '_').replace(':', '_')}-errors.png"
+            fig.savefig(png, dpi=100)
+            res["figure"] = str(png)
+        results[label] = res
+        table.add_row(label, *(_fmt(k, f, res.get(k)) for k, _, f in COLUMNS))
+        del errors
+    Console().print(table)
+    (out_dir / "results.json").write_text(json.dumps(results, indent=1) + "\n")
+    md = ["| data | " + " | ".join(h for _, h, _ in COLUMNS) + " |", "|---" * (len(COLUMNS) + 1) + "|"]
+    for label, res in results.items():
+        md.append(f"| {label} | " + " | ".join(_fmt(k, f, res.get(k)) for k, _, f in COLUMNS) + " |")
+    (out_dir / "results.md").write_text("\n".join(md) + "\n")
+    Console(stderr=True).print(f"wrote {out_dir / 'results.md'} and {out_dir / 'results.json'}")
