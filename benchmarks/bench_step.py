@@ -2,7 +2,7 @@
 
     python benchmarks/bench_step.py [--quick] [--json PATH]
 
-* step: one jitted ``step`` per scan (the live loop's call), median and p99 over scans of the SPL
+* step: one jitted step per scan (the live loop's call, ``make_step``), median and p99 over scans of the SPL
   field with several robots in view (``spl-crossing``: up to 3 robots; the table has M = 8 slots),
   after warm-up, each call ending in ``block_until_ready``.
 * batch: ``process_log`` over a simulated log, scans per second, compilation excluded (a warm-up
@@ -25,7 +25,7 @@ def main():
     ap.add_argument("--json", default=None)
     args = ap.parse_args()
 
-    from gtsjax._pipeline import init_state, process_log, step
+    from gtsjax._pipeline import init_state, make_step, process_log
     from gtsjax.cli.demo import demo_model_path
     from gtsjax.io import to_scans
     from gtsjax.io.modelfile import load_model
@@ -36,15 +36,16 @@ def main():
     model = load_model(demo_model_path()).with_site(site)
     scans = to_scans(log, model.n_beams)
     state = init_state(model)
+    step = make_step(model)
     one = [jax.tree.map(lambda a, i=i: a[i], scans) for i in range(log.n_scans)]
     for s in one[:5]:
-        state, out = step(model, state, s)
+        state, out = step(state, s)
     jax.block_until_ready(out)
     times = []
     for k in range(n):
         s = one[k % len(one)]
         t0 = time.perf_counter()
-        state, out = step(model, state, s)
+        state, out = step(state, s)
         jax.block_until_ready(out)
         times.append(time.perf_counter() - t0)
     t = np.asarray(times) * 1e6

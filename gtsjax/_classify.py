@@ -12,7 +12,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from ._gp import GP, SparseGP
+from ._gp import GP, SparseGP, predict_mean
 
 BACKGROUND = 0
 
@@ -45,7 +45,7 @@ class Classifier(eqx.Module):
 
 def class_scores(clf: Classifier, vectors: Float[Array, "cands features"]) -> Float[Array, "cands classes"]:
     """``p_{j,k} = f_k(v_j)`` (eq. 13) for every candidate and class: each GP's predictive mean."""
-    return jnp.stack([gp.predict(vectors)[0].astype(vectors.dtype) for gp in clf.gps], axis=-1)
+    return jnp.stack([predict_mean(gp, vectors).astype(vectors.dtype) for gp in clf.gps], axis=-1)
 
 
 def classify(

@@ -106,7 +106,11 @@ def fit_transform(
     ok = (n >= 3) & (lam_min > min_spread**2)
     # Keep the solve well posed when the fit is rejected, so no NaN leaks into gradients or outputs.
     XtX_safe = jnp.where(ok, XtX, jnp.eye(2, dtype=XtX.dtype))
-    At = jnp.linalg.solve(XtX_safe, XtY)
+    # The 2×2 system in closed form (Cramer's rule): well conditioned whenever ``ok``.
+    p, q, r = XtX_safe[0, 0], XtX_safe[0, 1], XtX_safe[1, 1]
+    det = p * r - q * q
+    inv = jnp.stack([jnp.stack([r, -q]), jnp.stack([-q, p])]) / det
+    At = inv @ XtY
     tf = Transform(A=At.T, mu_s=mu_s, mu_o=mu_o, degraded=~ok, n_landmarks=n.astype(jnp.int32))
     return tf, ok
 

@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._pipeline import init_state, step
+from ._pipeline import init_state, make_step
 from ._scan import Scan
 from .errors import InputError
 from .io.gtd import GTDWriter, json_line, rows_from_output
@@ -98,11 +98,13 @@ class Outputs:
 
 
 def warm_up(model: Model, sensor: SensorModel):
-    """Compile the step before the first real frame, so that the first latency is not a compile."""
+    """The step for ``model``, compiled before the first real frame so that the first latency is not a
+    compile; and the initial state."""
     state = init_state(model)
+    step = make_step(model)
     scan = frame_to_scan(np.zeros(sensor.n_beams, np.float32), None, sensor, model.n_beams, 0.0)
-    jax.block_until_ready(step(model, state, scan))
-    return state
+    jax.block_until_ready(step(state, scan))
+    return step, state
 
 
 def run_live(link, model: Model, out: Path, *, record: Path | None = None, outputs: Outputs | None = None,
@@ -114,7 +116,7 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
 
     sensor = link.model
     check_sensor(model, sensor, str(getattr(link, "port", "sensor")))
-    state = warm_up(model, sensor)
+    step, state = warm_up(model, sensor)
     stats = LiveStats()
     outputs = outputs or Outputs()
     recorder = Recorder(record, model=sensor, intensities=with_intensity and sensor.has_intensity) if record else None
@@ -131,7 +133,7 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
                 dt = 0.0 if prev_stamp is None else max(0.0, lf.stamp - prev_stamp)
                 prev_stamp = lf.stamp
                 scan = frame_to_scan(lf.ranges_m, lf.intensities, sensor, model.n_beams, dt)
-                state, o = step(model, state, scan)
+                state, o = step(state, scan)
                 o = jax.device_get(o)
                 rows = rows_from_output(lf.stamp, o.track_id, o.track_class, o.track_pose, o.track_var, o.track_mask,
                                         model.classes)
