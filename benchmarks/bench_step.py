@@ -62,7 +62,7 @@ def main():
         res[f"batch_scans_per_s_{'vmap' if vec else 'exact'}"] = big.n_scans / dt
     print(f"step (URG-04LX, M={model.max_tracks}): median {res['step_us_median']:.0f} µs, "
           f"p99 {res['step_us_p99']:.0f} µs over {n} scans")
-    print(f"batch replay: {res['batch_scans_per_s_exact']:.0f} scans/s (bit-exact lax.map), "
+    print(f"batch replay: {res['batch_scans_per_s_exact']:.0f} scans/s (bit-exact with step), "
           f"{res['batch_scans_per_s_vmap']:.0f} scans/s (vmap)")
     if args.json:
         with open(args.json, "w") as f:

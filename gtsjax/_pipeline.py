@@ -4,13 +4,13 @@ batch driver ``process_log`` that runs the same computation over a log.
 The step splits in two:
 
 * ``perceive`` (stages a–e): front end, classifier and pose regression, everything that depends on
-  the scan alone. Batch replay maps it over chunks of scans (``lax.map`` for results bit-for-bit equal
-  to ``step``; ``vmap`` on request, faster and equal to float32 rounding).
+  the scan alone. Batch replay can ``vmap`` it over chunks of scans (``vectorise=True``).
 * ``update`` (stages f–g): map transformation and tracking, which carry state from scan to scan.
   Batch replay runs it under ``lax.scan``.
 
-``step`` is ``update ∘ perceive``; ``process_log`` is ``scan(update) ∘ map(perceive)`` chunk by
-chunk, so that memory is bounded by the chunk size for logs of any length.
+``step`` is ``update ∘ perceive``. ``process_log`` runs chunks of scans: by default through the same
+compiled loop body as ``step`` (bit-for-bit equal results), or as ``scan(update) ∘ vmap(perceive)``.
+Memory is bounded by the chunk size for logs of any length.
 """
 
 import equinox as eqx
@@ -138,10 +138,39 @@ def step_unjitted(model: Model, state: PipelineState, scan: Scan) -> tuple[Pipel
     return update(model, state, perceive(model, scan), scan.dt)
 
 
+def _run_scans(model: Model, state: PipelineState, scans: Scan, n_real: Int[Array, ""]):
+    """``step`` over the first ``n_real`` scans of a stack, in a ``while_loop`` whose trip count is a
+    runtime value. The loop body is one scan's whole step, compiled as a computation of its own, the
+    same whether the stack holds 1 scan (``step``) or a chunk (batch replay): that is what makes the
+    two bit-for-bit equal. Outputs past ``n_real`` are zeros."""
+    one = jax.tree.map(lambda a: a[0], scans)
+    out_shape = jax.eval_shape(lambda st, sc: step_unjitted(model, st, sc)[1], state, one)
+    size = scans.dt.shape[0]
+    buf0 = jax.tree.map(lambda sd: jnp.zeros((size,) + sd.shape, sd.dtype), out_shape)
+
+    def cond(c):
+        return c[0] < n_real
+
+    def body(c):
+        i, st, buf = c
+        sc = jax.tree.map(lambda a: jax.lax.dynamic_index_in_dim(a, i, keepdims=False), scans)
+        st, o = step_unjitted(model, st, sc)
+        buf = jax.tree.map(lambda b, x: jax.lax.dynamic_update_index_in_dim(b, x, i, 0), buf, o)
+        return i + 1, st, buf
+
+    _, state, buf = jax.lax.while_loop(cond, body, (jnp.asarray(0, jnp.int32), state, buf0))
+    return state, buf
+
+
 @jax.jit
 def step(model: Model, state: PipelineState, scan: Scan) -> tuple[PipelineState, Output]:
-    """The whole pipeline for one scan (Fig. 1, stages a–g), jitted once per model shape."""
-    return step_unjitted(model, state, scan)
+    """The whole pipeline for one scan (Fig. 1, stages a–g), jitted once per model shape.
+
+    Run as the one-scan case of batch replay's loop (the barrier keeps the compiler from seeing that
+    the loop runs once and inlining it), so that replay and stepping give identical bits."""
+    n = jax.lax.optimization_barrier(jnp.asarray(1, jnp.int32))
+    state, out = _run_scans(model, state, jax.tree.map(lambda a: a[None], scan), n)
+    return state, jax.tree.map(lambda a: a[0], out)
 
 
 def make_step(model: Model):
@@ -166,17 +195,16 @@ def _pad_chunk(scans: Scan, start: int, stop: int, size: int) -> Scan:
 @jax.jit(static_argnames="vectorise")
 def process_chunk(model: Model, state: PipelineState, scans: Scan, n_real: Int[Array, ""], vectorise: bool = False
                   ) -> tuple[PipelineState, Output]:
-    """A chunk of scans (leading axis): ``perceive`` over every scan, then ``update`` under ``lax.scan``.
-    Scans at index ``>= n_real`` (padding of the last chunk) leave the state as it was.
+    """A chunk of scans (leading axis). Scans at index ``>= n_real`` (padding of the last chunk) leave
+    the state as it was.
 
-    ``vectorise=False`` maps ``perceive`` over the chunk one scan at a time (``lax.map``), the very
-    computation ``step`` compiles, so the tracks are bit-for-bit those of calling ``step`` scan by scan.
-    ``vectorise=True`` ``vmap``s it: faster, but batched reductions may round differently (about 1e-7
-    relative), so that equality is then only to float32 rounding."""
-    if vectorise:
-        percepts = jax.vmap(perceive, in_axes=(None, 0))(model, scans)
-    else:
-        percepts = jax.lax.map(lambda s: perceive(model, s), scans)
+    ``vectorise=False``: the chunk runs through the very loop ``step`` compiles (:func:`_run_scans`),
+    so the tracks are bit-for-bit those of calling ``step`` scan by scan. ``vectorise=True``:
+    ``perceive`` (stages a–e) is ``vmap``ped over the chunk and ``update`` (f–g) runs under
+    ``lax.scan``; batched reductions may then round differently (about 1e-7 relative)."""
+    if not vectorise:
+        return _run_scans(model, state, scans, n_real)
+    percepts = jax.vmap(perceive, in_axes=(None, 0))(model, scans)
 
     def body(s, inp):
         p, dt, i = inp
