@@ -54,7 +54,7 @@ class TrainConfig:
     holdout: float = 0.2  # fraction of one-second blocks held out for evaluation
     label_radius: float = 0.3  # m: a candidate this close to a labelled object is that object
     landmark_radius: float = 0.25  # m: a candidate this close to a site landmark is that landmark
-    bounds_margin: float = 0.5  # m: background examples only this far outside the site's bounds
+    bounds_margin: float | None = 0.5  # m: background examples only this far outside the site's bounds
     threshold: float = 0.35  # winning class score needed to keep a candidate (scores are GP means, not probabilities)
     map_gate: float = 0.4  # m: landmark association gate of stage f
     map_min_spread: float = 0.3  # m: associated landmarks must spread this much in 2-D
@@ -201,7 +201,7 @@ def label_log(log: ScanLog, fe: dict, tf: dict, site: Site, classes: tuple[str, 
     # background is what the step could confuse with an object on the field: candidates inside the
     # bounds (plus a margin), not the walls and furniture around it, which the step drops anyway.
     use = fe["keep"] & ~tf["degraded"][:, None] & ~(ambiguous & (cls == 0))
-    if site.bounds is not None:
+    if site.bounds is not None and cfg.bounds_margin is not None:
         x0, y0, x1, y1 = site.bounds
         mg = cfg.bounds_margin
         inside = ((origin_o[..., 0] >= x0 - mg) & (origin_o[..., 0] <= x1 + mg)
@@ -301,28 +301,12 @@ def train(logs: Sequence[ScanLog], site: Site, cfg: TrainConfig = TrainConfig(),
         pose[k] = PoseRegressor(gps[0], gps[1])
 
     # Pass 2: landmark candidates moved to their predicted centres, transforms again, all targets.
-    ex2 = []
-    offset = 0
-    degraded = 0
-    n_scans = 0
-    for log, fe, cls_tk in zip(logs, per_log, cls1, strict=True):
-        det_s = fe["origin"].copy()
-        T, K, D = fe["vector"].shape
-        for name in landmarks:
-            k = classes.index(name)
-            rel, _ = regress_one_class(pose[k], jnp.asarray(fe["vector"].reshape(T * K, D), jnp.float32))
-            rel = np.asarray(rel, np.float64).reshape(T, K, 3)
-            c, s = np.cos(fe["heading"]), np.sin(fe["heading"])
-            moved = np.stack([fe["origin"][..., 0] + c * rel[..., 0] - s * rel[..., 1],
-                              fe["origin"][..., 1] + s * rel[..., 0] + c * rel[..., 1]], -1)
-            det_s = np.where((cls_tk == k)[..., None], moved, det_s)
-        tf = estimate_transforms(det_s, fe["keep"], site, cfg)
-        degraded += int(tf["degraded"].sum())
-        n_scans += log.n_scans
-        ex, _ = label_log(log, fe, tf, site, classes, cfg, offset)
-        offset = int(ex.group.max(initial=offset)) + 1
-        ex2.append(ex)
-    ex_all = _concat(ex2)
+    ex_all = _second_pass(logs, per_log, cls1, pose, site, classes, landmarks, cfg)
+    if not np.any(ex_all.cls == 0) and cfg.bounds_margin is not None:
+        # Nothing but objects on the field: take the background from around it (walls, furniture).
+        ex_all = _second_pass(logs, per_log, cls1, pose, site, classes, landmarks,
+                              dataclasses.replace(cfg, bounds_margin=None))
+    degraded, n_scans = ex_all.degraded, ex_all.n_scans
     is_held = np.isin(ex_all.group, list(held))
 
     # Classifier: balanced, capped examples; one GP per class on 1/0 targets (eq. 14).
@@ -383,6 +367,34 @@ def train(logs: Sequence[ScanLog], site: Site, cfg: TrainConfig = TrainConfig(),
         "heldout": evaluate_examples(model, ex_all.take(np.flatnonzero(is_held))),
     }
     return model, report
+
+
+def _second_pass(logs, per_log, cls1, pose, site, classes, landmarks, cfg) -> Examples:
+    """Landmark candidates moved to their predicted centres, transforms again, all labels and targets."""
+    ex2 = []
+    offset = 0
+    degraded = 0
+    n_scans = 0
+    for log, fe, cls_tk in zip(logs, per_log, cls1, strict=True):
+        det_s = fe["origin"].copy()
+        T, K, D = fe["vector"].shape
+        for name in landmarks:
+            k = classes.index(name)
+            rel, _ = regress_one_class(pose[k], jnp.asarray(fe["vector"].reshape(T * K, D), jnp.float32))
+            rel = np.asarray(rel, np.float64).reshape(T, K, 3)
+            c, s = np.cos(fe["heading"]), np.sin(fe["heading"])
+            moved = np.stack([fe["origin"][..., 0] + c * rel[..., 0] - s * rel[..., 1],
+                              fe["origin"][..., 1] + s * rel[..., 0] + c * rel[..., 1]], -1)
+            det_s = np.where((cls_tk == k)[..., None], moved, det_s)
+        tf = estimate_transforms(det_s, fe["keep"], site, cfg)
+        degraded += int(tf["degraded"].sum())
+        n_scans += log.n_scans
+        ex, _ = label_log(log, fe, tf, site, classes, cfg, offset)
+        offset = int(ex.group.max(initial=offset)) + 1
+        ex2.append(ex)
+    ex_all = _concat(ex2)
+    ex_all.degraded, ex_all.n_scans = degraded, n_scans
+    return ex_all
 
 
 def _rate(logs):

@@ -77,7 +77,7 @@ def evaluate_cmd(
         results[label] = res
         table.add_row(label, *(_fmt(k, f, res.get(k)) for k, _, f in COLUMNS))
         del errors
-    Console().print(table)
+    Console(width=140).print(table)
     (out_dir / "results.json").write_text(json.dumps(results, indent=1) + "\n")
     md = ["| data | " + " | ".join(h for _, h, _ in COLUMNS) + " |", "|---" * (len(COLUMNS) + 1) + "|"]
     for label, res in results.items():
