@@ -109,14 +109,17 @@ def warm_up(model: Model, sensor: SensorModel):
 
 def run_live(link, model: Model, out: Path, *, record: Path | None = None, outputs: Outputs | None = None,
              duration: float | None = None, stop: threading.Event | None = None, on_scan=None,
-             with_intensity: bool = False) -> LiveStats:
+             with_intensity: bool = False, compiled=None) -> LiveStats:
     """Track from a started :class:`~gtsjax.io.serial.Link` until ``duration`` seconds, ``stop`` is set,
-    or Ctrl-C. ``on_scan(stats, output, stamp)`` is called after each scan (the live view)."""
+    or Ctrl-C. ``on_scan(stats, output, stamp)`` is called after each scan (the live view).
+    ``compiled``: ``(step, state)`` from :func:`warm_up`, done before the link started streaming."""
     from .io.record import Recorder
 
     sensor = link.model
     check_sensor(model, sensor, str(getattr(link, "port", "sensor")))
-    step, state = warm_up(model, sensor)
+    step, state = compiled if compiled is not None else warm_up(model, sensor)
+    while link.get(timeout=0) is not None:  # frames that queued up while compiling are stale
+        pass
     stats = LiveStats()
     outputs = outputs or Outputs()
     recorder = Recorder(record, model=sensor, intensities=with_intensity and sensor.has_intensity) if record else None

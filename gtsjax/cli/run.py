@@ -44,20 +44,22 @@ def live_view(model, link, stats, output, stamp) -> Group:
 
 def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Path | None = None,
                json_lines: bool = False, udp: str | None = None, duration: float | None = None,
-               intensity: bool = False, view: bool = True, console: Console | None = None):
+               intensity: bool = True, view: bool = True, console: Console | None = None):
     """Open the sensor, run the live loop, show the view; returns (live stats, link stats)."""
     from ..io.modelfile import load_model
     from ..io.serial import Link
     from ..io.site import load_site
-    from ..live import Outputs, run_live
+    from ..live import Outputs, run_live, warm_up
+    from ..sensors import MODELS
 
     console = console or Console(stderr=True)
     site_obj = load_site(site)
     model = load_model(model_path).with_site(site_obj, where=str(site))
+    # Compile before the sensor streams, when the model names a known scanner (else after connecting).
+    compiled = warm_up(model, MODELS[model.sensor_model]) if model.sensor_model in MODELS else None
     link = Link(port, intensity=intensity)
     link.start()
-    console.print(f"connected to {link.model.name} on {port} ({link.model.n_beams} beams, {link.model.rate_hz:g} Hz); "
-                  "compiling the step…")
+    console.print(f"connected to {link.model.name} on {port} ({link.model.n_beams} beams, {link.model.rate_hz:g} Hz)")
     last = {"t": 0.0}
     try:
         if view:
@@ -69,10 +71,11 @@ def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Pa
                         live.update(live_view(model, link, stats, o, stamp))
 
                 stats = run_live(link, model, out, record=record, outputs=Outputs(json_lines, udp),
-                                 duration=duration, on_scan=on_scan, with_intensity=intensity)
+                                 duration=duration, on_scan=on_scan, with_intensity=intensity,
+                                 compiled=compiled)
         else:
             stats = run_live(link, model, out, record=record, outputs=Outputs(json_lines, udp), duration=duration,
-                             with_intensity=intensity)
+                             with_intensity=intensity, compiled=compiled)
     finally:
         link.stop()
     return stats, link.stats
@@ -88,7 +91,8 @@ def run_cmd(
     json_lines: bool = typer.Option(False, "--json", help="Stream each scan's tracks as JSON lines on stdout."),
     udp: str | None = typer.Option(None, "--udp", help="Send each scan's tracks as JSON to HOST:PORT."),
     duration: float | None = typer.Option(None, help="Stop after this many seconds (default: until Ctrl-C)."),
-    intensity: bool = typer.Option(False, help="Stream intensities (ME) if the sensor has them."),
+    intensity: bool = typer.Option(True, "--intensity/--no-intensity",
+                                   help="Stream intensities (ME) if the sensor has them (models trained with them need them)."),
     quiet: bool = typer.Option(False, help="No live view."),
 ):
     """Track robots live from a sensor: GTD CSV, optional JSON lines / UDP, optional raw recording."""
