@@ -26,9 +26,34 @@ def draw_site(ax, site, sensor_pose=None) -> None:
     ax.set_ylabel("y [m]")
 
 
-def trajectory_figure(site, tracks: dict, truth=None, errors=None, title: str = "", sensor_pose=None):
+def arrow_rows(pose: np.ndarray, spacing: float = 0.3, turn: float = math.radians(45), most: int = 25) -> np.ndarray:
+    """Rows of a path ``[n, 3]`` (x, y, θ) to draw a heading arrow at, so that arrows stay sparse: the
+    first row, then each row that lies ``spacing`` metres along the path or ``turn`` radians of heading
+    from the last arrow; at most ``most``, evenly thinned, so that a jittery track does not become a
+    solid block of arrows."""
+    keep = [0] if len(pose) else []
+    for i in range(1, len(pose)):
+        j = keep[-1]
+        moved = math.hypot(pose[i, 0] - pose[j, 0], pose[i, 1] - pose[j, 1])
+        turned = abs(math.remainder(pose[i, 2] - pose[j, 2], 2 * math.pi))
+        if moved >= spacing or turned >= turn:
+            keep.append(i)
+    idx = np.asarray(keep, dtype=int)
+    if len(idx) > most:
+        idx = idx[np.linspace(0, len(idx) - 1, most).round().astype(int)]
+    return idx
+
+
+def trajectory_figure(site, tracks: dict, truth=None, errors=None, title: str = "", sensor_pose=None, labels=None,
+                      truth_labels=None, max_legend: int = 12):
     """``tracks``: track id -> array [n, 4] (stamp, x, y, θ); ``truth``: list of arrays [n, 3] (x, y, θ)
-    per labelled object; ``errors``: (t [n], position error [n] m, heading error [n] rad) or None."""
+    per labelled object; ``errors``: (t [n], position error [n] m, heading error [n] rad), or a list of
+    (label, t, position error, heading error) with one entry per labelled object, or None.
+
+    ``labels``: track id -> legend text (default ``track <id>``); ``truth_labels``: legend text per
+    labelled object (default: one entry, ``truth``). Only the first ``max_legend`` tracks get a legend
+    entry, so a log with many short tracks still leaves the field visible; the rest are counted.
+    """
     rows = 2 if errors is not None else 1
     fig = plt.figure(figsize=(9, 7.5 if rows == 2 else 5.5), constrained_layout=True)
     gs = fig.add_gridspec(rows, 1, height_ratios=[3, 1.2][:rows])
@@ -36,26 +61,38 @@ def trajectory_figure(site, tracks: dict, truth=None, errors=None, title: str = 
     draw_site(ax, site, sensor_pose)
     for k, tr in enumerate(truth or []):
         ok = ~np.isnan(tr[:, 0])
-        ax.plot(tr[ok, 0], tr[ok, 1], "-", c="#999", lw=3, alpha=0.6, label="truth" if k == 0 else None)
+        label = truth_labels[k] if truth_labels is not None else ("truth" if k == 0 else None)
+        ax.plot(tr[ok, 0], tr[ok, 1], "-", c="#999", lw=3, alpha=0.6, label=label)
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for k, (tid, tr) in enumerate(sorted(tracks.items())):
         c = colours[k % len(colours)]
-        ax.plot(tr[:, 1], tr[:, 2], "-", c=c, lw=1.2, label=f"track {tid}")
-        step = max(1, len(tr) // 25)
-        ax.quiver(tr[::step, 1], tr[::step, 2], np.cos(tr[::step, 3]), np.sin(tr[::step, 3]), color=c, scale=30,
-                  width=0.003)
+        label = (labels or {}).get(tid, f"track {tid}") if k < max_legend else None
+        ax.plot(tr[:, 1], tr[:, 2], "-", c=c, lw=1.2, label=label)
+        a = tr[arrow_rows(tr[:, 1:])]
+        ax.quiver(a[:, 1], a[:, 2], np.cos(a[:, 3]), np.sin(a[:, 3]), color=c, scale=30, width=0.003)
+    if len(tracks) > max_legend:
+        ax.plot([], [], " ", label=f"+ {len(tracks) - max_legend} more tracks")
     ax.legend(loc="upper right", fontsize=8, ncol=2)
     ax.set_title(title)
     if errors is not None:
-        t, e_pos, e_th = errors
         ax2 = fig.add_subplot(gs[1])
-        ax2.plot(t, 100 * e_pos, c="#1f77b4", lw=1)
-        ax2.set_ylabel("position error [cm]", color="#1f77b4")
         ax2.set_xlabel("time [s]")
-        ax3 = ax2.twinx()
-        ax3.plot(t, np.degrees(np.abs(e_th)), c="#d62728", lw=1, alpha=0.7)
-        ax3.set_ylabel("|heading error| [°]", color="#d62728")
         ax2.grid(alpha=0.3)
+        ax3 = ax2.twinx()
+        if isinstance(errors, tuple):
+            t, e_pos, e_th = errors
+            ax2.plot(t, 100 * e_pos, c="#1f77b4", lw=1)
+            ax2.set_ylabel("position error [cm]", color="#1f77b4")
+            ax3.plot(t, np.degrees(np.abs(e_th)), c="#d62728", lw=1, alpha=0.7)
+            ax3.set_ylabel("|heading error| [°]", color="#d62728")
+        else:
+            for k, (label, t, e_pos, e_th) in enumerate(errors):
+                c = colours[k % len(colours)]
+                ax2.plot(t, 100 * e_pos, "-", c=c, lw=1.2, label=f"{label} position")
+                ax3.plot(t, np.degrees(np.abs(e_th)), ":", c=c, lw=1, alpha=0.8)
+            ax2.set_ylabel("position error [cm] (solid)")
+            ax3.set_ylabel("|heading error| [°] (dotted)")
+            ax2.legend(loc="upper left", fontsize=8)
     return fig
 
 

@@ -6,9 +6,12 @@ import sys
 from ..errors import InputError
 
 # Each import registers its command(s) on ``app``.
+from . import convert as _convert  # noqa: E402,F401
 from . import demo as _demo  # noqa: E402,F401
 from . import evaluate as _evaluate  # noqa: E402,F401
+from . import export as _export  # noqa: E402,F401
 from . import info as _info  # noqa: E402,F401
+from . import plot as _plot  # noqa: E402,F401
 from . import replay as _replay  # noqa: E402,F401
 from . import run as _run  # noqa: E402,F401
 from . import simulate as _simulate  # noqa: E402,F401

@@ -6,15 +6,22 @@ from pathlib import Path
 import numpy as np
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
-from ..io import load_log, load_site
+from ..io import load_site
+from ..io.importers import detect_format, format_name
 from ..sensors import MODELS
 from ._app import app
+from .convert import TOPIC_HELP, describe, load_input, source_of
 
 
 @app.command()
-def info(files: list[Path] = typer.Argument(..., help="Scan logs (.npz) and site files (.json) to check.")):
+def info(
+    files: list[Path] = typer.Argument(..., help="Scan logs (.npz, or any input gtsjax convert takes) and site "
+                                                 "files (.json) to check."),
+    topic: str | None = typer.Option(None, "--topic", help=TOPIC_HELP),
+):
     """Check scan logs and site files against the format and print what they hold."""
     console = Console(soft_wrap=True)
     for path in files:
@@ -23,7 +30,7 @@ def info(files: list[Path] = typer.Argument(..., help="Scan logs (.npz) and site
             console.print(f"{path}: site, {len(site.landmarks)} landmarks", soft_wrap=True)
             table = Table()
             for col in ("class", "x [m]", "y [m]"):
-                table.add_column(col)
+                table.add_column(escape(col))  # units in [] are not Rich markup
             for lm in site.landmarks:
                 table.add_row(lm.cls, f"{lm.x:.3f}", f"{lm.y:.3f}")
             console.print(table)
@@ -31,22 +38,19 @@ def info(files: list[Path] = typer.Argument(..., help="Scan logs (.npz) and site
             console.print(f"  sensor pose guess: x={x:.3f} m  y={y:.3f} m  θ={np.degrees(th):.1f}°"
                           f"   bounds: {site.bounds if site.bounds is not None else 'none'}")
         else:
-            log = load_log(path)
-            dur = float(log.stamps[-1] - log.stamps[0])
-            rate = (log.n_scans - 1) / dur if dur > 0 else float("nan")
-            valid = log.valid().mean()
-            console.print(
-                f"{path}: {log.n_scans} scans × {log.n_beams} beams, {dur:.1f} s ({rate:.1f} Hz), "
-                f"sensor {log.sensor_model or 'unknown'}, fov {np.degrees(log.angle_increment * (log.n_beams - 1)):.1f}°, "
-                f"{100 * valid:.0f}% returns, intensities {'yes' if log.intensities is not None else 'no'}"
-            )
+            is_bag = detect_format(path) in ("ros1", "ros2")
+            log = load_input(path, topic if is_bag else None, Console(stderr=True))
+            kind = "" if detect_format(path) == "npz" else f" ({format_name(path)})"
+            console.print(f"{path}{kind}: {describe(log)}")
+            if (src := source_of(log)) is not None:
+                console.print(f"  source: {src}")
             if log.labelled:
                 present = ~np.isnan(log.truth_poses[..., 0])
                 labels = ", ".join(f"{c} ({100 * present[:, m].mean():.0f}% of scans)"
                                    for m, c in enumerate(log.truth_classes))
                 console.print(f"  labelled objects: {labels}")
-            if log.extra:
-                console.print(f"  extra keys: {', '.join(sorted(log.extra))}")
+            if extra := sorted(k for k in log.extra if k != "source"):
+                console.print(f"  extra keys: {', '.join(extra)}")
 
 
 @app.command()
@@ -54,7 +58,7 @@ def sensors():
     """List the sensor models gtsjax knows (as their PP reply would describe them)."""
     table = Table(title="sensor models")
     for col in ("model", "beams", "steps", "front", "fov [°]", "range [m]", "rate [Hz]", "intensity", "noise σ"):
-        table.add_column(col)
+        table.add_column(escape(col))  # units in [] are not Rich markup
     for m in MODELS.values():
         n = m.noise
         far = f"{100 * n.frac_far:.0f}%" if n.frac_far else f"{1000 * n.sigma_far:.0f} mm"

@@ -1,5 +1,6 @@
-"""``gtsjax replay LOG.npz --site SITE.json --model MODEL --out GTD.csv``: batch re-processing of a
-logged scan file through the same jitted pipeline as the live loop."""
+"""``gtsjax replay LOG --site SITE.json --model MODEL --out GTD.csv [--topic T]``: batch re-processing of a
+logged scan file (a ``.npz`` log, or a ROS bag, CARMEN or BreezySLAM log read as ``gtsjax convert`` reads
+it) through the same jitted pipeline as the live loop."""
 
 import csv
 import time
@@ -11,10 +12,12 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
 from ..errors import InputError
-from ..io import load_log, load_site, to_scans
+from ..io import load_site, to_scans
 from ..io.gtd import GTDWriter, rows_from_output, wrap_angle
+from ..io.importers import detect_format, format_name
 from ..io.modelfile import load_model
 from ._app import app
+from .convert import INPUT_HELP, TOPIC_HELP, describe, load_input, source_of
 
 
 def replay_log(log, model, out: Path, *, chunk: int = 256, sensor_out: Path | None = None, progress=None):
@@ -70,16 +73,17 @@ def load_for_run(model_path: Path, site_path: Path, *, sensor_model: str | None,
 
 @app.command("replay")
 def replay_cmd(
-    log: Path = typer.Argument(..., help="Scan log (.npz)."),
+    log: Path = typer.Argument(..., help=INPUT_HELP),
     site: Path = typer.Option(..., "--site", help="Site file (.json)."),
     model: Path = typer.Option(..., "--model", help="Model file from gtsjax train."),
     out: Path = typer.Option(..., "--out", help="Ground-truth CSV to write."),
     sensor_out: Path | None = typer.Option(None, "--sensor-out", help="Also write the estimated sensor pose per scan (CSV)."),
     chunk: int = typer.Option(256, min=1, help="Scans per vmapped chunk."),
+    topic: str | None = typer.Option(None, "--topic", help=TOPIC_HELP),
 ):
     """Process a logged scan file into ground truth (GTD CSV)."""
     console = Console(stderr=True)
-    scan_log = load_log(log)
+    scan_log = load_input(log, topic, console)
     if scan_log.sensor_model is None:
         sensor = None
     else:
@@ -87,6 +91,10 @@ def replay_cmd(
     m = load_for_run(model, site, sensor_model=sensor, n_beams=scan_log.n_beams)
     if scan_log.n_beams > m.n_beams:
         raise InputError(log, f"has {scan_log.n_beams} beams; the model was trained for {m.n_beams}")
+    if detect_format(log) != "npz":  # what was read from another program's log, once it is known to fit
+        console.print(f"{log} ({format_name(log)}): {describe(scan_log)}", soft_wrap=True)
+        if (src := source_of(scan_log)) is not None:
+            console.print(f"  source: {src}", soft_wrap=True)
     t0 = time.perf_counter()
     with Progress(TextColumn("replay"), BarColumn(), MofNCompleteColumn(), TextColumn("scans"),
                   TimeRemainingColumn(), console=console, transient=True) as bar:

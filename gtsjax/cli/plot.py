@@ -1,0 +1,122 @@
+"""``gtsjax plot GTD.csv --site SITE.json [--truth LOG.npz] [--out PNG]``: a picture of any ground-truth
+output: the field, its landmarks and the laser, every track's path (a colour per track, heading
+arrows now and then), and, given the labelled log the CSV was made from, the true paths and each
+labelled object's position and heading error over time."""
+
+from pathlib import Path
+
+import numpy as np
+import typer
+from rich.console import Console
+
+from ..errors import InputError
+from ..io import load_log, load_site
+from ..io.gtd import TrackRow, read_gtd, tracks_of, wrap_angle
+from ._app import app
+
+
+def scan_index(row_stamps: np.ndarray, log_stamps: np.ndarray) -> np.ndarray:
+    """For each GTD row, the index of the log's scan with the same stamp, or -1. Replay writes the
+    log's stamps exactly; a tolerance of 1 ms (or a quarter of the scan period, if less) allows for
+    CSVs that other tools rounded."""
+    if len(log_stamps) == 0 or len(row_stamps) == 0:
+        return np.full(len(row_stamps), -1)
+    dts = np.diff(log_stamps)
+    dts = dts[dts > 0]
+    tol = min(1e-3, 0.25 * float(np.median(dts))) if dts.size else 1e-3
+    hi = np.clip(np.searchsorted(log_stamps, row_stamps), 0, len(log_stamps) - 1)
+    lo = np.clip(hi - 1, 0, len(log_stamps) - 1)
+    best = np.where(np.abs(log_stamps[lo] - row_stamps) <= np.abs(log_stamps[hi] - row_stamps), lo, hi)
+    return np.where(np.abs(log_stamps[best] - row_stamps) <= tol, best, -1)
+
+
+def truth_errors(rows: list[TrackRow], log, radius: float, where: object):
+    """Per labelled object of ``log``: (class, error series over the log's scans) where the series are
+    position error [T] and heading error [T], NaN where the object is absent or no track of its class
+    is within ``radius`` of it. Each object is matched, independently in every scan, to the nearest
+    track of its class (of any class, if the CSV has none of that class)."""
+    T, M = log.truth_poses.shape[:2]
+    st = np.array([r.stamp for r in rows], dtype=np.float64)
+    idx = scan_index(st, log.stamps)
+    if rows and not (idx >= 0).any():
+        raise InputError(where, f"none of its {T} scan stamps ({log.stamps[0]:.3f} … {log.stamps[-1]:.3f} s) matches "
+                                f"a row of the CSV ({st.min():.3f} … {st.max():.3f} s): is it the log the CSV was "
+                                "made from?")
+    pose = np.array([[r.x, r.y, r.theta] for r in rows], dtype=np.float64).reshape(-1, 3)
+    cls = np.array([r.cls for r in rows])
+    order = np.argsort(idx, kind="stable")
+    starts = np.searchsorted(idx[order], np.arange(T + 1))
+    out = []
+    for m in range(M):
+        c = str(log.truth_classes[m])
+        same = cls == c if (cls == c).any() else np.ones(len(rows), bool)
+        e_pos = np.full(T, np.nan)
+        e_th = np.full(T, np.nan)
+        for t in np.flatnonzero(~np.isnan(log.truth_poses[:, m, 0])):
+            cand = order[starts[t]:starts[t + 1]]
+            cand = cand[same[cand]]
+            if cand.size == 0:
+                continue
+            d = np.linalg.norm(pose[cand, :2] - log.truth_poses[t, m, :2], axis=1)
+            j = int(np.argmin(d))
+            if d[j] <= radius:
+                e_pos[t] = d[j]
+                e_th[t] = float(wrap_angle(pose[cand[j], 2] - log.truth_poses[t, m, 2]))
+        out.append((c, e_pos, e_th))
+    return out
+
+
+@app.command()
+def plot(
+    gtd: Path = typer.Argument(..., help="Ground-truth CSV (from replay or run)."),
+    site: Path = typer.Option(..., "--site", help="Site file (.json) the CSV was made with."),
+    truth: Path | None = typer.Option(None, "--truth", help="Labelled scan log (.npz) the CSV was made from: adds "
+                                                            "the true paths and the error over time."),
+    out: Path | None = typer.Option(None, "--out", help="PNG to write (default: the CSV's name with .png)."),
+    match_radius: float = typer.Option(0.5, "--match-radius", min=0.0, help="With --truth: a track farther than "
+                                                                              "this (m) from an object is no match."),
+):
+    """Draw a ground-truth CSV on its field: tracks, headings, and with --truth the error over time."""
+    from ..viz import trajectory_figure
+
+    console = Console(stderr=True, soft_wrap=True)
+    site_obj = load_site(site)
+    rows = read_gtd(gtd)
+    tracks, labels = {}, {}
+    for tid, cls, arr in tracks_of(rows):
+        tracks[tid], labels[tid] = arr, f"{cls} {tid}"
+    span = (max(r.stamp for r in rows) - min(r.stamp for r in rows)) if rows else 0.0
+    title = f"{gtd.name}: {len(tracks)} track{'s' * (len(tracks) != 1)}, {len(rows)} rows over {span:.1f} s"
+    true_paths = truth_labels = errors = None
+    summary = []
+    if truth is not None:
+        log = load_log(truth)
+        if not log.labelled:
+            raise InputError(truth, "has no truth_poses: --truth needs a labelled log")
+        t = log.stamps - log.stamps[0]
+        true_paths = [log.truth_poses[:, m] for m in range(log.truth_poses.shape[1])]
+        errors, truth_labels = [], []
+        for m, (c, e_pos, e_th) in enumerate(truth_errors(rows, log, match_radius, truth)):
+            present = ~np.isnan(log.truth_poses[:, m, 0])
+            hit = ~np.isnan(e_pos)
+            name = f"{c} {m}"
+            truth_labels.append(f"truth: {name}")
+            if hit.any():
+                rmse = 100 * np.sqrt(np.mean(e_pos[hit] ** 2))
+                head = np.degrees(np.sqrt(np.mean(e_th[hit] ** 2)))
+                text = (f"{name}: tracked in {100 * hit.sum() / max(present.sum(), 1):.0f}% of its scans, "
+                        f"RMSE {rmse:.1f} cm, {head:.1f}°")
+            else:
+                text = f"{name}: never tracked within {match_radius:g} m"
+            summary.append(text)
+            errors.append((name, t, e_pos, e_th))
+        title += "\n" + "; ".join(summary)
+    fig = trajectory_figure(site_obj, tracks, truth=true_paths, errors=errors, title=title, labels=labels,
+                            truth_labels=truth_labels)
+    out = gtd.with_suffix(".png") if out is None else out
+    if out.parent and not out.parent.exists():
+        out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=110)
+    for line in summary:
+        console.print(line)
+    console.print(f"wrote {out} ({len(tracks)} tracks{', with truth' if truth is not None else ''})")
