@@ -51,7 +51,7 @@ def trajectory_figure(site, tracks: dict, truth=None, errors=None, title: str = 
     (label, t, position error, heading error) with one entry per labelled object, or None.
 
     ``labels``: track id -> legend text (default ``track <id>``); ``truth_labels``: legend text per
-    labelled object (default: one entry, ``truth``). Only the first ``max_legend`` tracks get a legend
+    labelled object (default: one entry, ``truth``), also written where each true path starts. Only the first ``max_legend`` tracks get a legend
     entry, so a log with many short tracks still leaves the field visible; the rest are counted.
     """
     rows = 2 if errors is not None else 1
@@ -63,6 +63,10 @@ def trajectory_figure(site, tracks: dict, truth=None, errors=None, title: str = 
         ok = ~np.isnan(tr[:, 0])
         label = truth_labels[k] if truth_labels is not None else ("truth" if k == 0 else None)
         ax.plot(tr[ok, 0], tr[ok, 1], "-", c="#999", lw=3, alpha=0.6, label=label)
+        if truth_labels is not None and ok.any():  # name each true path where it starts
+            x0, y0 = tr[ok][0, :2]
+            ax.annotate(truth_labels[k], (x0, y0), textcoords="offset points", xytext=(0, -11), ha="center",
+                        fontsize=7, color="#555")
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for k, (tid, tr) in enumerate(sorted(tracks.items())):
         c = colours[k % len(colours)]

@@ -260,7 +260,7 @@ def test_plot_with_truth_writes_png(labelled, tmp_path):
     assert res.returncode == 0, res.stderr
     png = tmp_path / "gtd.png"
     assert f"wrote {png}" in res.stderr
-    assert "robot 0: tracked in 100% of its scans, RMSE 2.0 cm, 0.0°" in res.stderr
+    assert "truth 0 (robot): tracked in 100% of its scans, RMSE 2.0 cm, 0.0°" in res.stderr
     img = matplotlib.image.imread(png)
     assert img.shape[0] > 500 and img.shape[1] > 500
     assert img[..., :3].std() > 0.05  # a picture, not a blank canvas

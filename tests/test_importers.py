@@ -405,3 +405,8 @@ def test_topic_for_a_non_bag_is_an_error(logs):
 def test_read_rosbag_missing_path(tmp_path):
     with pytest.raises(InputError, match="no such file"):
         read_rosbag(tmp_path / "nope.bag")
+
+
+def test_directory_that_is_not_a_ros2_bag(tmp_path):
+    with pytest.raises(InputError, match="is a directory without a metadata.yaml: neither a ROS 2 bag nor a scan log"):
+        import_log(tmp_path)

@@ -3,6 +3,7 @@ output: the field, its landmarks and the laser, every track's path (a colour per
 arrows now and then), and, given the labelled log the CSV was made from, the true paths and each
 labelled object's position and heading error over time."""
 
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -84,11 +85,11 @@ def plot(
     rows = read_gtd(gtd)
     tracks, labels = {}, {}
     for tid, cls, arr in tracks_of(rows):
-        tracks[tid], labels[tid] = arr, f"{cls} {tid}"
+        tracks[tid], labels[tid] = arr, f"track {tid} ({cls})"
     span = (max(r.stamp for r in rows) - min(r.stamp for r in rows)) if rows else 0.0
     title = f"{gtd.name}: {len(tracks)} track{'s' * (len(tracks) != 1)}, {len(rows)} rows over {span:.1f} s"
     true_paths = truth_labels = errors = None
-    summary = []
+    summary, short = [], []
     if truth is not None:
         log = load_log(truth)
         if not log.labelled:
@@ -99,18 +100,21 @@ def plot(
         for m, (c, e_pos, e_th) in enumerate(truth_errors(rows, log, match_radius, truth)):
             present = ~np.isnan(log.truth_poses[:, m, 0])
             hit = ~np.isnan(e_pos)
-            name = f"{c} {m}"
-            truth_labels.append(f"truth: {name}")
+            name = f"truth {m} ({c})"
+            truth_labels.append(name)
             if hit.any():
                 rmse = 100 * np.sqrt(np.mean(e_pos[hit] ** 2))
                 head = np.degrees(np.sqrt(np.mean(e_th[hit] ** 2)))
                 text = (f"{name}: tracked in {100 * hit.sum() / max(present.sum(), 1):.0f}% of its scans, "
                         f"RMSE {rmse:.1f} cm, {head:.1f}°")
+                short.append(f"{name}: {100 * hit.sum() / max(present.sum(), 1):.0f}% tracked, RMSE {rmse:.1f} cm "
+                             f"{head:.1f}°")
             else:
                 text = f"{name}: never tracked within {match_radius:g} m"
+                short.append(f"{name}: not tracked")
             summary.append(text)
             errors.append((name, t, e_pos, e_th))
-        title += "\n" + "; ".join(summary)
+        title += "\n" + textwrap.fill("; ".join(short), 100)
     fig = trajectory_figure(site_obj, tracks, truth=true_paths, errors=errors, title=title, labels=labels,
                             truth_labels=truth_labels)
     out = gtd.with_suffix(".png") if out is None else out

@@ -84,6 +84,8 @@ def import_log(path: str | os.PathLike, *, topic: str | None = None, progress: P
     if topic is not None and fmt not in ("ros1", "ros2"):
         raise InputError(path, f"a topic ({topic}) applies to ROS bags only; this is {_FORMAT_NAMES[fmt]}")
     if fmt == "npz":
+        if path.is_dir():
+            raise InputError(path, "is a directory without a metadata.yaml: neither a ROS 2 bag nor a scan log")
         return load_log(path)
     if fmt in ("ros1", "ros2"):
         return read_rosbag(path, topic=topic, progress=progress)
