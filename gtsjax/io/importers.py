@@ -17,7 +17,8 @@ Every reader parses the whole input before it returns, so a bad file never leave
 what is wrong with it is one :class:`InputError` naming the file and the line or message. The result
 is validated against the spec, so it always saves (:func:`~gtsjax.io.logs.save_log`) and loads back.
 Each imported log carries a one-line ``source`` key (kept as an extra key of the format) that says
-where its scans, angles and stamps came from.
+where its scans, angles and stamps came from, and what was repaired: real logs' stamps step back
+now and then, which the format forbids (see :data:`MAX_STAMP_STEP_BACK`).
 """
 
 import gzip
