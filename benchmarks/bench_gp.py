@@ -1,18 +1,27 @@
-"""GP fit and prediction timings against scikit-learn, on laser-profile-like data (d = 21).
+"""GP hyperparameter fitting: ``gtsjax.gp.fit`` against scikit-learn's ``GaussianProcessRegressor``
+and (where it installs) tinygp, on the same data, for time and log marginal likelihood (LML).
 
-    python benchmarks/bench_gp.py [--quick] [--json PATH] [--sizes 500 1000 2000] [--sk-max 2000]
+The data are the project's own: GP inputs (characteristic vector, depth, range; d = 23) of robot
+candidates from the simulated SPL training grid, with the robot's x̃ in the candidate's ORS as the
+target (a pose regressor of stage e). Every library gets the same standardised inputs and centred
+targets and the same model, ``σf² exp(−½ Σ_d (x_d − x'_d)² / l_d²) + σn² δ`` (ARD, one length scale
+per feature), and the same number of optimiser starts (3: the default start ``l = √d``,
+``σf² = var y``, ``σn² = var y / 10``, and two random ones):
 
-For each training-set size N: gtsjax fit time (first call, which includes compilation, and a second
-warmed call with another key), sklearn GaussianProcessRegressor fit time (same kernel family,
-n_restarts_optimizer=2, on the same standardised inputs and centred targets), both optima's log
-marginal likelihoods, and the predictive pass for 32 test points (exact GP and DTC sparse GP with
-M inducing points): median of repeated calls after warm-up, ending in block_until_ready. Wall-clock
-numbers depend on the load of the machine; report them with that caveat.
+* gtsjax: Optimistix BFGS in float64 with a closed-form LML gradient (``gp.fit``, ``restarts=3``);
+* scikit-learn: ``ConstantKernel * RBF(ARD) + WhiteKernel`` with L-BFGS-B, ``n_restarts_optimizer=2``;
+* tinygp: the same kernel (``transforms.Linear`` on ``ExpSquared``), its ``log_probability``
+  differentiated by JAX, jitted, and minimised with SciPy's L-BFGS-B, as jaxopt's ``ScipyMinimize``
+  does.
+
+Each optimum's LML is also evaluated by one function (``gtsjax.gp.log_marginal_likelihood``), so the
+"equal or better LML" comparison does not depend on each library's bookkeeping. Fit time is wall
+clock of the whole fit; gtsjax and tinygp are timed after a first call that compiles (reported
+separately as the cold time). The profile: the cost of one LML-and-gradient evaluation in each
+library, and how many evaluations the fit time implies.
 """
 
-import argparse
-import json
-import statistics
+import math
 import time
 import warnings
 
@@ -20,141 +29,170 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-jax.config.update("jax_enable_x64", True)
+from . import _data
 
-from gtsjax import gp  # noqa: E402
-
-
-def profiles(rng, n, d=21):
-    """d features: (d - 5) depth-profile cells of an ellipse seen at heading phi, then width, mean
-    intensity, point count, range and a nuisance feature; target cos(phi) plus noise."""
-    n_cells = d - 5
-    phi = rng.uniform(-np.pi, np.pi, n)
-    rng_m = rng.uniform(0.5, 3.5, n)
-    cells = np.linspace(-1.0, 1.0, n_cells)
-    half_w = 0.6 + 0.3 * np.abs(np.cos(phi))
-    depth = np.sqrt(np.clip(1.0 - (cells[None, :] / half_w[:, None]) ** 2, 0.0, None))
-    depth = depth * (0.4 + 0.2 * np.sin(phi))[:, None] + 0.01 * rng.normal(size=(n, n_cells))
-    extra = np.stack([2.0 * half_w, 0.5 + 0.1 * np.cos(phi), 40.0 / rng_m, rng_m, rng.normal(size=n)], axis=1)
-    return np.concatenate([depth, extra], axis=1), np.cos(phi) + 0.05 * rng.normal(size=n)
+SECTION = "gp"
 
 
-def median_time(fn, repeats):
-    jax.block_until_ready(fn())  # warm-up (compilation)
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn())
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
+def standardise(x, y):
+    """As ``gp.fit`` does: per-feature mean and standard deviation (constant features scale 1), centred y."""
+    m, s = x.mean(0), x.std(0)
+    s = np.where(s > 1e-12 * np.maximum(np.abs(m), 1.0), s, 1.0)
+    return (x - m) / s, y - y.mean()
 
 
-def sklearn_fit(x, y, restarts):
+def starts(d: int, y_var: float, n: int, seed: int = 0) -> list[np.ndarray]:
+    """``(log l [d], log σf², log σn²)`` start vectors: the default start, then random ones around it
+    (the same distribution as gtsjax's restarts)."""
+    rng = np.random.default_rng(seed)
+    base = np.concatenate([np.full(d, 0.5 * math.log(d)), [math.log(y_var), math.log(y_var / 10)]])
+    out = [base]
+    for _ in range(n - 1):
+        out.append(base + np.concatenate([rng.uniform(-1.5, 1.5, d), rng.uniform(-1, 1, 1), rng.uniform(-4, 1.5, 1)]))
+    return out
+
+
+def common_lml(theta: np.ndarray, x: np.ndarray, y: np.ndarray) -> float:
+    """LML of hyperparameters ``theta = (log l, log σf², log σn²)`` by gtsjax's eq. 5 (float64)."""
+    from gtsjax import gp
+
+    d = x.shape[1]
+    p = gp.Hyperparameters(jnp.asarray(theta[:d]), jnp.asarray(theta[d]), jnp.asarray(theta[d + 1]))
+    return float(gp.log_marginal_likelihood(p, jnp.asarray(x), jnp.asarray(y)))
+
+
+def fit_gtsjax(x, y, restarts: int):
+    from gtsjax import gp
+
+    g = jax.block_until_ready(gp.fit(x, y, key=jax.random.key(0), restarts=restarts))
+    p = g.params
+    theta = np.concatenate([np.asarray(p.log_lengthscale), [float(p.log_signal_var), float(p.log_noise_var)]])
+    return theta, float(g.log_marginal_likelihood())
+
+
+def fit_sklearn(xs, yc, restarts: int):
     from sklearn.exceptions import ConvergenceWarning
     from sklearn.gaussian_process import GaussianProcessRegressor
     from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
 
-    d = x.shape[1]
-    kernel = ConstantKernel(1.0, (1e-5, 1e5)) * RBF(np.full(d, np.sqrt(d)), (1e-5, 1e5)) + WhiteKernel(0.1, (1e-5, 1e5))
-    reg = GaussianProcessRegressor(kernel, n_restarts_optimizer=restarts, random_state=0, normalize_y=False)
+    d = xs.shape[1]
+    v = float(yc.var())
+    kernel = ConstantKernel(v, (1e-5, 1e5)) * RBF(np.full(d, math.sqrt(d)), (1e-5, 1e5)) + WhiteKernel(v / 10, (1e-5, 1e5))
+    reg = GaussianProcessRegressor(kernel, n_restarts_optimizer=restarts - 1, random_state=0, normalize_y=False)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
+        reg.fit(xs, yc)
+    k = reg.kernel_
+    theta = np.concatenate([np.log(k.k1.k2.length_scale), [math.log(k.k1.k1.constant_value), math.log(k.k2.noise_level)]])
+    return theta, float(reg.log_marginal_likelihood_value_), reg
+
+
+def tinygp_objective(xs, yc):
+    """Jitted ``θ ↦ (−LML, ∇)`` of the tinygp model on (xs, yc)."""
+    from tinygp import GaussianProcess, kernels, transforms
+
+    d = xs.shape[1]
+    x, y = jnp.asarray(xs), jnp.asarray(yc)
+
+    def nll(theta):
+        sf2 = jnp.exp(theta[d])
+        k = sf2 * transforms.Linear(jnp.exp(-theta[:d]), kernels.ExpSquared())
+        return -GaussianProcess(k, x, diag=jnp.exp(theta[d + 1]) + 1e-8 * sf2).log_probability(y)
+
+    return jax.jit(jax.value_and_grad(nll))
+
+
+def fit_tinygp(obj, xs, yc, restarts: int):
+    from scipy.optimize import minimize
+
+    def f(t):
+        v, g = obj(jnp.asarray(t))
+        return float(v), np.asarray(g, np.float64)
+
+    best = None
+    for t0 in starts(xs.shape[1], float(yc.var()), restarts):
+        r = minimize(f, t0, jac=True, method="L-BFGS-B")
+        if np.isfinite(r.fun) and (best is None or r.fun < best.fun):
+            best = r
+    return best.x, -float(best.fun)
+
+
+def _timed(fn, repeats):
+    out, value = [], None
+    for _ in range(repeats):
         t0 = time.perf_counter()
-        reg.fit(x, y)
-        return time.perf_counter() - t0, float(reg.log_marginal_likelihood_value_)
+        value = fn()
+        out.append(time.perf_counter() - t0)
+    return np.asarray(out), value
 
 
-def run(sizes, sk_max, sk_restarts, n_inducing, repeats):
-    rng = np.random.default_rng(0)
-    rows = []
+def per_eval_costs(ctx, xs, yc, obj_tiny, reg) -> dict:
+    """Seconds for one LML + gradient evaluation in each library, at the default start."""
+    from gtsjax import gp
+
+    d = xs.shape[1]
+    t0 = starts(d, float(yc.var()), 1)[0]
+    x, y = jnp.asarray(xs), jnp.asarray(yc)
+
+    def neg(theta):
+        p = gp.Hyperparameters(theta[:d], theta[d], theta[d + 1])
+        return -gp.log_marginal_likelihood(p, x, y)
+
+    g = jax.jit(jax.value_and_grad(neg))
+    th = jnp.asarray(t0)
+    out = {"gtsjax": float(np.median(ctx.time_calls(lambda i: g(th), 20, warmup=2)))}
+    if obj_tiny is not None:
+        out["tinygp"] = float(np.median(ctx.time_calls(lambda i: obj_tiny(th), 20, warmup=2)))
+    if reg is not None:
+        sk_theta = reg.kernel_.theta
+        out["scikit-learn"] = float(np.median(ctx.time_calls(
+            lambda i: reg.log_marginal_likelihood(sk_theta, eval_gradient=True, clone_kernel=False), 20, warmup=2)))
+    return out
+
+
+def compare(ctx, n: int, repeats: int, restarts: int = 3) -> dict:
+    """Fit the n-point problem with every library; record times, LMLs and ratios."""
+    res = ctx.results
+    x, y = _data.gp_problem(n)
+    xs, yc = standardise(x, y)
+    tag = f"n{n}"
+    t_cold, _ = _timed(lambda: fit_gtsjax(x, y, restarts), 1)
+    t_g, (th_g, lml_g) = _timed(lambda: fit_gtsjax(x, y, restarts), repeats)
+    res.add(f"gp_fit.{tag}.gtsjax", "s", t_g, section=SECTION, label=f"GP fit N={n}, d=23: gtsjax.gp.fit (3 starts)",
+            n_train=n, cold_s=float(t_cold[0]))
+    t_s, (th_s, lml_s, reg) = _timed(lambda: fit_sklearn(xs, yc, restarts), repeats)
+    res.add(f"gp_fit.{tag}.sklearn", "s", t_s, section=SECTION, label=f"GP fit N={n}: scikit-learn GPR (3 starts)",
+            n_train=n)
+    res.ratio(f"gp_fit.{tag}.sklearn_over_gtsjax", f"gp_fit.{tag}.sklearn", f"gp_fit.{tag}.gtsjax",
+              meaning=f"how many times faster gtsjax fits than scikit-learn (N={n}, median)")
+    lml = {"gtsjax": {"own": lml_g, "common": common_lml(th_g, xs, yc)},
+           "scikit-learn": {"own": lml_s, "common": common_lml(th_s, xs, yc)}}
+    obj = None
+    if ctx.peer("tinygp"):
+        obj = tinygp_objective(xs, yc)
+        t_tc, _ = _timed(lambda: fit_tinygp(obj, xs, yc, restarts), 1)
+        t_t, (th_t, lml_t) = _timed(lambda: fit_tinygp(obj, xs, yc, restarts), repeats)
+        res.add(f"gp_fit.{tag}.tinygp", "s", t_t, section=SECTION,
+                label=f"GP fit N={n}: tinygp + SciPy L-BFGS-B (3 starts)", n_train=n, cold_s=float(t_tc[0]))
+        res.ratio(f"gp_fit.{tag}.tinygp_over_gtsjax", f"gp_fit.{tag}.tinygp", f"gp_fit.{tag}.gtsjax",
+                  meaning=f"how many times faster gtsjax fits than tinygp + L-BFGS-B (N={n}, median)")
+        lml["tinygp"] = {"own": lml_t, "common": common_lml(th_t, xs, yc)}
+    res.checks[f"gp_lml.{tag}"] = {"n_train": n, "lml": lml,
+                                   "gtsjax_minus_sklearn_common": lml["gtsjax"]["common"] - lml["scikit-learn"]["common"]}
+    evals = per_eval_costs(ctx, xs, yc, obj, reg)
+    fit_times = {"gtsjax": float(np.median(t_g)), "scikit-learn": float(np.median(t_s))}
+    if obj is not None:
+        fit_times["tinygp"] = float(np.median(t_t))
+    res.profiles[f"gp_fit.{tag}"] = {
+        "seconds_per_lml_and_gradient": evals,
+        "implied_evaluations": {k: round(fit_times[k] / v) for k, v in evals.items()},
+    }
+    return lml
+
+
+def run(ctx) -> None:
+    sizes = [100] if ctx.quick else [100, 300]
     for n in sizes:
-        x, y = profiles(rng, n)
-        xt, _ = profiles(rng, 32)
-        t0 = time.perf_counter()
-        g = gp.fit(x, y, key=jax.random.key(0))
-        jax.block_until_ready(g)
-        t_first = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        jax.block_until_ready(gp.fit(x, y, key=jax.random.key(1)))
-        t_warm = time.perf_counter() - t0
-        lml = float(g.log_marginal_likelihood())
-
-        if n <= sk_max:
-            t_sk, lml_sk = sklearn_fit(np.asarray(g.x), np.asarray(g.y), sk_restarts)
-        else:
-            t_sk, lml_sk = float("nan"), float("nan")
-
-        xt = jnp.asarray(xt)
-        sp = g.sparse(n_inducing)
-        t_exact = median_time(lambda g=g, xt=xt: g.predict(xt), repeats)
-        t_sparse = median_time(lambda sp=sp, xt=xt: sp.predict(xt), repeats)
-        m_e, v_e = g.predict(xt)
-        m_s, v_s = sp.predict(xt)
-        g32 = g.astype(jnp.float32)
-        xt32 = xt.astype(jnp.float32)
-        t_exact32 = median_time(lambda g32=g32, xt32=xt32: g32.predict(xt32), repeats)
-        rows.append(
-            dict(
-                n=n,
-                d=x.shape[1],
-                fit_first_s=t_first,
-                fit_warm_s=t_warm,
-                sk_fit_s=t_sk,
-                sk_over_ours=t_sk / t_warm,
-                lml=lml,
-                lml_sk=lml_sk,
-                lml_minus_sk=lml - lml_sk,
-                predict32_exact_ms=1e3 * t_exact,
-                predict32_exact_f32_ms=1e3 * t_exact32,
-                predict32_sparse_ms=1e3 * t_sparse,
-                n_inducing=int(min(n_inducing, n)),
-                sparse_max_abs_mean_diff=float(jnp.max(jnp.abs(m_s - m_e))),
-                sparse_max_abs_var_diff=float(jnp.max(jnp.abs(v_s - v_e))),
-            )
-        )
-        print_row(rows[-1], header=len(rows) == 1)
-    return rows
-
-
-def print_row(r, header):
-    cols = [
-        ("N", "n", "{:>6d}"),
-        ("fit1 s", "fit_first_s", "{:>8.2f}"),
-        ("fit s", "fit_warm_s", "{:>8.2f}"),
-        ("sk s", "sk_fit_s", "{:>8.2f}"),
-        ("sk/ours", "sk_over_ours", "{:>8.2f}"),
-        ("LML", "lml", "{:>11.3f}"),
-        ("LML sk", "lml_sk", "{:>11.3f}"),
-        ("diff", "lml_minus_sk", "{:>9.4f}"),
-        ("pred ms", "predict32_exact_ms", "{:>8.3f}"),
-        ("f32 ms", "predict32_exact_f32_ms", "{:>8.3f}"),
-        ("DTC ms", "predict32_sparse_ms", "{:>8.3f}"),
-        ("M", "n_inducing", "{:>5d}"),
-        ("|dmean|", "sparse_max_abs_mean_diff", "{:>9.2e}"),
-        ("|dvar|", "sparse_max_abs_var_diff", "{:>9.2e}"),
-    ]
-    if header:
-        print(" ".join(f"{h:>{len(f.format(r[k]))}}" for h, k, f in cols))
-    print(" ".join(f.format(r[k]) for _, k, f in cols), flush=True)
-
-
-def main():
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--quick", action="store_true", help="N = 200, 500 and fewer repeats")
-    ap.add_argument("--sizes", type=int, nargs="+", default=None)
-    ap.add_argument("--sk-max", type=int, default=2000, help="skip sklearn above this N")
-    ap.add_argument("--sk-restarts", type=int, default=2)
-    ap.add_argument("--inducing", type=int, default=256)
-    ap.add_argument("--json", type=str, default=None)
-    args = ap.parse_args()
-    sizes = args.sizes or ([200, 500] if args.quick else [500, 1000, 2000])
-    repeats = 5 if args.quick else 20
-    print(f"jax {jax.__version__} on {jax.devices()[0].platform}; timings are wall clock on a shared machine")
-    rows = run(sizes, args.sk_max, args.sk_restarts, args.inducing, repeats)
-    if args.json:
-        with open(args.json, "w") as f:
-            json.dump(rows, f, indent=2)
-
-
-if __name__ == "__main__":
-    main()
+        compare(ctx, n, 1 if ctx.quick else 2)
+    ctx.results.sections[SECTION] = {"data": "robot candidates of simulated spl-train, target x̃ (ORS)",
+                                     "features": 23, "starts": 3}

@@ -1,0 +1,188 @@
+"""Per-stage and end-to-end step latency for URG-04LX and UTM-30LX scans, and batch replay throughput.
+
+* **End to end**: ``make_step(model)`` (the live loop's call: the model closed over, jitted once),
+  one call per scan with the state carried over, scans cycled from a simulated log with robots in
+  view (URG-04LX: ``spl-crossing``, three robots, M = 8 track slots; UTM-30LX: ``lab-trajectory``).
+* **Per stage**: each stage of Fig. 1 jitted on its own with the model closed over, fed the inputs
+  that stage really received on each scan of the same log (recorded by running the step first):
+  a segmentation, b ORS and characteristic vectors, c binary filters, d classifier, e pose
+  regression (into S), f map transformation (and detections into O), g tracking; plus the front
+  end a–c as one jitted call, and the *dispatch floor*: a jitted call that does nothing, the fixed
+  cost every jitted call pays on the host. The stages' sum exceeds the end-to-end step by about one
+  dispatch floor per extra call.
+* **Batch**: ``process_log`` over a simulated log (``spl-trajectory``) in chunks of 256, both the
+  bit-exact loop and the ``vmap`` variant, and the front end alone in batch (``front_end_log``).
+"""
+
+import jax
+import jax.numpy as jnp
+
+from gtsjax._classify import classify, gp_inputs
+from gtsjax._features import characterise_all
+from gtsjax._filters import binary_filter
+from gtsjax._frontend import front_end_log, front_end_unjitted
+from gtsjax._maptransform import poses_to_field, update_transform
+from gtsjax._pipeline import init_state, make_step, perceive, process_log
+from gtsjax._pose import regress, to_sensor_frame
+from gtsjax._segment import segment
+from gtsjax._track import Detections, track_step
+from gtsjax.io import to_scans
+
+from . import _data
+
+SECTION = "pipeline"
+
+
+def take(tree, i):
+    return jax.tree.map(lambda a: a[i], tree)
+
+
+def stage_functions(model):
+    """The stages of Fig. 1 as separately jitted functions of their real inputs (model closed over)."""
+    fe = model.frontend
+
+    def seg(scan):
+        return segment(scan, max_candidates=fe.max_candidates, window=fe.window, break_distance=fe.break_distance,
+                       break_growth=fe.break_growth)
+
+    def char(cands):
+        return characterise_all(cands, n_dist=fe.n_dist, n_intensity=fe.n_intensity, cells_on_bbox=fe.cells_on_bbox,
+                                cell_span=fe.cell_span, sigma_cells=fe.sigma_cells, sigma_min=fe.sigma_min)
+
+    def filt(cands, feats):
+        return binary_filter(cands.live, cands.too_long, feats.n_points, feats.width, width_min=fe.width_min,
+                             width_max=fe.width_max, min_points=fe.min_points)
+
+    def cls(feats, keep):
+        return classify(model.classifier, gp_inputs(feats.vector, feats.origin, feats.height), keep)
+
+    def pose(feats, c):
+        rel, var = regress(model.pose, gp_inputs(feats.vector, feats.origin, feats.height), c)
+        return to_sensor_frame(feats.origin, feats.heading, rel, var)
+
+    def mapf(tf, p):
+        site = model.site
+        is_landmark = p.ok & model.landmark_mask[p.cls]
+        tf, _, _ = update_transform(tf, p.pose_s[:, :2], p.cls, is_landmark, site.landmark_xy, site.landmark_class,
+                                    model.map_gate, model.map_min_spread)
+        pose_o, cov_o = poses_to_field(tf, p.pose_s, p.cov_s)
+        b = site.bounds
+        x, y = pose_o[:, 0], pose_o[:, 1]
+        inside = ~site.has_bounds | ((x >= b[0]) & (y >= b[1]) & (x <= b[2]) & (y <= b[3]))
+        mask = p.ok & model.tracker.tracked[p.cls] & inside
+        return tf, Detections(pose_o, cov_o + jnp.diag(model.meas_var_floor)[None], p.cls, mask)
+
+    def track(tracker, det, dt):
+        return track_step(tracker, det, dt, model.tracker)
+
+    return {
+        "a_segmentation": jax.jit(seg),
+        "b_characterisation": jax.jit(char),
+        "c_filters": jax.jit(filt),
+        "d_classifier": jax.jit(cls),
+        "e_pose_regression": jax.jit(pose),
+        "f_map_transformation": jax.jit(mapf),
+        "g_tracking": jax.jit(track),
+        "frontend_a_to_c": jax.jit(lambda scan: front_end_unjitted(fe, scan)),
+    }
+
+
+def record_inputs(model, scans, n: int):
+    """Run the step over the first ``n`` scans and keep what each stage received on each scan."""
+    st = stage_functions(model)
+    step = make_step(model)
+    perc = jax.jit(lambda scan: perceive(model, scan))
+    state = init_state(model)
+    rec = []
+    for i in range(n):
+        scan = take(scans, i)
+        cands = st["a_segmentation"](scan)
+        feats = st["b_characterisation"](cands)
+        keep = st["c_filters"](cands, feats)
+        _, c, _ = st["d_classifier"](feats, keep)
+        p = perc(scan)
+        _, det = st["f_map_transformation"](state.transform, p)
+        rec.append({"scan": scan, "cands": cands, "feats": feats, "keep": keep, "cls": c, "perception": p,
+                    "transform": state.transform, "tracker": state.tracker, "det": det})
+        state, _ = step(state, scan)
+    return jax.block_until_ready(rec), st, step
+
+
+def bench_sensor(ctx, key: str, model, scans, n_pool: int, repeats: int, stage_repeats: int, stages: bool = True
+                 ) -> None:
+    """End-to-end and (with ``stages``) per-stage latency of one sensor's scans."""
+    res = ctx.results
+    if stages:
+        rec, st, step = record_inputs(model, scans, n_pool)
+        one = [r["scan"] for r in rec]
+    else:
+        step = make_step(model)
+        one = jax.block_until_ready([take(scans, i) for i in range(n_pool)])
+    beams = int(scans.ranges.shape[-1])
+    params = {"beams": beams, "K": model.frontend.max_candidates, "M": model.max_tracks, "sensor": model.sensor_model}
+    state = {"s": init_state(model)}
+
+    def run(i):
+        state["s"], out = step(state["s"], one[i % n_pool])
+        return out
+
+    res.add(f"step.{key}.end_to_end", "us", ctx.time_calls(run, repeats, warmup=20), section=SECTION,
+            label=f"step, {model.sensor_model} ({beams} beams), whole pipeline a–g", **params)
+    if not stages:
+        return
+    calls = {
+        "a_segmentation": lambda r: st["a_segmentation"](r["scan"]),
+        "b_characterisation": lambda r: st["b_characterisation"](r["cands"]),
+        "c_filters": lambda r: st["c_filters"](r["cands"], r["feats"]),
+        "d_classifier": lambda r: st["d_classifier"](r["feats"], r["keep"]),
+        "e_pose_regression": lambda r: st["e_pose_regression"](r["feats"], r["cls"]),
+        "f_map_transformation": lambda r: st["f_map_transformation"](r["transform"], r["perception"]),
+        "g_tracking": lambda r: st["g_tracking"](r["tracker"], r["det"], r["scan"].dt),
+        "frontend_a_to_c": lambda r: st["frontend_a_to_c"](r["scan"]),
+    }
+    for name, call in calls.items():
+        samples = ctx.time_calls(lambda i, call=call: call(rec[i % n_pool]), stage_repeats, warmup=10)
+        res.add(f"step.{key}.stage.{name}", "us", samples, section=SECTION,
+                label=f"  stage {name.replace('_', ' ', 1).replace('_', ' ')}", **params)
+
+
+def dispatch_floor(ctx, repeats: int) -> None:
+    """The host cost of calling any jitted function: a jitted no-op on a scalar."""
+    f = jax.jit(lambda x: x)
+    x = jnp.asarray(1.0, jnp.float32)
+    ctx.results.add("step.dispatch_floor", "us", ctx.time_calls(lambda i: f(x), repeats, warmup=20), section=SECTION,
+                    label="jitted no-op call (dispatch floor)")
+
+
+def bench_batch(ctx, model, n_scans: int, runs: int) -> None:
+    """``process_log`` throughput (exact loop and vmap), and the front end alone in batch."""
+    res = ctx.results
+    log, _ = _data.scenario("spl-trajectory", 4, n_scans)
+    scans = to_scans(log, model.n_beams)
+    for vec, key in ((False, "exact"), (True, "vmap")):
+        samples = ctx.time_calls(lambda i, vec=vec: process_log(model, scans, chunk=256, vectorise=vec), runs, warmup=1)
+        res.add_rate(f"batch.urg-04lx.{key}", log.n_scans, samples, section=SECTION,
+                     label=f"batch replay, URG-04LX, chunk 256, {'bit-exact loop' if not vec else 'vmap variant'}",
+                     chunk=256, vectorise=vec)
+    samples = ctx.time_calls(lambda i: front_end_log(model.frontend, scans), runs, warmup=1)
+    res.add_rate("batch.urg-04lx.frontend", log.n_scans, samples, section=SECTION,
+                 label="front end a–c in batch, URG-04LX (front_end_log)")
+
+
+def run(ctx) -> None:
+    q = ctx.quick
+    n_pool = 60 if q else 200
+    repeats = 300 if q else 3000
+    stage_repeats = 150 if q else 1000
+    dispatch_floor(ctx, repeats)
+    log, site = _data.scenario("spl-crossing", 3, n_pool)
+    model = _data.demo_model(site)
+    bench_sensor(ctx, "urg-04lx", model, to_scans(log, model.n_beams), n_pool, repeats, stage_repeats)
+    ulog, usite = _data.scenario("lab-trajectory", 5, n_pool)
+    umodel = _data.utm_model(usite, ctx.log)
+    # The smoke run times the UTM-30LX stages only end to end (the stage code is the URG-04LX's).
+    bench_sensor(ctx, "utm-30lx", umodel, to_scans(ulog, umodel.n_beams), n_pool, repeats, stage_repeats,
+                 stages=not q)
+    bench_batch(ctx, model, 512 if q else 3000, 2 if q else 5)
+    ctx.results.sections[SECTION] = {"urg_log": "spl-crossing seed 3", "utm_log": "lab-trajectory seed 5",
+                                     "pool": n_pool, "batch_log": "spl-trajectory seed 4"}

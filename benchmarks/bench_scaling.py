@@ -1,0 +1,218 @@
+"""Scaling: step latency against the beam count, the candidate slots K, the track slots M and the GP
+training-set size N; GP fit time against N; batch throughput against the chunk size; one figure.
+
+* **Beams** 682 (URG-04LX), 1081 (UTM-30LX) and 2161 (a synthetic 0.125° scanner over 270°): the
+  demo model's step on synthetic rooms with a few round objects (``_scene``), so that only the beam
+  count changes.
+* **K** and **M**: the demo model with ``max_candidates`` / ``max_tracks`` changed (both fix shapes:
+  each value compiles its own step), on the URG-04LX scans of ``spl-crossing``.
+* **N**: a GP fitted (``gtsjax.gp.fit``, one start) on N robot examples, put in place of every GP of
+  the demo model, once as the model ships it (DTC, capped at 128 inducing points) and once as the
+  exact GP; the step's latency with each. Past the cap the DTC step's cost stays flat; the exact
+  one grows with N. The fit itself grows (O(N³) per evaluation).
+* **Chunk size**: ``process_log`` (bit-exact path) throughput over ``spl-trajectory``.
+"""
+
+import dataclasses
+import math
+import time
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from gtsjax._gp import GP, SparseGP
+from gtsjax._pipeline import init_state, make_step, process_log
+from gtsjax._scan import Scan
+from gtsjax.io import to_scans
+from gtsjax.sensors import URG_04LX, UTM_30LX, RangeNoise, SensorModel
+
+from . import _data
+
+SECTION = "scaling"
+INDUCING = 128
+
+SYNTH_2161 = SensorModel(name="synthetic-2161", amin=0, amax=2160, ares=2880, afrt=1080, dmin_mm=20, dmax_mm=30000,
+                         scan_rpm=2400, has_intensity=True, noise=RangeNoise(sigma=0.01))
+
+
+def _scene(sensor, rng):
+    """Ranges, intensities and valid mask of a 6 m × 7 m room with a few robots and posts (NumPy ray casting)."""
+    ang = sensor.angles
+    u = np.stack([np.cos(ang), np.sin(ang)], -1)
+    best = np.full(ang.shape, np.inf)
+    refl = np.full(ang.shape, 1500.0)
+    for _ in range(int(rng.integers(2, 8))):
+        rr, th, rad = rng.uniform(0.8, 3.6), rng.uniform(-1.8, 1.8), rng.choice([0.05, 0.15, 0.25])
+        c = np.array([rr * math.cos(th), rr * math.sin(th)])
+        b = u @ c
+        disc = b * b - (c @ c - rad * rad)
+        t = np.where(disc >= 0, b - np.sqrt(np.maximum(disc, 0.0)), np.inf)
+        hit = (t > 0) & (t < best)
+        best = np.where(hit, t, best)
+        refl = np.where(hit, rng.uniform(2000, 6000), refl)
+    with np.errstate(divide="ignore"):
+        tx = np.where(u[:, 0] > 0, 5.0 / u[:, 0], np.where(u[:, 0] < 0, -1.0 / u[:, 0], np.inf))
+        ty = np.where(u[:, 1] > 0, 4.0 / u[:, 1], np.where(u[:, 1] < 0, -3.0 / u[:, 1], np.inf))
+    best = np.minimum(best, np.minimum(tx, ty))
+    r = best + 0.01 * rng.standard_normal(best.shape)
+    valid = np.isfinite(r) & (r >= sensor.range_min) & (r <= sensor.range_max) & (rng.random(r.shape) > 0.01)
+    inten = refl / np.maximum(r, 0.1) if sensor.has_intensity else np.zeros_like(r)
+    return np.where(valid, r, 0.0).astype(np.float32), np.where(valid, inten, 0.0).astype(np.float32), valid
+
+
+def synthetic_scans(sensor, n: int, seed: int = 0) -> list[Scan]:
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(n):
+        r, i, v = _scene(sensor, rng)
+        out.append(Scan(jnp.asarray(r), jnp.asarray(i), jnp.asarray(v), jnp.asarray(sensor.angle_min, jnp.float32),
+                        jnp.asarray(sensor.angle_increment, jnp.float32), jnp.asarray(sensor.period, jnp.float32)))
+    return jax.block_until_ready(out)
+
+
+def step_latency(ctx, model, scans: list[Scan], repeats: int) -> np.ndarray:
+    """Seconds per ``make_step`` call, state carried over, scans cycled."""
+    step = make_step(model)
+    st = {"s": init_state(model)}
+
+    def call(i):
+        st["s"], out = step(st["s"], scans[i % len(scans)])
+        return out
+
+    return ctx.time_calls(call, repeats, warmup=10)
+
+
+def with_gp(model, gp):
+    """``model`` with every GP (classifier and pose) replaced by ``gp``: the step's shapes as a model
+    trained with that GP size would have them."""
+    return jax.tree.map(lambda g: gp if isinstance(g, (GP, SparseGP)) else g, model,
+                        is_leaf=lambda g: isinstance(g, (GP, SparseGP)))
+
+
+def run(ctx) -> None:
+    res = ctx.results
+    q = ctx.quick
+    reps = 150 if q else 1000
+    log, site = _data.scenario("spl-crossing", 3, 60)
+    model = _data.demo_model(site)
+    series = {}
+
+    # beams (with the defaults K = 32, M = 8; the 682-beam point serves as the K and M axes' default)
+    lat = {}
+    # The smoke run takes one point per axis: the default configuration, which the pipeline section
+    # has compiled already (each other value compiles a step of its own, seconds apiece).
+    beam_sensors = (URG_04LX,) if q else (URG_04LX, UTM_30LX, SYNTH_2161)
+    for sensor in beam_sensors:
+        scans = synthetic_scans(sensor, 32)
+        m = res.add(f"scaling.beams.{sensor.n_beams}", "us", step_latency(ctx, model, scans, reps), section=SECTION,
+                    label=f"step vs beams: {sensor.n_beams} ({sensor.name})", beams=sensor.n_beams)
+        lat[sensor.n_beams] = m
+    series["beams"] = {"x": [s.n_beams for s in beam_sensors], "median_us": [lat[s.n_beams]["median"] for s in beam_sensors],
+                       "p99_us": [lat[s.n_beams]["p99"] for s in beam_sensors]}
+
+    # K and M, on the scans of spl-crossing
+    crossing = [jax.tree.map(lambda a, i=i: a[i], to_scans(log, model.n_beams)) for i in range(log.n_scans)]
+    for axis, values in (("K", (32,) if q else (8, 16, 32, 64)), ("M", (8,) if q else (2, 8, 32, 128))):
+        med, p99 = [], []
+        for v in values:
+            if axis == "K":
+                m2 = eqx.tree_at(lambda mm: mm.frontend, model, dataclasses.replace(model.frontend, max_candidates=v))
+            else:
+                m2 = dataclasses.replace(model, max_tracks=v)
+            r = res.add(f"scaling.{axis}.{v}", "us", step_latency(ctx, m2, crossing, reps), section=SECTION,
+                        label=f"step vs {axis}: {v}", **{axis: v})
+            med.append(r["median"])
+            p99.append(r["p99"])
+        series[axis] = {"x": list(values), "median_us": med, "p99_us": p99}
+
+    # training-set size N
+    from gtsjax import gp as gplib
+
+    sizes = (160,) if q else (100, 200, 400, 800)
+    ns = {"x": list(sizes), "dtc_median_us": [], "exact_median_us": [], "fit_s": [], "inducing": []}
+    for n in sizes:
+        x, y = _data.gp_problem(n)
+        jax.block_until_ready(gplib.fit(x, y, key=jax.random.key(0), restarts=1))  # compiles for this shape
+        t0 = time.perf_counter()
+        g = jax.block_until_ready(gplib.fit(x, y, key=jax.random.key(0), restarts=1))  # the same work again
+        t = [time.perf_counter() - t0]
+        res.add(f"scaling.N.{n}.fit", "s", t, section=SECTION, label=f"GP fit vs N: {n} (one start)", N=n)
+        ns["fit_s"].append(float(np.median(t)))
+        sparse = g.sparse(INDUCING).astype(jnp.float32)
+        ns["inducing"].append(int(sparse.z.shape[0]))
+        for kind, gp_ in (("dtc", sparse), ("exact", g.astype(jnp.float32))):
+            r = res.add(f"scaling.N.{n}.step_{kind}", "us", step_latency(ctx, with_gp(model, gp_), crossing, reps // 2),
+                        section=SECTION, label=f"step vs N: {n}, {'DTC ≤128 inducing' if kind == 'dtc' else 'exact GP'}",
+                        N=n, predictor=kind)
+            ns[f"{kind}_median_us"].append(r["median"])
+    series["N"] = ns
+
+    # chunk size
+    tlog, _ = _data.scenario("spl-trajectory", 4, 512 if q else 2048)
+    tscans = to_scans(tlog, model.n_beams)
+    chunks = (256,) if q else (16, 64, 256, 1024)
+    rates = []
+    for c in chunks:
+        t = ctx.time_calls(lambda i, c=c: process_log(model, tscans, chunk=c), 1 if q else 3, warmup=1)
+        rates.append(res.add_rate(f"scaling.chunk.{c}", tlog.n_scans, t, section=SECTION,
+                                  label=f"batch replay vs chunk: {c}", chunk=c)["median"])
+    series["chunk"] = {"x": list(chunks), "scans_per_s": rates}
+    res.scaling = series
+    ctx.results.sections[SECTION] = {"plot": "scaling.png", "inducing_cap": INDUCING}
+    plot(series, ctx.out_dir / "scaling.png", ctx.results.machine)
+
+
+def plot(series: dict, path, machine: dict) -> None:
+    """Six panels: latency vs beams, K, M, N (DTC vs exact); fit time vs N; throughput vs chunk."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(2, 3, figsize=(13, 7.5))
+    for a, key, xl in ((ax[0, 0], "beams", "beams per scan"), (ax[0, 1], "K", "candidate slots K"),
+                       (ax[0, 2], "M", "track slots M")):
+        s = series[key]
+        a.plot(s["x"], np.asarray(s["median_us"]) / 1e3, "o-", label="median")
+        a.plot(s["x"], np.asarray(s["p99_us"]) / 1e3, "s--", label="p99")
+        a.set_xlabel(xl)
+        a.set_ylabel("step latency [ms]")
+        a.set_ylim(bottom=0)
+        if key != "beams":
+            a.set_xscale("log", base=2)
+        a.set_xticks(s["x"], [str(v) for v in s["x"]])
+        a.legend()
+        a.grid(alpha=0.3)
+    s = series["N"]
+    a = ax[1, 0]
+    a.plot(s["x"], np.asarray(s["dtc_median_us"]) / 1e3, "o-", label=f"DTC, ≤{INDUCING} inducing (shipped form)")
+    a.plot(s["x"], np.asarray(s["exact_median_us"]) / 1e3, "s--", label="exact GP")
+    a.axvline(INDUCING, color="grey", lw=0.8, ls=":")
+    a.set_xlabel("GP training-set size N")
+    a.set_ylabel("step latency, median [ms]")
+    a.set_ylim(bottom=0)
+    a.legend()
+    a.grid(alpha=0.3)
+    a = ax[1, 1]
+    a.plot(s["x"], s["fit_s"], "o-", label="gtsjax.gp.fit, one start")
+    a.set_xlabel("GP training-set size N")
+    a.set_ylabel("fit time [s]")
+    a.set_ylim(bottom=0)
+    a.legend()
+    a.grid(alpha=0.3)
+    s = series["chunk"]
+    a = ax[1, 2]
+    a.plot(s["x"], s["scans_per_s"], "o-")
+    a.set_xscale("log", base=2)
+    a.set_xticks(s["x"], [str(v) for v in s["x"]])
+    a.set_xlabel("chunk size (scans)")
+    a.set_ylabel("batch replay [scans/s]")
+    a.set_ylim(bottom=0)
+    a.grid(alpha=0.3)
+    fig.suptitle(f"gtsjax scaling — {machine.get('cpu_model', '?')}, {machine.get('cores', '?')} cores, "
+                 f"JAX {machine.get('jax', '?')} ({machine.get('backend', '?')})", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

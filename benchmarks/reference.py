@@ -1,0 +1,486 @@
+"""The pipeline of Fig. 1 written a second time, the way a careful NumPy user would write it: the
+reference that gtsjax's jitted step is timed against, and a second implementation its tracks are
+checked against (``tests/test_reference.py``).
+
+What "a careful NumPy user" means here:
+
+* one scan at a time, in float64; segmentation vectorised over the beams; a Python loop over the
+  segments, each segment's ORS and profiles vectorised over its points; ragged lists instead of
+  padded slots (only the candidates that exist are processed, only the kept ones classified);
+* every GP is a scikit-learn ``GaussianProcessRegressor`` (``ConstantKernel × RBF`` with the
+  model's hyperparameters, ``optimizer=None``), predicting in batch for the scan's candidates;
+* one filterpy ``KalmanFilter`` per track, with the same constant-velocity model, Mahalanobis gating,
+  greedy one-to-one assignment and track life cycle as ``gtsjax._track``;
+* the map transformation as centred OLS with NumPy's ``eigvalsh`` and ``solve``.
+
+Everything is read from a trained :class:`gtsjax.Model` (front-end settings, GP hyperparameters and
+predictor arrays, tracker tuning, site), so the reference follows the model when it is retrained.
+
+**How a model GP becomes a scikit-learn GPR.** An exact :class:`gtsjax.gp.GP` stores its
+standardised training inputs and centred targets: the GPR is fitted on those with ``alpha`` equal
+to the GP's effective noise ``σn² + jitter σf²``, which reproduces its mean and variance. A
+:class:`gtsjax.gp.SparseGP` (the DTC predictor the shipped models hold) stores only its ``M``
+inducing inputs ``Z``, the weights ``w`` of its mean ``k_Z(x)ᵀ w``, ``L_m⁻¹`` (``K_ZZ + a I = L_m
+L_mᵀ``, ``a = jitter σf²``) and ``L_b⁻¹ L_m⁻¹``. The GPR is fitted on ``Z`` with ``alpha = a`` and
+targets ``(K_ZZ + a I) w``, so that its ``alpha_`` is ``w`` and its mean is the DTC mean; its
+variance ``σf² − k_Zᵀ (K_ZZ + a I)⁻¹ k_Z`` is the first two terms of the DTC variance, to which the
+third, ``‖L_b⁻¹ L_m⁻¹ k_Z‖²``, is added from the stored matrix (``a`` is recovered as the stored
+effective noise minus ``σn²``).
+"""
+
+import dataclasses
+import math
+import warnings
+
+import numpy as np
+from filterpy.kalman import KalmanFilter
+from sklearn.gaussian_process import GaussianProcessRegressor
+from sklearn.gaussian_process.kernels import RBF, ConstantKernel
+
+__all__ = ["ReferencePipeline", "RefOutput", "SklearnGP", "compare_tracks", "scans_to_numpy"]
+
+NX = 6
+_MAX_THETA_VAR = math.pi**2 / 3  # as gtsjax._pose: the heading variance where sin/cos carry nothing
+
+
+def _f(a) -> np.ndarray:
+    return np.asarray(a, dtype=np.float64)
+
+
+def wrap(a):
+    """Angle to (−π, π]."""
+    return np.pi - np.mod(np.pi - a, 2 * np.pi)
+
+
+# ------------------------------------------------------------------------------------------------ GPs
+
+
+class SklearnGP:
+    """One of the model's GPs (exact or DTC) as a fitted scikit-learn ``GaussianProcessRegressor``
+    (see the module docstring for how the DTC predictor is carried over)."""
+
+    def __init__(self, gp):
+        p = gp.params
+        sf2 = float(np.exp(_f(p.log_signal_var)))
+        self.noise_var = float(np.exp(_f(p.log_noise_var)))
+        with np.errstate(over="ignore"):  # a feature BFGS switched off (log l ~ 1e3): l = inf, as w = 0 in gtsjax
+            lengthscale = np.exp(_f(p.log_lengthscale))
+        kernel = ConstantKernel(sf2, constant_value_bounds="fixed") * RBF(lengthscale, length_scale_bounds="fixed")
+        self.x_mean = _f(gp.x_mean)
+        self.x_scale = _f(gp.x_scale)
+        self.y_mean = float(gp.y_mean)
+        if hasattr(gp, "z"):  # SparseGP (DTC)
+            use = np.asarray(gp.z_mask, bool)
+            z = _f(gp.z)[use]
+            w = _f(gp.weights)[use]
+            a = max(float(_f(gp.noise)) - self.noise_var, 1e-12 * sf2)
+            targets = (kernel(z) + a * np.eye(len(z))) @ w
+            self.proj_b = _f(gp.proj_b)[np.ix_(use, use)]
+        else:  # exact GP
+            use = np.asarray(gp.mask, bool)
+            z = _f(gp.x)[use]
+            targets = _f(gp.y)[use]
+            a = float(np.exp(_f(p.log_noise_var)) + _f(gp.jitter) * sf2)
+            self.proj_b = None
+        self.gpr = GaussianProcessRegressor(kernel, alpha=a, optimizer=None, normalize_y=False, copy_X_train=False)
+        self.gpr.fit(z, targets)
+
+    def _std(self, x: np.ndarray) -> np.ndarray:
+        return (x - self.x_mean) / self.x_scale
+
+    def predict_mean(self, x: np.ndarray) -> np.ndarray:
+        """Predictive mean (eq. 7) of raw inputs ``x`` [n, d]."""
+        return self.gpr.predict(self._std(x)) + self.y_mean
+
+    def predict(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Predictive mean and variance, observation noise included (what pose regression uses)."""
+        xs = self._std(x)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # sklearn warns when it clips a variance of -1e-17 at 0
+            mean, std = self.gpr.predict(xs, return_std=True)
+        var = std**2
+        if self.proj_b is not None:
+            t2 = self.gpr.kernel_(xs, self.gpr.X_train_) @ self.proj_b.T
+            var = var + np.sum(t2 * t2, axis=1)
+        return mean + self.y_mean, np.maximum(var, 0.0) + self.noise_var
+
+
+# ------------------------------------------------------------------------------------------ tracker
+
+
+@dataclasses.dataclass
+class _Track:
+    kf: KalmanFilter
+    cls: int
+    track_id: int
+    confirmed: bool
+    hits: int = 1
+    misses: int = 0
+
+
+class _Tracker:
+    """Stage g with one filterpy ``KalmanFilter`` per track (same model and life cycle as gtsjax)."""
+
+    def __init__(self, params, max_tracks: int):
+        g = {f.name: np.asarray(getattr(params, f.name)) for f in dataclasses.fields(params)}
+        self.q_pos, self.q_theta = float(g["q_pos"]), float(g["q_theta"])
+        self.vel_var0, self.omega_var0 = float(g["vel_var0"]), float(g["omega_var0"])
+        self.gate = g["gate"].astype(np.float64)
+        self.tracked = g["tracked"].astype(bool)
+        self.n_confirm, self.m_tentative, self.m_delete = int(g["n_confirm"]), int(g["m_tentative"]), int(g["m_delete"])
+        self.birth_exclusion = float(g["birth_exclusion"])
+        self.constant_velocity = bool(g["constant_velocity"])
+        self.max_tracks = max_tracks
+        self.H = np.hstack([np.eye(3), np.zeros((3, 3))])
+        self.reset()
+
+    def reset(self):
+        self.slots: list[_Track | None] = [None] * self.max_tracks
+        self.next_id = 0
+
+    def motion_model(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """``F`` and ``Q`` over ``dt``: constant velocity (piecewise white acceleration) or inflate-only."""
+        q = np.array([self.q_pos, self.q_pos, self.q_theta])
+        if self.constant_velocity:
+            F = np.eye(NX)
+            F[:3, 3:] = dt * np.eye(3)
+            Q = np.block([[np.diag(q * dt**3 / 3), np.diag(q * dt**2 / 2)],
+                          [np.diag(q * dt**2 / 2), np.diag(q * dt)]])
+        else:
+            F = np.eye(NX)
+            Q = np.zeros((NX, NX))
+            Q[:3, :3] = np.diag(q * dt)
+        return F, Q
+
+    def step(self, z: np.ndarray, R: np.ndarray, cls: np.ndarray, dt: float) -> None:
+        """Predict, gate, assign, update, and start, confirm and end tracks, for detections ``z`` [n, 3]
+        with covariances ``R`` [n, 3, 3] and classes ``cls`` [n] (all of tracked classes)."""
+        F, Q = self.motion_model(dt)
+        live = [i for i, t in enumerate(self.slots) if t is not None]
+        for i in live:
+            kf = self.slots[i].kf
+            kf.predict(F=F, Q=Q)
+            kf.x[2] = wrap(kf.x[2])
+        n = len(z)
+        cost = np.full((n, self.max_tracks), np.inf)
+        for i in live:
+            t = self.slots[i]
+            x, P = t.kf.x[:3, 0], t.kf.P[:3, :3]
+            for j in np.flatnonzero(cls == t.cls):
+                nu = z[j] - x
+                nu[2] = wrap(nu[2])
+                d2 = nu @ np.linalg.solve(P + R[j], nu)
+                if d2 <= self.gate[cls[j]]:
+                    cost[j, i] = d2
+        # Greedy one-to-one: repeatedly the globally closest gated pair.
+        det_of = {}
+        while n and np.isfinite(cost).any():
+            j, i = np.unravel_index(np.argmin(cost), cost.shape)
+            det_of[i] = j
+            cost[j, :] = np.inf
+            cost[:, i] = np.inf
+        for i in live:
+            t = self.slots[i]
+            if i in det_of:
+                j = det_of[i]
+                zj = z[j].copy()
+                zj[2] = t.kf.x[2, 0] + wrap(zj[2] - t.kf.x[2, 0])  # innovation wrapped
+                t.kf.update(zj, R=R[j])
+                t.kf.x[2] = wrap(t.kf.x[2])
+                t.kf.P = 0.5 * (t.kf.P + t.kf.P.T)
+                t.hits += 1
+                t.misses = 0
+            else:
+                t.misses += 1
+            t.confirmed = t.confirmed or t.hits >= self.n_confirm
+            if t.misses >= (self.m_delete if t.confirmed else self.m_tentative):
+                self.slots[i] = None
+        # Births: the i-th free slot takes the i-th unused detection not near a live track of its class.
+        used = set(det_of.values())
+        born = []
+        for j in range(n):
+            if j in used:
+                continue
+            near = any(t is not None and t.cls == cls[j]
+                       and math.hypot(z[j, 0] - t.kf.x[0, 0], z[j, 1] - t.kf.x[1, 0]) < self.birth_exclusion
+                       for t in self.slots)
+            if not near:
+                born.append(j)
+        free = [i for i, t in enumerate(self.slots) if t is None]
+        for rank, (i, j) in enumerate(zip(free, born, strict=False)):
+            kf = KalmanFilter(dim_x=NX, dim_z=3)
+            kf.H = self.H
+            kf.x = np.concatenate([z[j], np.zeros(3)])[:, None]
+            P = np.zeros((NX, NX))
+            P[:3, :3] = R[j]
+            P[3, 3] = P[4, 4] = self.vel_var0
+            P[5, 5] = self.omega_var0
+            kf.P = P
+            self.slots[i] = _Track(kf, int(cls[j]), self.next_id + rank, self.n_confirm <= 1)
+        self.next_id += min(len(free), len(born))
+
+
+# ------------------------------------------------------------------------------------------ pipeline
+
+
+@dataclasses.dataclass
+class RefOutput:
+    """One scan's confirmed tracks (ids ascending by slot, as gtsjax's table) and the transform."""
+
+    track_id: np.ndarray  # [n]
+    track_class: np.ndarray  # [n]
+    track_pose: np.ndarray  # [n, 3]
+    track_var: np.ndarray  # [n, 3]
+    A: np.ndarray
+    mu_s: np.ndarray
+    mu_o: np.ndarray
+    degraded: bool
+    n_detections: int
+
+
+class ReferencePipeline:
+    """Stages a–g of one scan at a time, from a trained :class:`gtsjax.Model` with its site attached."""
+
+    def __init__(self, model):
+        if model.site is None:
+            raise ValueError("attach a site first (Model.with_site)")
+        fe = model.frontend
+        self.K, self.L = fe.max_candidates, fe.window
+        self.n_dist, self.n_intensity = fe.n_dist, fe.n_intensity
+        scalar = {f.name: float(np.asarray(getattr(fe, f.name))) for f in dataclasses.fields(fe)
+                  if f.name not in ("max_candidates", "window", "n_dist", "n_intensity")}
+        self.fe = scalar
+        self.cells_on_bbox = bool(scalar["cells_on_bbox"])
+        self.classifier = [SklearnGP(g) for g in model.classifier.gps]
+        self.threshold = _f(model.classifier.threshold)
+        self.pose = [None if r is None else {c: (None if getattr(r, c) is None else SklearnGP(getattr(r, c)))
+                                             for c in ("x", "y", "sin", "cos")} for r in model.pose]
+        self.landmark_mask = np.asarray(model.landmark_mask, bool)
+        self.map_gate = float(model.map_gate)
+        self.map_min_spread = float(model.map_min_spread)
+        self.meas_var_floor = _f(model.meas_var_floor)
+        s = model.site
+        self.landmark_xy = _f(s.landmark_xy)
+        self.landmark_class = np.asarray(s.landmark_class, int)
+        self.sensor_pose = _f(s.sensor_pose)
+        self.bounds = _f(s.bounds) if bool(s.has_bounds) else None
+        self.tracker = _Tracker(model.tracker, model.max_tracks)
+        self.reset()
+
+    def reset(self) -> None:
+        """Before the first scan: the site's rough sensor pose as the transform, no tracks."""
+        x, y, th = self.sensor_pose
+        self.A = np.array([[math.cos(th), -math.sin(th)], [math.sin(th), math.cos(th)]])
+        self.mu_s = np.zeros(2)
+        self.mu_o = np.array([x, y])
+        self.tracker.reset()
+
+    # ---- stages a–c
+    def segments(self, ranges, valid, angles):
+        """Stage a: ``(start, end)`` beam indices of the first ``K`` segments and the points in S."""
+        valid = valid & np.isfinite(ranges) & (ranges > 0)
+        r = np.where(valid, ranges, 0.0)
+        x, y = r * np.cos(angles), r * np.sin(angles)
+        d2 = np.diff(x) ** 2 + np.diff(y) ** 2
+        thr = self.fe["break_distance"] + self.fe["break_growth"] * np.minimum(r[1:], r[:-1])
+        joined = valid[1:] & valid[:-1] & (d2 <= thr * thr)
+        starts = np.flatnonzero(valid & ~np.concatenate([[False], joined]))
+        ends = np.flatnonzero(valid & ~np.concatenate([joined, [False]]))
+        return list(zip(starts[: self.K], ends[: self.K], strict=True)), r, x, y
+
+    def _profile(self, n, ylo, yhi, y, q):
+        """Eq. 11–12: Gaussian-weighted mean of the columns of ``q`` in each of ``n`` cells."""
+        if self.cells_on_bbox:
+            lo, hi = ylo, yhi
+        else:
+            lo, hi = -0.5 * self.fe["cell_span"], 0.5 * self.fe["cell_span"]
+        cw = (hi - lo) / n
+        c = lo + (np.arange(n) + 0.5) * cw
+        sigma = max(self.fe["sigma_cells"] * cw, self.fe["sigma_min"])
+        dist = (c[:, None] - y[None, :]) ** 2 / (2 * sigma * sigma)
+        w = np.exp(-(dist - dist.min(axis=1, keepdims=True)))  # scaled per cell: no underflow
+        return (w @ q) / w.sum(axis=1, keepdims=True)
+
+    def candidates(self, ranges, intensities, valid, angles):
+        """Stages a–c: GP inputs, ORS origins and headings of the candidates that pass the filters."""
+        segs, r, x, y = self.segments(ranges, valid, angles)
+        inten = np.where(valid & np.isfinite(intensities), intensities, 0.0)
+        vecs, origins, headings = [], [], []
+        for s, e in segs:
+            n = e - s + 1
+            if n > self.L or n < self.fe["min_points"]:
+                continue
+            sl = slice(s, e + 1)
+            rr, px, py = r[sl], x[sl], y[sl]
+            th = 0.5 * (angles[s] + angles[e])
+            c, sn = math.cos(th), math.sin(th)
+            u = c * px + sn * py
+            v = c * py - sn * px
+            r_j = 0.5 * (rr.min() + rr.max())
+            xp = u - r_j
+            ylo, yhi = v.min(), v.max()
+            width = yhi - ylo
+            if not (self.fe["width_min"] <= width <= self.fe["width_max"]):
+                continue
+            height = xp.max() - xp.min()
+            if self.n_dist == self.n_intensity:
+                both = self._profile(self.n_dist, ylo, yhi, v, np.stack([xp, inten[sl]], 1))
+                d, i = both[:, 0], both[:, 1]
+            else:
+                d = self._profile(self.n_dist, ylo, yhi, v, xp[:, None])[:, 0]
+                i = self._profile(self.n_intensity, ylo, yhi, v, inten[sl][:, None])[:, 0]
+            vecs.append(np.concatenate([[width], d, i, [height, abs(r_j)]]))
+            origins.append((r_j * c, r_j * sn))
+            headings.append(th)
+        d = 1 + self.n_dist + self.n_intensity + 2
+        return np.array(vecs).reshape(-1, d), np.array(origins).reshape(-1, 2), np.array(headings)
+
+    # ---- stages d–e
+    def classify(self, x):
+        """Stage d: class of each candidate and whether it survives (not background, score ≥ threshold)."""
+        if len(x) == 0:
+            return np.zeros(0, int), np.zeros(0, bool)
+        scores = np.stack([g.predict_mean(x) for g in self.classifier], axis=1)
+        cls = scores.argmax(axis=1)
+        best = scores[np.arange(len(cls)), cls]
+        return cls, (cls != 0) & (best >= self.threshold[cls])
+
+    def regress(self, x, cls, ok):
+        """Stage e: ORS-relative pose and variances under each candidate's class's GPs."""
+        rel = np.zeros((len(x), 3))
+        var = np.zeros((len(x), 3))
+        for k, reg in enumerate(self.pose):
+            rows = np.flatnonzero(ok & (cls == k))
+            if reg is None or rows.size == 0:
+                continue
+            v = x[rows]
+            mx, vx = reg["x"].predict(v)
+            my, vy = reg["y"].predict(v)
+            if reg["sin"] is None or reg["cos"] is None:
+                rel[rows, :2] = np.stack([mx, my], 1)
+                var[rows, :2] = np.stack([vx, vy], 1)
+                continue
+            ms, vs = reg["sin"].predict(v)
+            mc, vc = reg["cos"].predict(v)
+            r2 = ms**2 + mc**2
+            with np.errstate(divide="ignore", invalid="ignore"):
+                vt = np.where(r2 > 1e-6, (mc**2 * vs + ms**2 * vc) / r2**2, _MAX_THETA_VAR)
+            rel[rows] = np.stack([mx, my, np.arctan2(ms, mc)], 1)
+            var[rows] = np.stack([vx, vy, np.minimum(vt, _MAX_THETA_VAR)], 1)
+        return rel, var
+
+    # ---- stage f
+    def update_transform(self, det_s, det_cls):
+        """Associate landmark detections (mutual nearest neighbour within the gate, after mapping them
+        with the previous transform), then centred OLS (eq. 18) if at least three spread in 2-D."""
+        if len(det_s) == 0:
+            return False
+        det_o = self.mu_o + (det_s - self.mu_s) @ self.A.T
+        d2 = np.sum((self.landmark_xy[:, None] - det_o[None]) ** 2, axis=-1)
+        d2[self.landmark_class[:, None] != det_cls[None, :]] = np.inf
+        best_det = d2.argmin(axis=1)
+        best_map = d2.argmin(axis=0)
+        hit = (best_map[best_det] == np.arange(len(self.landmark_xy))) & (d2.min(axis=1) <= self.map_gate**2)
+        n = int(hit.sum())
+        if n < 3:
+            return False
+        ps, po = det_s[best_det[hit]], self.landmark_xy[hit]
+        mu_s, mu_o = ps.mean(0), po.mean(0)
+        X, Y = ps - mu_s, po - mu_o
+        XtX = X.T @ X
+        if np.linalg.eigvalsh(XtX / n)[0] <= self.map_min_spread**2:
+            return False
+        self.A = np.linalg.solve(XtX, X.T @ Y).T
+        self.mu_s, self.mu_o = mu_s, mu_o
+        return True
+
+    def step(self, ranges, intensities, valid, angle_min, angle_increment, dt) -> RefOutput:
+        """The whole pipeline for one scan (NumPy arrays of the padded scan, as gtsjax's ``Scan``)."""
+        ranges, intensities = _f(ranges), _f(intensities)
+        valid = np.asarray(valid, bool)
+        angles = float(angle_min) + np.arange(ranges.shape[0]) * float(angle_increment)
+        x, origin, heading = self.candidates(ranges, intensities, valid, angles)
+        cls, ok = self.classify(x)
+        rel, var = self.regress(x, cls, ok)
+        # ORS -> S (eq. 16 with the ORS in place of O)
+        c, s = np.cos(heading), np.sin(heading)
+        pose_s = np.stack([origin[:, 0] + c * rel[:, 0] - s * rel[:, 1],
+                           origin[:, 1] + s * rel[:, 0] + c * rel[:, 1], heading + rel[:, 2]], 1)
+        cov_s = np.zeros((len(x), 3, 3))
+        cov_s[:, 0, 0] = c**2 * var[:, 0] + s**2 * var[:, 1]
+        cov_s[:, 1, 1] = s**2 * var[:, 0] + c**2 * var[:, 1]
+        cov_s[:, 0, 1] = cov_s[:, 1, 0] = c * s * (var[:, 0] - var[:, 1])
+        cov_s[:, 2, 2] = var[:, 2]
+        lm = ok & self.landmark_mask[cls]
+        degraded = not self.update_transform(pose_s[lm, :2], cls[lm])
+        # S -> O (eq. 10) and tracking of the mobile classes inside the bounds.
+        trk = ok & self.tracker.tracked[cls]
+        ps, cs, kc = pose_s[trk], cov_s[trk], cls[trk]
+        xy = self.mu_o + (ps[:, :2] - self.mu_s) @ self.A.T
+        theta = wrap(ps[:, 2] + math.atan2(self.A[1, 0], self.A[0, 0]))
+        A3 = np.eye(3)
+        A3[:2, :2] = self.A
+        cov_o = A3 @ cs @ A3.T + np.diag(self.meas_var_floor)
+        if self.bounds is not None:
+            b = self.bounds
+            inside = (xy[:, 0] >= b[0]) & (xy[:, 1] >= b[1]) & (xy[:, 0] <= b[2]) & (xy[:, 1] <= b[3])
+        else:
+            inside = np.ones(len(xy), bool)
+        z = np.column_stack([xy, theta])[inside]
+        self.tracker.step(z, cov_o[inside], kc[inside], float(dt))
+        tracks = [t for t in self.tracker.slots if t is not None and t.confirmed]
+        return RefOutput(
+            track_id=np.array([t.track_id for t in tracks], int),
+            track_class=np.array([t.cls for t in tracks], int),
+            track_pose=np.array([t.kf.x[:3, 0] for t in tracks]).reshape(-1, 3),
+            track_var=np.array([np.diag(t.kf.P)[:3] for t in tracks]).reshape(-1, 3),
+            A=self.A.copy(), mu_s=self.mu_s.copy(), mu_o=self.mu_o.copy(), degraded=degraded,
+            n_detections=int(len(z)),
+        )
+
+    def run(self, scans) -> list[RefOutput]:
+        """Every scan of a stack (NumPy arrays from :func:`scans_to_numpy`), from a fresh state."""
+        self.reset()
+        return [self.step(*(a[i] for a in scans)) for i in range(len(scans[0]))]
+
+
+def scans_to_numpy(scans) -> tuple[np.ndarray, ...]:
+    """A stacked gtsjax ``Scan`` as NumPy arrays ``(ranges, intensities, valid, angle_min,
+    angle_increment, dt)``: the very numbers the jitted step receives."""
+    return tuple(np.asarray(getattr(scans, f)) for f in
+                 ("ranges", "intensities", "valid", "angle_min", "angle_increment", "dt"))
+
+
+def compare_tracks(outputs, ref: list[RefOutput]) -> dict:
+    """Agreement of gtsjax's stacked outputs (``process_log`` or stacked ``step`` outputs, NumPy) with
+    the reference's, scan by scan: confirmed track ids, counts, and pose differences of equal ids."""
+    mask = np.asarray(outputs.track_mask)
+    ids = np.asarray(outputs.track_id)
+    pose = np.asarray(outputs.track_pose, np.float64)
+    n = len(ref)
+    same_ids = 0
+    dpos, dth = [], []
+    all_g, all_r = set(), set()
+    for t in range(n):
+        g = {int(i): pose[t, m] for m, i in enumerate(ids[t]) if mask[t, m]}
+        r = {int(i): p for i, p in zip(ref[t].track_id, ref[t].track_pose, strict=True)}
+        all_g |= g.keys()
+        all_r |= r.keys()
+        same_ids += g.keys() == r.keys()
+        for i in g.keys() & r.keys():
+            dpos.append(float(np.hypot(*(g[i][:2] - r[i][:2]))))
+            dth.append(abs(float(wrap(g[i][2] - r[i][2]))))
+    dpos, dth = np.asarray(dpos), np.asarray(dth)
+    return {
+        "scans": n,
+        "scans_same_ids": int(same_ids),
+        "track_ids_gtsjax": sorted(all_g),
+        "track_ids_reference": sorted(all_r),
+        "track_scans_gtsjax": int(mask.sum()),
+        "track_scans_reference": int(sum(len(o.track_id) for o in ref)),
+        "pairs_compared": int(dpos.size),
+        "max_pos_diff_m": float(dpos.max()) if dpos.size else 0.0,
+        "p99_pos_diff_m": float(np.percentile(dpos, 99)) if dpos.size else 0.0,
+        "max_heading_diff_deg": float(np.degrees(dth.max())) if dth.size else 0.0,
+        "degraded_scans_reference": int(sum(o.degraded for o in ref)),
+    }

@@ -1,0 +1,92 @@
+"""A second implementation of the pipeline gives the same tracks: the NumPy / scikit-learn / filterpy
+reference of ``benchmarks/reference.py`` against gtsjax's step, on the same simulated log with the
+shipped model. The reference runs in float64 and the step in float32, so ids and counts must be
+identical and poses equal to rounding (micrometres; the tolerances leave room for a retrained model)."""
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+pytest.importorskip("filterpy")
+pytest.importorskip("sklearn")
+
+from benchmarks.reference import ReferencePipeline, SklearnGP, compare_tracks, scans_to_numpy  # noqa: E402
+from gtsjax._gp import predict_mean  # noqa: E402
+from gtsjax._pipeline import process_log  # noqa: E402
+from gtsjax.cli.demo import demo_model_path  # noqa: E402
+from gtsjax.io import to_scans  # noqa: E402
+from gtsjax.io.modelfile import load_model  # noqa: E402
+from gtsjax.sim import simulate  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def spl():
+    log, site = simulate("spl-trajectory", seed=7, n_scans=300)
+    return log, load_model(demo_model_path()).with_site(site)
+
+
+def test_sklearn_gps_predict_what_the_model_predicts(spl):
+    """Each model GP carried into scikit-learn predicts the same mean and variance (the DTC form).
+    Compared in float64 (the model's GP cast up), so that the check is of the construction, not of
+    float32 rounding in the step."""
+    log, model = spl
+    rng = np.random.default_rng(0)
+    reg = model.pose[model.class_index("robot")]
+    for gp in (*model.classifier.gps, reg.x, reg.y, reg.sin, reg.cos):
+        d = gp.x_mean.shape[0]
+        x = np.asarray(gp.x_mean, np.float64) + np.asarray(gp.x_scale, np.float64) * rng.normal(0, 0.7, (40, d))
+        ref = SklearnGP(gp)
+        g64 = gp.astype(jnp.float64)
+        mean, var = (np.asarray(a) for a in g64.predict(jnp.asarray(x), include_noise=True))
+        scale = float(np.exp(np.asarray(gp.params.log_signal_var, np.float64))) ** 0.5
+        np.testing.assert_allclose(ref.predict_mean(x), np.asarray(predict_mean(g64, jnp.asarray(x))),
+                                   atol=1e-6 * scale)
+        rm, rv = ref.predict(x)
+        np.testing.assert_allclose(rm, mean, atol=1e-6 * scale)
+        np.testing.assert_allclose(rv, var, rtol=1e-4, atol=1e-7 * scale**2)
+
+
+def test_reference_gives_the_same_tracks(spl):
+    log, model = spl
+    scans = to_scans(log, model.n_beams)
+    _, out = process_log(model, scans)
+    ref = ReferencePipeline(model).run(scans_to_numpy(scans))
+    agree = compare_tracks(out, ref)
+    assert agree["scans"] == log.n_scans
+    assert agree["track_scans_gtsjax"] > 0.8 * log.n_scans  # the robot is tracked: the comparison is not empty
+    assert agree["scans_same_ids"] == log.n_scans
+    assert agree["track_ids_gtsjax"] == agree["track_ids_reference"]
+    assert agree["track_scans_gtsjax"] == agree["track_scans_reference"] == agree["pairs_compared"]
+    assert agree["max_pos_diff_m"] < 2e-3
+    assert agree["max_heading_diff_deg"] < 0.2
+    assert [bool(o.degraded) for o in ref] == [bool(d) for d in np.asarray(out.degraded)]
+    # and the transforms agree too (both re-estimated every scan from the detected posts)
+    a = np.stack([o.A for o in ref])
+    np.testing.assert_allclose(np.asarray(out.transform.A, np.float64), a, atol=1e-4)
+
+
+def test_reference_tracks_several_robots():
+    """Three robots crossing: births, assignment and life cycle agree when tracks come close."""
+    log, site = simulate("spl-crossing", seed=3, n_scans=220)
+    model = load_model(demo_model_path()).with_site(site)
+    scans = to_scans(log, model.n_beams)
+    _, out = process_log(model, scans)
+    agree = compare_tracks(out, ReferencePipeline(model).run(scans_to_numpy(scans)))
+    assert len(agree["track_ids_gtsjax"]) >= 3
+    assert agree["scans_same_ids"] == log.n_scans
+    assert agree["track_ids_gtsjax"] == agree["track_ids_reference"]
+    assert agree["max_pos_diff_m"] < 2e-3
+
+
+def test_reference_follows_the_model(spl):
+    """The reference reads the model, not constants: a tracker that confirms later confirms later in both."""
+    import equinox as eqx
+
+    log, model = spl
+    slow = eqx.tree_at(lambda m: m.tracker.n_confirm, model, jnp.asarray(6, jnp.int32))
+    scans = to_scans(log.slice(0, 60), model.n_beams)
+    _, out = process_log(slow, scans)
+    ref = ReferencePipeline(slow).run(scans_to_numpy(scans))
+    first_g = int(np.argmax(np.asarray(out.track_mask).any(axis=1)))
+    first_r = next(i for i, o in enumerate(ref) if len(o.track_id))
+    assert first_g == first_r >= 5
