@@ -10,7 +10,7 @@ What "a careful NumPy user" means here:
 * every GP is a scikit-learn ``GaussianProcessRegressor`` (``ConstantKernel × RBF`` with the
   model's hyperparameters, ``optimizer=None``), predicting in batch for the scan's candidates;
 * one filterpy ``KalmanFilter`` per track, with the same constant-velocity model, Mahalanobis gating,
-  greedy one-to-one assignment and track life cycle as ``gtsjax._track``;
+  heading gate, greedy one-to-one assignment and track life cycle as ``gtsjax._track``;
 * the map transformation as centred OLS with NumPy's ``eigvalsh`` and ``solve``.
 
 Everything is read from a trained :class:`gtsjax.Model` (front-end settings, GP hyperparameters and
@@ -119,13 +119,21 @@ class _Track:
 
 
 class _Tracker:
-    """Stage g with one filterpy ``KalmanFilter`` per track (same model and life cycle as gtsjax)."""
+    """Stage g with one filterpy ``KalmanFilter`` per track (same model and life cycle as gtsjax).
+
+    Gating follows the model's tracker: on ``(x, y, θ)`` (3 dof), or, when its parameters carry a
+    ``heading_gate``, on position (2 dof), with an assigned detection's heading used only if its own
+    innovation passes that gate (otherwise a position-only update, and the track's heading variance
+    grows by ``heading_inflation``)."""
 
     def __init__(self, params, max_tracks: int):
         g = {f.name: np.asarray(getattr(params, f.name)) for f in dataclasses.fields(params)}
         self.q_pos, self.q_theta = float(g["q_pos"]), float(g["q_theta"])
         self.vel_var0, self.omega_var0 = float(g["vel_var0"]), float(g["omega_var0"])
         self.gate = g["gate"].astype(np.float64)
+        # Models whose tracker gates on position only and accepts a heading only within its own gate.
+        self.heading_gate = float(g["heading_gate"]) if "heading_gate" in g else None
+        self.heading_inflation = float(g.get("heading_inflation", 0.0))
         self.tracked = g["tracked"].astype(bool)
         self.n_confirm, self.m_tentative, self.m_delete = int(g["n_confirm"]), int(g["m_tentative"]), int(g["m_delete"])
         self.birth_exclusion = float(g["birth_exclusion"])
@@ -169,7 +177,11 @@ class _Tracker:
             for j in np.flatnonzero(cls == t.cls):
                 nu = z[j] - x
                 nu[2] = wrap(nu[2])
-                d2 = nu @ np.linalg.solve(P + R[j], nu)
+                S = P + R[j]
+                if self.heading_gate is None:
+                    d2 = nu @ np.linalg.solve(S, nu)  # (x, y, θ): 3 dof
+                else:
+                    d2 = nu[:2] @ np.linalg.solve(S[:2, :2], nu[:2])  # position only: 2 dof
                 if d2 <= self.gate[cls[j]]:
                     cost[j, i] = d2
         # Greedy one-to-one: repeatedly the globally closest gated pair.
@@ -185,7 +197,13 @@ class _Tracker:
                 j = det_of[i]
                 zj = z[j].copy()
                 zj[2] = t.kf.x[2, 0] + wrap(zj[2] - t.kf.x[2, 0])  # innovation wrapped
-                t.kf.update(zj, R=R[j])
+                head_ok = self.heading_gate is None or (
+                    (zj[2] - t.kf.x[2, 0]) ** 2 <= self.heading_gate * (t.kf.P[2, 2] + R[j][2, 2]))
+                if head_ok:
+                    t.kf.update(zj, R=R[j])
+                else:  # position-only update; the heading's variance grows so that its gate widens
+                    t.kf.update(zj[:2, None], R=R[j][:2, :2], H=self.H[:2])
+                    t.kf.P[2, 2] += self.heading_inflation
                 t.kf.x[2] = wrap(t.kf.x[2])
                 t.kf.P = 0.5 * (t.kf.P + t.kf.P.T)
                 t.hits += 1
