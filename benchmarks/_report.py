@@ -44,7 +44,8 @@ def evaluate_targets(res) -> None:
         top = max(stages.items(), key=lambda kv: kv[1]["median_us"]) if stages else ("?", {"median_us": float("nan")})
         res.profiles["step_p99"] = {"stages": stages, "dispatch_floor_us": floor, "median_us": m["median"],
                                     "p99_us": m["p99"], "p99_over_median": m["p99"] / m["median"],
-                                    "load_average_start": load}
+                                    "load_average_start": load,
+                                    "xla_cost_per_stage": res.profiles.get("xla_cost.urg-04lx", {})}
         if m["median"] <= TARGET_STEP_P99_US:
             why = (f"The median ({fmt(m['median'], 'us')}) is within the budget; the tail is {m['p99'] / m['median']:.1f}× "
                    f"the median, host-side jitter (the scheduler, other processes: load average {load[0]:.1f} at the "
@@ -55,6 +56,12 @@ def evaluate_targets(res) -> None:
             why = (f"The median itself ({fmt(m['median'], 'us')}) is over the budget; the largest stage is {top[0]} "
                    f"({fmt(top[1]['median_us'], 'us')} median); every jitted call also pays a dispatch floor of "
                    f"{fmt(floor, 'us')}. See the stage breakdown below.")
+        cost = res.profiles.get("xla_cost.urg-04lx", {})
+        mflop = sum(c.get("mflop", 0.0) for k, c in cost.items() if k != "frontend_a_to_c")
+        if mflop > 0:
+            why += (f" XLA counts {mflop:.1f} MFLOP per scan over the stages, {mflop / m['median'] * 1e3:.1f} GFLOP/s "
+                    "at the step's median: far below one core's peak, so the step is bound by the number of small "
+                    "operations and their overhead, not by arithmetic.")
         targets.append({"name": "step_p99_urg04lx_8_tracks", "target": f"p99 ≤ {TARGET_STEP_P99_US:.0f} µs",
                         "measured": m["p99"], "unit": "us", "met": m["p99"] <= TARGET_STEP_P99_US,
                         "why": why, "profile": "step_p99"})

@@ -140,10 +140,36 @@ def bench_sensor(ctx, key: str, model, scans, n_pool: int, repeats: int, stage_r
         "g_tracking": lambda r: st["g_tracking"](r["tracker"], r["det"], r["scan"].dt),
         "frontend_a_to_c": lambda r: st["frontend_a_to_c"](r["scan"]),
     }
+    cost = {}
     for name, call in calls.items():
         samples = ctx.time_calls(lambda i, call=call: call(rec[i % n_pool]), stage_repeats, warmup=10)
-        res.add(f"step.{key}.stage.{name}", "us", samples, section=SECTION,
-                label=f"  stage {name.replace('_', ' ', 1).replace('_', ' ')}", **params)
+        m = res.add(f"step.{key}.stage.{name}", "us", samples, section=SECTION,
+                    label=f"  stage {name.replace('_', ' ', 1).replace('_', ' ')}", **params)
+        cost[name] = xla_cost(st[name], _stage_args(name, rec[0]), m["median"])
+    res.profiles[f"xla_cost.{key}"] = cost
+
+
+def _stage_args(name: str, r: dict) -> tuple:
+    return {
+        "a_segmentation": (r["scan"],), "b_characterisation": (r["cands"],), "c_filters": (r["cands"], r["feats"]),
+        "d_classifier": (r["feats"], r["keep"]), "e_pose_regression": (r["feats"], r["cls"]),
+        "f_map_transformation": (r["transform"], r["perception"]),
+        "g_tracking": (r["tracker"], r["det"], r["scan"].dt), "frontend_a_to_c": (r["scan"],),
+    }[name]
+
+
+def xla_cost(fn, args: tuple, median_us: float) -> dict:
+    """XLA's own count of a compiled stage's floating-point operations and bytes moved, and the rate
+    the measured median implies: far below the core's peak means overhead-bound (many small ops,
+    dispatch), not compute-bound."""
+    try:
+        ca = fn.lower(*args).compile().cost_analysis()
+        ca = ca[0] if isinstance(ca, list) else ca
+        flops, nbytes = float(ca.get("flops", 0.0)), float(ca.get("bytes accessed", 0.0))
+    except Exception as err:  # cost analysis is best effort (backend-dependent)
+        return {"error": f"{type(err).__name__}: {err}"}
+    return {"mflop": round(flops / 1e6, 3), "mbyte": round(nbytes / 1e6, 3),
+            "gflop_per_s_at_median": round(flops / (median_us * 1e3), 3)}
 
 
 def dispatch_floor(ctx, repeats: int) -> None:
