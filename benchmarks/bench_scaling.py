@@ -72,16 +72,32 @@ def synthetic_scans(sensor, n: int, seed: int = 0) -> list[Scan]:
     return jax.block_until_ready(out)
 
 
-def step_latency(ctx, model, scans: list[Scan], repeats: int) -> np.ndarray:
-    """Seconds per ``make_step`` call, state carried over, scans cycled."""
-    step = make_step(model)
-    st = {"s": init_state(model)}
+class Stepper:
+    """One configuration's compiled ``make_step``, its state and its scans; each call steps one scan."""
 
-    def call(i):
-        st["s"], out = step(st["s"], scans[i % len(scans)])
+    def __init__(self, model, scans: list[Scan]):
+        self.step = make_step(model)
+        self.state = init_state(model)
+        self.scans = scans
+        self.i = 0
+
+    def __call__(self, _):
+        self.state, out = self.step(self.state, self.scans[self.i % len(self.scans)])
+        self.i += 1
         return out
 
-    return ctx.time_calls(call, repeats, warmup=10)
+
+def round_robin(ctx, steppers: dict, reps: dict, blocks: int = 5) -> dict:
+    """Seconds per call of every configuration, timed in turn: ``blocks`` rounds, each giving every
+    configuration a block of its calls, so that a burst of load from other processes falls on all
+    configurations alike instead of on whichever happened to run then."""
+    for s in steppers.values():
+        ctx.time_calls(s, 0, warmup=10)  # compile and warm up every configuration first
+    out = {k: [] for k in steppers}
+    for _ in range(blocks):
+        for k, s in steppers.items():
+            out[k].append(ctx.time_calls(s, max(1, reps[k] // blocks), warmup=2))
+    return {k: np.concatenate(v) for k, v in out.items()}
 
 
 def with_gp(model, gp):
@@ -98,36 +114,33 @@ def run(ctx) -> None:
     log, site = _data.scenario("spl-crossing", 3, 60)
     model = _data.demo_model(site)
     series = {}
+    steppers, reps_of, meta = {}, {}, {}
 
-    # beams (with the defaults K = 32, M = 8; the 682-beam point serves as the K and M axes' default)
-    lat = {}
-    # The smoke run takes one point per axis: the default configuration, which the pipeline section
-    # has compiled already (each other value compiles a step of its own, seconds apiece).
+    # beams (with the defaults K = 32, M = 8). The smoke run takes one point per axis, the default
+    # configuration, which the pipeline section has compiled already (each other value compiles a step
+    # of its own, seconds apiece).
     beam_sensors = (URG_04LX,) if q else (URG_04LX, UTM_30LX, SYNTH_2161)
     for sensor in beam_sensors:
-        scans = synthetic_scans(sensor, 32)
-        m = res.add(f"scaling.beams.{sensor.n_beams}", "us", step_latency(ctx, model, scans, reps), section=SECTION,
-                    label=f"step vs beams: {sensor.n_beams} ({sensor.name})", beams=sensor.n_beams)
-        lat[sensor.n_beams] = m
-    series["beams"] = {"x": [s.n_beams for s in beam_sensors], "median_us": [lat[s.n_beams]["median"] for s in beam_sensors],
-                       "p99_us": [lat[s.n_beams]["p99"] for s in beam_sensors]}
+        name = f"scaling.beams.{sensor.n_beams}"
+        steppers[name] = Stepper(model, synthetic_scans(sensor, 32))
+        reps_of[name] = reps
+        meta[name] = (f"step vs beams: {sensor.n_beams} ({sensor.name})", {"beams": sensor.n_beams})
 
     # K and M, on the scans of spl-crossing
     crossing = [jax.tree.map(lambda a, i=i: a[i], to_scans(log, model.n_beams)) for i in range(log.n_scans)]
-    for axis, values in (("K", (32,) if q else (8, 16, 32, 64)), ("M", (8,) if q else (2, 8, 32, 128))):
-        med, p99 = [], []
+    axes = {"K": (32,) if q else (8, 16, 32, 64), "M": (8,) if q else (2, 8, 32, 128)}
+    for axis, values in axes.items():
         for v in values:
             if axis == "K":
                 m2 = eqx.tree_at(lambda mm: mm.frontend, model, dataclasses.replace(model.frontend, max_candidates=v))
             else:
                 m2 = dataclasses.replace(model, max_tracks=v)
-            r = res.add(f"scaling.{axis}.{v}", "us", step_latency(ctx, m2, crossing, reps), section=SECTION,
-                        label=f"step vs {axis}: {v}", **{axis: v})
-            med.append(r["median"])
-            p99.append(r["p99"])
-        series[axis] = {"x": list(values), "median_us": med, "p99_us": p99}
+            name = f"scaling.{axis}.{v}"
+            steppers[name] = Stepper(m2, crossing)
+            reps_of[name] = reps
+            meta[name] = (f"step vs {axis}: {v}", {axis: v})
 
-    # training-set size N
+    # training-set size N: fit (timed), then the step with the fitted GP in both forms
     from gtsjax import gp as gplib
 
     sizes = (160,) if q else (100, 200, 400, 800)
@@ -143,10 +156,22 @@ def run(ctx) -> None:
         sparse = g.sparse(INDUCING).astype(jnp.float32)
         ns["inducing"].append(int(sparse.z.shape[0]))
         for kind, gp_ in (("dtc", sparse), ("exact", g.astype(jnp.float32))):
-            r = res.add(f"scaling.N.{n}.step_{kind}", "us", step_latency(ctx, with_gp(model, gp_), crossing, reps // 2),
-                        section=SECTION, label=f"step vs N: {n}, {'DTC ≤128 inducing' if kind == 'dtc' else 'exact GP'}",
-                        N=n, predictor=kind)
-            ns[f"{kind}_median_us"].append(r["median"])
+            name = f"scaling.N.{n}.step_{kind}"
+            steppers[name] = Stepper(with_gp(model, gp_), crossing)
+            reps_of[name] = reps // 2
+            meta[name] = (f"step vs N: {n}, {'DTC ≤128 inducing' if kind == 'dtc' else 'exact GP'}",
+                          {"N": n, "predictor": kind, "inducing": int(sparse.z.shape[0])})
+
+    samples = round_robin(ctx, steppers, reps_of)
+    for name, t in samples.items():
+        label, params = meta[name]
+        res.add(name, "us", t, section=SECTION, label=label, **params)
+    for axis, values in (("beams", [s.n_beams for s in beam_sensors]), *axes.items()):
+        recs = [res.get(f"scaling.{axis}.{v}") for v in values]
+        series[axis] = {"x": list(values), "median_us": [r["median"] for r in recs], "p99_us": [r["p99"] for r in recs]}
+    for n in sizes:
+        for kind in ("dtc", "exact"):
+            ns[f"{kind}_median_us"].append(res.get(f"scaling.N.{n}.step_{kind}")["median"])
     series["N"] = ns
 
     # chunk size
@@ -188,6 +213,8 @@ def plot(series: dict, path, machine: dict) -> None:
     s = series["N"]
     a = ax[1, 0]
     a.plot(s["x"], np.asarray(s["dtc_median_us"]) / 1e3, "o-", label=f"DTC, ≤{INDUCING} inducing (shipped form)")
+    for xv, yv, m in zip(s["x"], np.asarray(s["dtc_median_us"]) / 1e3, s["inducing"], strict=True):
+        a.annotate(f"M={m}", (xv, yv), textcoords="offset points", xytext=(0, -12), fontsize=7, ha="center")
     a.plot(s["x"], np.asarray(s["exact_median_us"]) / 1e3, "s--", label="exact GP")
     a.axvline(INDUCING, color="grey", lw=0.8, ls=":")
     a.set_xlabel("GP training-set size N")
