@@ -185,7 +185,11 @@ class Context:
         import importlib.util
 
         dist = {"sklearn": "scikit-learn"}.get(name, name)
-        if importlib.util.find_spec(name) is None:
+        try:
+            found = importlib.util.find_spec(name) is not None
+        except (ImportError, ValueError):  # a broken or deliberately blocked install counts as missing
+            found = False
+        if not found:
             self.results.peers[dist] = "skipped: not installed"
             return False
         try:
