@@ -29,8 +29,8 @@ def test_utm30lx_geometry():
 
 def test_noise_model_piecewise():
     n = URG_04LX.noise
-    np.testing.assert_allclose(n.std(np.array([0.5, 1.0, 2.0, 4.0])), [0.01, 0.01, 0.02, 0.04])
-    np.testing.assert_allclose(UTM_30LX.noise.std(np.array([5.0, 20.0])), [0.03, 0.05])
+    np.testing.assert_allclose(n.std(np.array([0.5, 1.0, 2.0, 4.0])), [0.003, 0.003, 0.006, 0.012])
+    np.testing.assert_allclose(UTM_30LX.noise.std(np.array([5.0, 20.0])), [0.010, 0.015])
 
 
 def test_pp_fields_round_trip():
