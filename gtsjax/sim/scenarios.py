@@ -83,10 +83,37 @@ def grid_poses(points, rng, scans_per_pose: int, jitter=(0.02, math.radians(3)))
     return np.concatenate(out)
 
 
+def training_poses(points, rng, scans_per_pose: int, pos_jitter: float = 0.02) -> np.ndarray:
+    """The training grid: at each point eight headings, one drawn uniformly in each 45° sector (so
+    that headings between the paper's multiples of 45° are covered too, as a walking robot needs),
+    ``scans_per_pose`` scans each."""
+    out = []
+    for x, y in points:
+        for k in range(8):
+            th = -math.pi + k * math.pi / 4 + rng.uniform(-math.pi / 8, math.pi / 8)
+            p = np.array([x + rng.normal(0, pos_jitter), y + rng.normal(0, pos_jitter), th])
+            out.append(np.repeat(p[None], scans_per_pose, 0))
+    return np.concatenate(out)
+
+
+def placed_poses(points, scans_per_pose: int, gap_scans: int) -> np.ndarray:
+    """The paper's evaluation as it is done by hand: the robot is put down at each point with each
+    heading (every 45°) and left for ``scans_per_pose`` scans, then picked up and carried to the next
+    pose, out of the scan plane for ``gap_scans`` scans (NaN rows)."""
+    out = []
+    for x, y in points:
+        for k in range(8):
+            out.append(np.full((gap_scans, 3), np.nan))
+            out.append(np.repeat(np.array([[x, y, -math.pi + k * math.pi / 4]]), scans_per_pose, 0))
+    return np.concatenate(out)
+
+
 def path_poses(waypoints_fn: Callable[[np.ndarray], np.ndarray], n: int, period: float, rng,
-               v_min=0.1, v_max=0.4) -> np.ndarray:
+               v_min=0.1, v_max=0.4, max_turn_rate=1.2) -> np.ndarray:
     """Follow a closed curve ``waypoints_fn(u)`` (u in [0, 1)) at a speed varying smoothly between
-    ``v_min`` and ``v_max`` m/s, heading along the direction of motion."""
+    ``v_min`` and ``v_max`` m/s, turning towards the direction of motion at most ``max_turn_rate``
+    rad/s (a curve may double back on itself, and a robot does not spin round in one scan; a Nao
+    walks sideways or backwards meanwhile)."""
     u = np.linspace(0, 1, 4000, endpoint=False)
     pts = waypoints_fn(u)
     seg = np.linalg.norm(np.diff(np.vstack([pts, pts[:1]]), axis=0), axis=1)
@@ -99,7 +126,13 @@ def path_poses(waypoints_fn: Callable[[np.ndarray], np.ndarray], n: int, period:
     uu = np.interp(s, s_of_u, np.concatenate([u, [1.0]]))
     p = waypoints_fn(uu)
     p2 = waypoints_fn(np.mod(uu + 1e-3, 1.0))
-    heading = np.arctan2(p2[:, 1] - p[:, 1], p2[:, 0] - p[:, 0])
+    motion = np.arctan2(p2[:, 1] - p[:, 1], p2[:, 0] - p[:, 0])
+    heading = np.empty(n)
+    heading[0] = motion[0]
+    step = max_turn_rate * period
+    for i in range(1, n):
+        turn = np.clip(np.pi - np.mod(np.pi - (motion[i] - heading[i - 1]), 2 * np.pi), -step, step)
+        heading[i] = np.pi - np.mod(np.pi - (heading[i - 1] + turn), 2 * np.pi)
     return np.column_stack([p, heading])
 
 
@@ -160,15 +193,16 @@ def _train(layout_fn, spp=3):
     def plan(rng, n):
         lay = layout_fn()
         pts = _grid_points(lay.bounds, 0.5, 0.4, near_sensor=lay.sensor_pose[:2])
-        robots = grid_poses(pts, rng, spp)[:, None, :]
+        robots = training_poses(pts, rng, spp)[:, None, :]
         return Plan(lay, _static_sensor(lay, len(robots)), robots)
     return plan
 
 
-def _eval(layout_fn, points, spp=10):
+def _eval(layout_fn, points, hold_s=3.0, gap_s=1.0):
     def plan(rng, n):
         lay = layout_fn()
-        robots = grid_poses(points, rng, spp, jitter=(0.0, 0.0))[:, None, :]
+        rate = 1.0 / lay.sensor.period
+        robots = placed_poses(points, int(round(hold_s * rate)), int(round(gap_s * rate)))[:, None, :]
         return Plan(lay, _static_sensor(lay, len(robots)), robots)
     return plan
 
@@ -216,10 +250,10 @@ SPL_EVAL_POINTS = [(1.0, 1.0), (5.0, 1.0), (2.0, 2.0), (4.0, 2.0), (3.0, 1.0), (
 LAB_EVAL_POINTS = [(2.2, 1.5), (6.2, 1.3), (4.1, 3.1), (5.7, 3.6), (3.3, 2.3)]
 
 SCENARIOS: dict[str, tuple[str, Callable]] = {
-    "spl-train": ("paper's training grid on the SPL field: static robot every 0.5 × 0.4 m, headings every 45°, "
-                  "3 scans per pose (URG-04LX)", _train(spl_layout)),
-    "spl-eval": ("paper's evaluation: static robot at 8 points such as (1, 1) and (5, 1), headings every 45°, "
-                 "10 scans per pose", _eval(spl_layout, SPL_EVAL_POINTS)),
+    "spl-train": ("paper's training grid on the SPL field: static robot every 0.5 × 0.4 m, 8 headings (one in "
+                  "each 45° sector), 3 scans per pose (URG-04LX)", _train(spl_layout)),
+    "spl-eval": ("paper's evaluation: static robot put down at 8 points such as (1, 1) and (5, 1), headings "
+                 "every 45°, 3 s per pose, carried away for 1 s between poses", _eval(spl_layout, SPL_EVAL_POINTS)),
     "spl-trajectory": ("a robot walking a Lissajous path at 0.1–0.4 m/s for 60 s", _trajectory(spl_layout)),
     "spl-crossing": ("three robots on crossing straight paths, 22 s", _crossing(spl_layout)),
     "spl-legs": ("a robot walking while a person walks across the field, 60 s", _trajectory(spl_layout, legs=True)),
@@ -227,7 +261,8 @@ SCENARIOS: dict[str, tuple[str, Callable]] = {
                    _trajectory(spl_layout, seconds=40.0, bump=True)),
     "lab-train": ("second site: 8 × 5 m lab, UTM-30LX in a corner, pillars; training grid",
                   _train(lab_layout)),
-    "lab-eval": ("second site: static robot at 5 points, headings every 45°, 10 scans per pose",
+    "lab-eval": ("second site: static robot put down at 5 points, headings every 45°, 3 s per pose, 1 s away "
+                 "between poses",
                  _eval(lab_layout, LAB_EVAL_POINTS)),
     "lab-trajectory": ("second site: a robot walking a Lissajous path for 30 s at 40 Hz",
                        _trajectory(lab_layout, seconds=30.0)),

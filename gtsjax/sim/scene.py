@@ -15,13 +15,15 @@ import numpy as np
 from ..sensors import SensorModel
 from .geometry import beam_directions, polygon_edges, ray_circles, ray_segments
 
-# Nao at the height of the body extension, just below the shoulders: a chest about 0.27 m wide and
-# 0.13 m deep, with a plate behind its left shoulder that breaks the front/back and left/right
-# symmetry (the paper's "body extension"), so that the heading is observable from any side.
-NAO_OUTLINE = np.array([
-    [0.065, -0.135], [0.065, 0.135], [-0.150, 0.135], [-0.150, 0.030], [-0.065, 0.030], [-0.065, -0.135],
-])
-NAO_REFLECTIVITY = np.array([0.55, 0.5, 0.9, 0.9, 0.5, 0.5])  # per edge: front, left, plate…
+# Nao at the height of the body extension, just below the shoulders: a chest 0.27 m wide and 0.12 m
+# deep, and behind its left shoulder a fin reaching 0.12 m further back (the paper's "body extension").
+# The outline is convex and no two of its faces look alike from the laser: the front is one flat face
+# 0.27 m wide, each side a 0.12 m face joined to a differently slanted face of the fin, the back two
+# slanted faces meeting off-centre. A concave outline (an earlier L-shaped one) split into two
+# candidates whenever the notch faced the laser, and its front and left views were both flat faces of
+# nearly the same width. Edge order: front, left side, fin (left face), fin (right face), right side.
+NAO_OUTLINE = np.array([[0.06, -0.135], [0.06, 0.135], [-0.06, 0.135], [-0.18, 0.06], [-0.06, -0.135]])
+NAO_REFLECTIVITY = np.array([0.5, 0.45, 0.9, 0.75, 0.45])  # the fin carries reflective tape
 
 
 @dataclasses.dataclass(frozen=True)
