@@ -7,10 +7,28 @@ white acceleration), which follows a walking robot with less lag. The observatio
 makes the filter "extended" is the heading: innovations are wrapped to (−π, π], and the state's
 heading is re-wrapped after each update.
 
+**Heading outliers.** A single scan sometimes sees an asymmetric robot from a side that looks like
+another side, and the pose regressor then returns a heading off by 90° or 180°. Association
+therefore gates on position only (2 dof); the heading of an assigned detection updates the track
+only if its own innovation passes ``heading_gate`` (χ², 1 dof), otherwise the update is
+position-only. A rejected heading also discards the turn-rate estimate (``ω = 0`` with its initial
+variance): a turn rate learnt from misread headings would otherwise spin the track's heading past
+every right one it rejects. ``ω`` is kept within ``max_turn_rate``.
+
+Gating alone cannot undo a wrong start: a track born on a misread heading rejects every right one.
+So each track also keeps a *rival* heading, the running mean of the rejected headings that agree
+with one another, and for the track's heading and its rival a support, the number of detections
+that agreed with each, fading with a time constant ``heading_memory``. When the rival's support
+exceeds the heading's by half a detection, the two swap. Whatever the track was born on, the heading that most scans
+agree on wins within about ``heading_memory``; scattered misreads never build up a rival.
+
 Track life cycle (the paper leaves it open): an unassigned detection of a tracked class starts a
 tentative track in a free slot unless a live track of its class is closer than ``birth_exclusion``;
 ``n_confirm`` hits confirm it; a tentative track dies after ``m_tentative`` consecutive misses, a
-confirmed one after ``m_delete``. Ids are integers handed out in order and never reused.
+confirmed one after ``m_delete``. A confirmed track is *reported* only while it has missed fewer than
+``m_report`` scans in a row: a robot picked up or hidden behind another is not reported at a
+predicted pose, yet its track (and id) lives on for ``m_delete`` scans to take it back when it
+reappears. Ids are integers handed out in order and never reused.
 
 Assignment is greedy on the Mahalanobis distance (repeatedly take the globally closest gated pair):
 one-to-one, deterministic, and ``min(K, M)`` cheap iterations of fixed shape. With well-separated
@@ -39,34 +57,46 @@ class TrackerParams(eqx.Module):
     q_theta: Float[Array, ""]  # same for heading, rad²/s³ (or rad²/s)
     vel_var0: Float[Array, ""]  # initial velocity variance of a new track, (m/s)²
     omega_var0: Float[Array, ""]  # initial turn-rate variance, (rad/s)²
-    gate: Float[Array, " classes"]  # per-class Mahalanobis gate (χ², 3 dof)
+    gate: Float[Array, " classes"]  # per-class Mahalanobis gate on position (χ², 2 dof)
+    heading_gate: Float[Array, ""]  # gate on an assigned detection's heading innovation (χ², 1 dof)
+    heading_memory: Float[Array, ""]  # s: time constant over which heading support fades
+    max_turn_rate: Float[Array, ""]  # rad/s: |ω| is kept below this
     tracked: Bool[Array, " classes"]  # which classes are mobile (tracked); landmarks and background are not
     n_confirm: Int[Array, ""]
     m_tentative: Int[Array, ""]
     m_delete: Int[Array, ""]
+    m_report: Int[Array, ""]
     birth_exclusion: Float[Array, ""]  # metres
     constant_velocity: Bool[Array, ""]
 
     @classmethod
-    def default(cls, tracked, *, rate_hz: float = 10.0, gate: float = 16.27, **overrides) -> "TrackerParams":
+    def default(cls, tracked, *, rate_hz: float = 10.0, gate: float = 13.82, **overrides) -> "TrackerParams":
         """Defaults for a scanner at ``rate_hz``: confirmation after 3 hits, deletion of a confirmed
-        track after 1 s without detections, of a tentative one after 0.3 s; gate χ²₃(0.999) = 16.27."""
+        track after 1 s without detections, of a tentative one after 0.3 s, reported while it has
+        missed less than 0.3 s; position gate
+        χ²₂(0.999) = 13.82, heading gate χ²₁(0.999) = 10.83, heading support fading over 1 s (a wrong
+        heading is given up within about a second); turn rate at most 3 rad/s (a humanoid turns at
+        about 1 rad/s, a wheeled robot faster)."""
         tracked = jnp.asarray(tracked, dtype=bool)
         vals = dict(
-            q_pos=0.5,
-            q_theta=2.0,
+            q_pos=0.05,
+            q_theta=0.5,
             vel_var0=0.25,
             omega_var0=1.0,
             gate=jnp.full(tracked.shape, gate),
+            heading_gate=10.83,
+            heading_memory=1.0,
+            max_turn_rate=3.0,
             tracked=tracked,
             n_confirm=3,
             m_tentative=max(1, round(0.3 * rate_hz)),
             m_delete=max(2, round(1.0 * rate_hz)),
+            m_report=max(1, round(0.3 * rate_hz)),
             birth_exclusion=0.25,
             constant_velocity=True,
         )
         vals.update(overrides)
-        ints = {"n_confirm", "m_tentative", "m_delete"}
+        ints = {"n_confirm", "m_tentative", "m_delete", "m_report"}
         return cls(**{
             k: (jnp.asarray(v, jnp.int32) if k in ints else jnp.asarray(v, bool) if k in ("tracked", "constant_velocity")
                 else jnp.asarray(v, _F32))
@@ -85,6 +115,9 @@ class TrackerState(eqx.Module):
     confirmed: Bool[Array, " tracks"]
     hits: Int[Array, " tracks"]
     misses: Int[Array, " tracks"]
+    rival: Float[Array, " tracks"]  # the rival heading (see the module docstring)
+    support: Float[Array, " tracks"]  # fading count of detections that agreed with the heading
+    rival_support: Float[Array, " tracks"]  # ... and with the rival
     next_id: Int[Array, ""]
 
     @classmethod
@@ -99,6 +132,9 @@ class TrackerState(eqx.Module):
             confirmed=jnp.zeros(m, bool),
             hits=jnp.zeros(m, jnp.int32),
             misses=jnp.zeros(m, jnp.int32),
+            rival=jnp.zeros(m, _F32),
+            support=jnp.zeros(m, _F32),
+            rival_support=jnp.zeros(m, _F32),
             next_id=jnp.asarray(0, jnp.int32),
         )
 
@@ -164,17 +200,37 @@ def inv3(S: Float[Array, "3 3"]) -> Float[Array, "3 3"]:
     return adj / det
 
 
+def inv2(S: Float[Array, "2 2"]) -> Float[Array, "2 2"]:
+    """Inverse of a symmetric positive definite 2×2 matrix."""
+    a, b, d = S[0, 0], S[0, 1], S[1, 1]
+    return jnp.stack([jnp.stack([d, -b]), jnp.stack([-b, a])]) / (a * d - b * b)
+
+
 def mahalanobis(mean, cov, z, R) -> Float[Array, ""]:
+    """Squared Mahalanobis distance of a detection's position from a track's (2 dof): association
+    ignores the heading, which a misread side of the robot can throw off by 90° or more."""
     nu, S = innovation(mean, cov, z, R)
-    return nu @ inv3(S) @ nu
+    return nu[:2] @ inv2(S[:2, :2]) @ nu[:2]
 
 
-def kalman_update(mean: Float[Array, "6"], cov: Float[Array, "6 6"], z: Float[Array, "3"], R: Float[Array, "3 3"]):
-    """Measurement update with ``H = [I₃ 0]``: gain ``K = P Hᵀ S⁻¹`` (solved), Joseph-form covariance
-    ``(I − KH) P (I − KH)ᵀ + K R Kᵀ``, which stays symmetric positive definite in float32."""
+def heading_consistent(mean, cov, z, R, gate) -> Bool[Array, ""]:
+    """Whether a detection's heading agrees with the track's: ``ν_θ² / S_θθ ≤ gate`` (1 dof)."""
+    nu, S = innovation(mean, cov, z, R)
+    return nu[2] ** 2 <= gate * S[2, 2]
+
+
+def kalman_update(mean: Float[Array, "6"], cov: Float[Array, "6 6"], z: Float[Array, "3"], R: Float[Array, "3 3"],
+                  use_heading: Bool[Array, ""] = True):
+    """Measurement update with ``H = [I₃ 0]``: gain ``K = P Hᵀ S⁻¹``, Joseph-form covariance
+    ``(I − KH) P (I − KH)ᵀ + K R Kᵀ``, which stays symmetric positive definite in float32.
+
+    With ``use_heading`` False the update is position-only (``H = [I₂ 0]``): the heading row of the
+    gain is zero, which is the 3-row update with the heading's innovation zeroed and the heading's
+    row and column of ``S⁻¹`` removed."""
     nu, S = innovation(mean, cov, z, R)
     PHt = cov[:, :3]
-    K = PHt @ inv3(S)  # S is symmetric
+    s_inv = jnp.where(use_heading, inv3(S), jnp.zeros((3, 3), S.dtype).at[:2, :2].set(inv2(S[:2, :2])))
+    K = PHt @ s_inv  # S is symmetric
     mean = mean + K @ nu
     mean = mean.at[2].set(wrap(mean[2]))
     IKH = jnp.eye(NX, dtype=cov.dtype).at[:, :3].add(-K)
@@ -202,6 +258,44 @@ def assign(cost: Float[Array, "dets tracks"]) -> tuple[Int[Array, " tracks"], Bo
     return det_of_track, has
 
 
+# How much more support the rival needs to take over: half a detection, so that a tie (a newborn
+# track's one detection against one that disagrees) keeps the heading.
+_SWAP_MARGIN = 0.5
+
+
+def rival_heading(state: TrackerState, mean, cov, z_theta, r_theta, has, head_ok, dt, params: TrackerParams):
+    """The heading's rival and the two supports after this scan's detections (see the module
+    docstring); where the rival wins, it becomes the heading (with the detection's variance and no
+    correlation to the rest of the state) and the heading becomes the rival.
+
+    A rejected heading joins the rival if it agrees with it (the heading gate, with twice the
+    detection's variance for the rival's own uncertainty), moving the rival to the support-weighted
+    mean; else it replaces a rival whose support has faded below one detection."""
+    fade = jnp.exp(-dt / params.heading_memory)
+    sup = state.support * fade
+    rsup = state.rival_support * fade
+    rej = has & ~head_ok
+    nu = wrap(z_theta - state.rival)
+    agree = nu**2 <= params.heading_gate * 2.0 * r_theta
+    join = rej & agree
+    fresh = rej & ~agree & (rsup < 1.0)
+    rsup = jnp.where(join, rsup + 1.0, jnp.where(fresh, 1.0, rsup))
+    rival = jnp.where(join, wrap(state.rival + nu / rsup), jnp.where(fresh, z_theta, state.rival))
+    sup = jnp.where(has & head_ok, sup + 1.0, sup)
+    swap = rsup > sup + _SWAP_MARGIN
+    theta = mean[:, 2]
+    mean = mean.at[:, 2].set(jnp.where(swap, rival, theta))
+    cross = jnp.where(swap[:, None], 0.0, cov[:, 2, :])
+    cov = cov.at[:, 2, :].set(cross).at[:, :, 2].set(cross)
+    cov = cov.at[:, 2, 2].set(jnp.where(swap, r_theta, cov[:, 2, 2]))
+    return mean, cov, (jnp.where(swap, theta, rival), jnp.where(swap, rsup, sup), jnp.where(swap, sup, rsup))
+
+
+def reported(state: TrackerState, params: TrackerParams) -> Bool[Array, " tracks"]:
+    """Tracks to report: confirmed, and observed within the last ``m_report`` scans."""
+    return state.live & state.confirmed & (state.misses < params.m_report)
+
+
 def track_step(
     state: TrackerState, det: Detections, dt: Float[Array, ""], params: TrackerParams
 ) -> tuple[TrackerState, Bool[Array, " dets"]]:
@@ -224,7 +318,16 @@ def track_step(
     det_of_track, has = assign(cost)
 
     z, R = det.pose[det_of_track], det.cov[det_of_track]
-    upd_mean, upd_cov = jax.vmap(kalman_update)(state.mean, state.cov, z, R)
+    head_ok = jax.vmap(heading_consistent, in_axes=(0, 0, 0, 0, None))(state.mean, state.cov, z, R, params.heading_gate)
+    upd_mean, upd_cov = jax.vmap(kalman_update)(state.mean, state.cov, z, R, head_ok)
+    # A rejected heading discards the turn rate (see the module docstring).
+    forget = ~head_ok[:, None]
+    upd_cov = upd_cov.at[:, 5, :].set(jnp.where(forget, 0.0, upd_cov[:, 5, :]))
+    upd_cov = upd_cov.at[:, :, 5].set(jnp.where(forget, 0.0, upd_cov[:, :, 5]))
+    upd_cov = upd_cov.at[:, 5, 5].set(jnp.where(head_ok, upd_cov[:, 5, 5], params.omega_var0))
+    upd_mean = upd_mean.at[:, 5].set(jnp.where(head_ok, jnp.clip(upd_mean[:, 5], -params.max_turn_rate,
+                                                                 params.max_turn_rate), 0.0))
+    upd_mean, upd_cov, rivals = rival_heading(state, upd_mean, upd_cov, z[:, 2], R[:, 2, 2], has, head_ok, dt, params)
     mean = jnp.where(has[:, None], upd_mean, state.mean)
     cov = jnp.where(has[:, None, None], upd_cov, state.cov)
     hits = state.hits + has.astype(jnp.int32)
@@ -259,6 +362,9 @@ def track_step(
         confirmed=jnp.where(born, params.n_confirm <= 1, confirmed & live),
         hits=jnp.where(born, 1, jnp.where(live, hits, 0)),
         misses=jnp.where(born | ~live, 0, misses),
+        rival=jnp.where(born, 0.0, rivals[0]),
+        support=jnp.where(born, 1.0, rivals[1]),
+        rival_support=jnp.where(born, 0.0, rivals[2]),
         next_id=state.next_id + n_born,
     )
     used_by_track = used
