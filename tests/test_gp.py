@@ -304,3 +304,27 @@ def test_all_restarts_failing_raises_clear_error():
 def test_fit_rejects_bad_input():
     with pytest.raises(ValueError, match="need x"):
         gp.fit(np.zeros((3, 2)), np.zeros(4), key=jax.random.key(0))
+
+
+def test_sparse_mean_on_many_points_variance_on_the_first_few():
+    """``sparse(M, Mv)``: the mean is DTC on M points (the exact GP's when M covers the training set);
+    the variance is DTC on the first Mv pivots, i.e. that of ``sparse(Mv)``."""
+    rng = np.random.default_rng(13)
+    x = rng.uniform(-3, 3, (70, 3))
+    y = np.sin(x[:, 0]) + 0.3 * x[:, 1] * x[:, 2] + 0.05 * rng.normal(size=70)
+    g = gp.fit(x, y, key=jax.random.key(7), restarts=2)
+    xs = jnp.asarray(rng.uniform(-3, 3, (20, 3)))
+    mean, _ = g.predict(xs)
+
+    whole = g.sparse(100, n_variance=12)  # M capped at N = 70: every training point, exact mean
+    assert whole.z.shape == (70, 3) and whole.n_variance == 12
+    m_w, v_w = whole.predict(xs)
+    np.testing.assert_allclose(np.asarray(m_w), np.asarray(mean), atol=1e-8)
+    _, v_12 = g.sparse(12).predict(xs)
+    np.testing.assert_allclose(np.asarray(v_w), np.asarray(v_12), rtol=1e-8, atol=1e-10)
+
+    part = g.sparse(40, n_variance=12)
+    m_p, v_p = part.predict(xs)
+    m_40, _ = g.sparse(40).predict(xs)
+    np.testing.assert_allclose(np.asarray(m_p), np.asarray(m_40), atol=1e-8)
+    np.testing.assert_allclose(np.asarray(v_p), np.asarray(v_12), rtol=1e-8, atol=1e-10)
