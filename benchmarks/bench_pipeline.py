@@ -22,7 +22,7 @@ from gtsjax._features import characterise_all
 from gtsjax._filters import binary_filter
 from gtsjax._frontend import front_end_log, front_end_unjitted
 from gtsjax._maptransform import poses_to_field, update_transform
-from gtsjax._pipeline import init_state, make_step, perceive, process_log
+from gtsjax._pipeline import init_state, landmark_cap, make_step, perceive, process_log
 from gtsjax._pose import regress, to_sensor_frame
 from gtsjax._segment import segment
 from gtsjax._track import Detections, track_step
@@ -54,10 +54,11 @@ def stage_functions(model):
                              width_max=fe.width_max, min_points=fe.min_points)
 
     def cls(feats, keep):
-        return classify(model.classifier, gp_inputs(feats.vector, feats.origin, feats.height), keep)
+        return classify(model.classifier, gp_inputs(feats.vector, feats.origin, feats.height, model.gp_columns), keep)
 
-    def pose(feats, c):
-        rel, var = regress(model.pose, gp_inputs(feats.vector, feats.origin, feats.height), c)
+    def pose(feats, scores, c, ok):
+        rel, var, _ = regress(model.pose, gp_inputs(feats.vector, feats.origin, feats.height, model.gp_columns), c, ok, scores,
+                              model.max_objects, landmark_cap(model))
         return to_sensor_frame(feats.origin, feats.heading, rel, var)
 
     def mapf(tf, p):
@@ -99,10 +100,11 @@ def record_inputs(model, scans, n: int):
         cands = st["a_segmentation"](scan)
         feats = st["b_characterisation"](cands)
         keep = st["c_filters"](cands, feats)
-        _, c, _ = st["d_classifier"](feats, keep)
+        scores, c, ok = st["d_classifier"](feats, keep)
         p = perc(scan)
         _, det = st["f_map_transformation"](state.transform, p)
-        rec.append({"scan": scan, "cands": cands, "feats": feats, "keep": keep, "cls": c, "perception": p,
+        rec.append({"scan": scan, "cands": cands, "feats": feats, "keep": keep, "cls": c, "scores": scores, "ok": ok,
+                    "perception": p,
                     "transform": state.transform, "tracker": state.tracker, "det": det})
         state, _ = step(state, scan)
     return jax.block_until_ready(rec), st, step
@@ -135,7 +137,7 @@ def bench_sensor(ctx, key: str, model, scans, n_pool: int, repeats: int, stage_r
         "b_characterisation": lambda r: st["b_characterisation"](r["cands"]),
         "c_filters": lambda r: st["c_filters"](r["cands"], r["feats"]),
         "d_classifier": lambda r: st["d_classifier"](r["feats"], r["keep"]),
-        "e_pose_regression": lambda r: st["e_pose_regression"](r["feats"], r["cls"]),
+        "e_pose_regression": lambda r: st["e_pose_regression"](r["feats"], r["scores"], r["cls"], r["ok"]),
         "f_map_transformation": lambda r: st["f_map_transformation"](r["transform"], r["perception"]),
         "g_tracking": lambda r: st["g_tracking"](r["tracker"], r["det"], r["scan"].dt),
         "frontend_a_to_c": lambda r: st["frontend_a_to_c"](r["scan"]),
@@ -152,7 +154,7 @@ def bench_sensor(ctx, key: str, model, scans, n_pool: int, repeats: int, stage_r
 def _stage_args(name: str, r: dict) -> tuple:
     return {
         "a_segmentation": (r["scan"],), "b_characterisation": (r["cands"],), "c_filters": (r["cands"], r["feats"]),
-        "d_classifier": (r["feats"], r["keep"]), "e_pose_regression": (r["feats"], r["cls"]),
+        "d_classifier": (r["feats"], r["keep"]), "e_pose_regression": (r["feats"], r["scores"], r["cls"], r["ok"]),
         "f_map_transformation": (r["transform"], r["perception"]),
         "g_tracking": (r["tracker"], r["det"], r["scan"].dt), "frontend_a_to_c": (r["scan"],),
     }[name]

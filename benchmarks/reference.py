@@ -69,13 +69,19 @@ class SklearnGP:
         self.x_mean = _f(gp.x_mean)
         self.x_scale = _f(gp.x_scale)
         self.y_mean = float(gp.y_mean)
+        self.var_gpr = None
         if hasattr(gp, "z"):  # SparseGP (DTC)
             use = np.asarray(gp.z_mask, bool)
             z = _f(gp.z)[use]
             w = _f(gp.weights)[use]
             a = max(float(_f(gp.noise)) - self.noise_var, 1e-12 * sf2)
             targets = (kernel(z) + a * np.eye(len(z))) @ w
-            self.proj_b = _f(gp.proj_b)[np.ix_(use, use)]
+            mv = int(gp.proj_m.shape[0])  # the variance uses the first mv inducing points only
+            use_v = np.asarray(gp.z_mask, bool)[:mv]
+            self.proj_b = _f(gp.proj_b)[np.ix_(use_v, use_v)]
+            zv = _f(gp.z)[:mv][use_v]
+            self.var_gpr = GaussianProcessRegressor(kernel, alpha=a, optimizer=None, normalize_y=False,
+                                                    copy_X_train=False).fit(zv, np.zeros(len(zv)))
         else:  # exact GP
             use = np.asarray(gp.mask, bool)
             z = _f(gp.x)[use]
@@ -84,6 +90,7 @@ class SklearnGP:
             self.proj_b = None
         self.gpr = GaussianProcessRegressor(kernel, alpha=a, optimizer=None, normalize_y=False, copy_X_train=False)
         self.gpr.fit(z, targets)
+        self.var_gpr = self.var_gpr or self.gpr
 
     def _std(self, x: np.ndarray) -> np.ndarray:
         return (x - self.x_mean) / self.x_scale
@@ -95,12 +102,13 @@ class SklearnGP:
     def predict(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Predictive mean and variance, observation noise included (what pose regression uses)."""
         xs = self._std(x)
+        mean = self.gpr.predict(xs)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # sklearn warns when it clips a variance of -1e-17 at 0
-            mean, std = self.gpr.predict(xs, return_std=True)
+            _, std = self.var_gpr.predict(xs, return_std=True)
         var = std**2
         if self.proj_b is not None:
-            t2 = self.gpr.kernel_(xs, self.gpr.X_train_) @ self.proj_b.T
+            t2 = self.var_gpr.kernel_(xs, self.var_gpr.X_train_) @ self.proj_b.T
             var = var + np.sum(t2 * t2, axis=1)
         return mean + self.y_mean, np.maximum(var, 0.0) + self.noise_var
 
@@ -273,6 +281,9 @@ class ReferencePipeline:
         self.threshold = _f(model.classifier.threshold)
         self.pose = [None if r is None else {c: (None if getattr(r, c) is None else SklearnGP(getattr(r, c)))
                                              for c in ("x", "y", "sin", "cos")} for r in model.pose]
+        self.var_scale = [None if r is None or r.var_scale is None else _f(r.var_scale) for r in model.pose]
+        self.max_objects = model.max_objects
+        self.gp_columns = model.gp_columns
         self.landmark_mask = np.asarray(model.landmark_mask, bool)
         self.map_gate = float(model.map_gate)
         self.map_min_spread = float(model.map_min_spread)
@@ -351,26 +362,36 @@ class ReferencePipeline:
             origins.append((r_j * c, r_j * sn))
             headings.append(th)
         d = 1 + self.n_dist + self.n_intensity + 2
-        return np.array(vecs).reshape(-1, d), np.array(origins).reshape(-1, 2), np.array(headings)
+        x = np.array(vecs).reshape(-1, d)
+        if self.gp_columns:  # the inputs the model was trained on
+            x = x[:, list(self.gp_columns)]
+        return x, np.array(origins).reshape(-1, 2), np.array(headings)
 
     # ---- stages d–e
     def classify(self, x):
         """Stage d: class of each candidate and whether it survives (not background, score ≥ threshold)."""
         if len(x) == 0:
-            return np.zeros(0, int), np.zeros(0, bool)
+            return np.zeros(0, int), np.zeros(0, bool), np.zeros((0, len(self.classifier)))
         scores = np.stack([g.predict_mean(x) for g in self.classifier], axis=1)
         cls = scores.argmax(axis=1)
         best = scores[np.arange(len(cls)), cls]
-        return cls, (cls != 0) & (best >= self.threshold[cls])
+        return cls, (cls != 0) & (best >= self.threshold[cls]), scores
 
-    def regress(self, x, cls, ok):
-        """Stage e: ORS-relative pose and variances under each candidate's class's GPs."""
+    def regress(self, x, cls, ok, scores):
+        """Stage e: ORS-relative pose and variances under each candidate's class's GPs; of a mobile
+        class, the ``max_objects`` candidates with the highest class score only (the others are
+        dropped: the second output is False for them)."""
         rel = np.zeros((len(x), 3))
         var = np.zeros((len(x), 3))
+        ok = ok.copy()
         for k, reg in enumerate(self.pose):
             rows = np.flatnonzero(ok & (cls == k))
             if reg is None or rows.size == 0:
                 continue
+            if reg["sin"] is not None and rows.size > self.max_objects:
+                keep = rows[np.argsort(-scores[rows, k], kind="stable")[: self.max_objects]]
+                ok[np.setdiff1d(rows, keep)] = False
+                rows = np.sort(keep)
             v = x[rows]
             mx, vx = reg["x"].predict(v)
             my, vy = reg["y"].predict(v)
@@ -383,9 +404,12 @@ class ReferencePipeline:
             r2 = ms**2 + mc**2
             with np.errstate(divide="ignore", invalid="ignore"):
                 vt = np.where(r2 > 1e-6, (mc**2 * vs + ms**2 * vc) / r2**2, _MAX_THETA_VAR)
+            v3 = np.stack([vx, vy, vt], 1)
+            if self.var_scale[k] is not None:
+                v3 = v3 * self.var_scale[k]
             rel[rows] = np.stack([mx, my, np.arctan2(ms, mc)], 1)
-            var[rows] = np.stack([vx, vy, np.minimum(vt, _MAX_THETA_VAR)], 1)
-        return rel, var
+            var[rows] = np.minimum(v3, [np.inf, np.inf, _MAX_THETA_VAR])
+        return rel, var, ok
 
     # ---- stage f
     def update_transform(self, det_s, det_cls):
@@ -418,8 +442,8 @@ class ReferencePipeline:
         valid = np.asarray(valid, bool)
         angles = float(angle_min) + np.arange(ranges.shape[0]) * float(angle_increment)
         x, origin, heading = self.candidates(ranges, intensities, valid, angles)
-        cls, ok = self.classify(x)
-        rel, var = self.regress(x, cls, ok)
+        cls, ok, scores = self.classify(x)
+        rel, var, ok = self.regress(x, cls, ok, scores)
         # ORS -> S (eq. 16 with the ORS in place of O)
         c, s = np.cos(heading), np.sin(heading)
         pose_s = np.stack([origin[:, 0] + c * rel[:, 0] - s * rel[:, 1],

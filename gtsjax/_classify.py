@@ -18,10 +18,14 @@ BACKGROUND = 0
 
 
 def gp_inputs(
-    vector: Float[Array, "*cands features"], origin: Float[Array, "*cands 2"], height: Float[Array, "*cands"]
+    vector: Float[Array, "*cands features"],
+    origin: Float[Array, "*cands 2"],
+    height: Float[Array, "*cands"],
+    columns: tuple[int, ...] = (),
 ) -> Float[Array, "*cands inputs"]:
     """What the GPs of stages d and e see: the characteristic vector (eq. 11–12) plus the candidate's
-    depth (its bounding box along x′) and its range from the sensor.
+    depth (its bounding box along x′) and its range from the sensor; of these, the ``columns`` a model
+    was trained on (all if empty; see ``Model.gp_columns``).
 
     The paper's vector is scale-free along the beam: a flat 0.27 m stretch of wall and a robot's chest
     seen face on give the same width and distance profile. The depth separates flat from angular
@@ -29,7 +33,8 @@ def gp_inputs(
     regressors can learn how far behind the visible surface the centre lies at each distance).
     """
     rng = jnp.sqrt(jnp.sum(origin**2, axis=-1))
-    return jnp.concatenate([vector, height[..., None], rng[..., None]], axis=-1)
+    x = jnp.concatenate([vector, height[..., None], rng[..., None]], axis=-1)
+    return x[..., list(columns)] if columns else x
 
 
 class Classifier(eqx.Module):

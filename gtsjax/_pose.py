@@ -10,22 +10,26 @@ position variances rotated from ORS into S, heading variance propagated through 
 """
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, Bool, Float, Int
 
-from ._gp import GP, SparseGP
+from ._gp import GP, SparseGP, predict_mean
 
 # Heading variance is capped where the sine and cosine predictions carry no information.
 _MAX_THETA_VAR = float(jnp.pi**2 / 3)
 
 
 class PoseRegressor(eqx.Module):
-    """GPs of one class: ``x``, ``y`` (ORS-relative position) and, if the class has a heading, ``sin``, ``cos``."""
+    """GPs of one class: ``x``, ``y`` (ORS-relative position) and, if the class has a heading, ``sin``, ``cos``.
+
+    ``var_scale`` multiplies the predictive variances of ``(x̃, ỹ, θ̃)`` (see :func:`calibrate`)."""
 
     x: SparseGP | GP
     y: SparseGP | GP
     sin: SparseGP | GP | None = None
     cos: SparseGP | GP | None = None
+    var_scale: Float[Array, "3"] | None = None
 
 
 def _predict(gp, v):
@@ -50,26 +54,118 @@ def regress_one_class(
     r2 = ms**2 + mc**2
     r2_safe = jnp.where(r2 > 1e-6, r2, 1.0)
     vt = jnp.where(r2 > 1e-6, (mc**2 * vs + ms**2 * vc) / r2_safe**2, _MAX_THETA_VAR)
-    vt = jnp.minimum(vt, _MAX_THETA_VAR)
-    return jnp.stack([mx, my, theta], -1), jnp.stack([vx, vy, vt], -1)
+    var = jnp.stack([vx, vy, vt], -1)
+    if reg.var_scale is not None:
+        var = var * reg.var_scale.astype(var.dtype)[None, :]
+    cap = jnp.asarray([jnp.inf, jnp.inf, _MAX_THETA_VAR], var.dtype)
+    return jnp.stack([mx, my, theta], -1), jnp.minimum(var, cap[None, :])
+
+
+# Median of χ² with one degree of freedom, and its 0.999 quantile: the tracker's heading gate.
+_CHI2_1_MEDIAN = 0.45493642311957283
+_CHI2_1_GATE = 10.827566170662733
+
+
+def _trimmed_chi2_mean(gate: float) -> float:
+    """``E[z² | z² < gate]`` for a standard normal ``z``."""
+    import math
+
+    a = math.sqrt(gate)
+    tail = math.erfc(a / math.sqrt(2))  # P(|z| > a)
+    phi = math.exp(-0.5 * gate) / math.sqrt(2 * math.pi)
+    return (1.0 - 2 * a * phi - tail) / (1.0 - tail)
+
+
+def robust_variance_scale(z2, iterations: int = 10) -> float:
+    """The factor ``s`` by which variances must grow so that normalised squared errors ``z2`` are
+    those of a calibrated Gaussian, outliers aside: starting from the median, repeatedly take as
+    inliers the errors inside the 0.999 gate (``z2 / s < 10.83``, the tracker's heading gate) and set
+    ``s`` so that their mean is that of a Gaussian truncated at the gate. A plain median is biased
+    by contamination (10 % of misreads raise it by a quarter); this is not, while the outliers lie
+    beyond the gate."""
+    import numpy as np
+
+    z2 = np.asarray(z2, np.float64)
+    s = float(np.median(z2) / _CHI2_1_MEDIAN)
+    m = _trimmed_chi2_mean(_CHI2_1_GATE)
+    for _ in range(iterations):
+        inl = z2 < _CHI2_1_GATE * s
+        s = float(np.mean(z2[inl]) / m)
+    return s
+
+
+def calibrate(reg: PoseRegressor, vectors, target) -> PoseRegressor:
+    """Scale the variances of a class's pose GPs so that, on held-out examples, the normalised
+    squared errors of ``x̃``, ``ỹ`` and ``θ̃`` are those of a calibrated Gaussian, gross misreads aside
+    (:func:`robust_variance_scale`).
+
+    Why: the pose GPs' noise is homoscedastic, so the rare scan that sees a side of the robot as
+    another (a heading off by 90° or more) inflates the noise estimate, and with it the variance of
+    every prediction: typical headings, good to 2°, came with a σ of 25°. The tracker weighs and gates
+    measurements by these variances; calibrated, typical errors get their true size and the misreads
+    fall outside the heading gate. ``target`` [n, 3] holds the held-out ``(x̃, ỹ, θ̃)`` (θ̃ NaN for a
+    class without heading)."""
+    import numpy as np
+
+    rel, var = regress_one_class(eqx.tree_at(lambda r: r.var_scale, reg, None, is_leaf=lambda v: v is None),
+                                 jnp.asarray(vectors, jnp.float32))
+    rel, var, target = np.asarray(rel, np.float64), np.asarray(var, np.float64), np.asarray(target, np.float64)
+    err = rel - target
+    err[:, 2] = np.pi - np.mod(np.pi - err[:, 2], 2 * np.pi)
+    scale = np.ones(3)
+    for j in range(3 if reg.sin is not None else 2):
+        ok = np.isfinite(err[:, j]) & (var[:, j] > 0)
+        if ok.sum() >= 10:
+            scale[j] = robust_variance_scale(err[ok, j] ** 2 / var[ok, j])
+    return eqx.tree_at(lambda r: r.var_scale, reg, jnp.asarray(scale, jnp.float32), is_leaf=lambda v: v is None)
+
+
+def _top(sel: Bool[Array, " cands"], score: Float[Array, " cands"], k: int) -> tuple[Int[Array, " k"], Bool[Array, " k"]]:
+    """Indices of the ``k`` selected candidates with the highest scores, and which of them are selected."""
+    _, idx = jax.lax.top_k(jnp.where(sel, score, -jnp.inf), k)
+    return idx, sel[idx]
 
 
 def regress(
-    regressors: tuple[PoseRegressor | None, ...], vectors: Float[Array, "cands features"], cls: Int[Array, " cands"]
-) -> tuple[Float[Array, "cands 3"], Float[Array, "cands 3"]]:
-    """Each candidate's ORS-relative pose and variances under the regressors of its own class. Every
-    class's GPs run on every candidate (fixed shapes); the class picks the row. A class without
-    regressors (background) gives zeros."""
-    rel = jnp.zeros(vectors.shape[:1] + (3,), vectors.dtype)
+    regressors: tuple[PoseRegressor | None, ...],
+    vectors: Float[Array, "cands features"],
+    cls: Int[Array, " cands"],
+    ok: Bool[Array, " cands"],
+    scores: Float[Array, "cands classes"],
+    max_objects: int,
+    max_landmarks: int,
+) -> tuple[Float[Array, "cands 3"], Float[Array, "cands 3"], Bool[Array, " cands"]]:
+    """Each kept candidate's ORS-relative pose and variances under the regressors of its own class,
+    and which candidates got one.
+
+    Fixed shapes, and no GP runs on a candidate that cannot use it: per class, the candidates of the
+    class with the highest class scores are gathered (``top_k``), regressed and scattered back; the
+    ``max_objects`` best of a mobile class get the mean and variance GPs, the ``max_landmarks`` best
+    of a landmark class the position means only (stage f reads no variance). A candidate beyond its
+    class's cap gets no pose and must be dropped (the third output is False for it). Background and
+    unkept candidates give zeros."""
+    n = vectors.shape[0]
+    rel = jnp.zeros((n, 3), vectors.dtype)
     var = jnp.zeros_like(rel)
+    posed = jnp.zeros((n,), bool)
     for k, reg in enumerate(regressors):
         if reg is None:
             continue
-        r, v = regress_one_class(reg, vectors)
-        sel = (cls == k)[:, None]
-        rel = jnp.where(sel, r, rel)
-        var = jnp.where(sel, v, var)
-    return rel, var
+        sel = ok & (cls == k)
+        if reg.sin is None or reg.cos is None:
+            idx, chosen = _top(sel, scores[:, k], min(max_landmarks, n))
+            v = vectors[idx]
+            mx = predict_mean(reg.x, v).astype(vectors.dtype)
+            my = predict_mean(reg.y, v).astype(vectors.dtype)
+            r = jnp.stack([mx, my, jnp.zeros_like(mx)], -1)
+            rel = rel.at[idx].set(jnp.where(chosen[:, None], r, rel[idx]))
+        else:
+            idx, chosen = _top(sel, scores[:, k], min(max_objects, n))
+            r, v = regress_one_class(reg, vectors[idx])
+            rel = rel.at[idx].set(jnp.where(chosen[:, None], r, rel[idx]))
+            var = var.at[idx].set(jnp.where(chosen[:, None], v, var[idx]))
+        posed = posed.at[idx].max(chosen)
+    return rel, var, posed
 
 
 def to_sensor_frame(

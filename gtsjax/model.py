@@ -47,6 +47,12 @@ class Model(eqx.Module):
     max_tracks: int = eqx.field(static=True)
     sensor_model: str = eqx.field(static=True)
     n_beams: int = eqx.field(static=True)
+    # Candidates of each mobile class that get a pose per scan (the best by class score): the pose GPs'
+    # variance is the step's costliest part, so it is computed for these only.
+    max_objects: int = eqx.field(static=True, default=8)
+    # The GP inputs (``_classify.gp_inputs``) that varied over the training set; the others (the
+    # intensity profile of a scanner without intensity) carry nothing and are left out of every kernel.
+    gp_columns: tuple[int, ...] = eqx.field(static=True, default=())
 
     @property
     def n_classes(self) -> int:

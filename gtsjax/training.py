@@ -31,7 +31,7 @@ from ._classify import Classifier, class_scores, gp_inputs
 from ._frontend import FrontEndConfig, front_end_log
 from ._gp import fit
 from ._maptransform import Transform, update_transform
-from ._pose import PoseRegressor, regress_one_class
+from ._pose import PoseRegressor, calibrate, regress_one_class
 from ._track import TrackerParams
 from .errors import InputError
 from .io.logs import ScanLog, to_scans
@@ -48,8 +48,17 @@ class TrainConfig:
 
     frontend: FrontEndConfig = dataclasses.field(default_factory=FrontEndConfig)
     max_per_class: int = 500  # classifier examples per class (balanced and capped)
-    max_pose_examples: int = 1000  # pose-GP training examples per class
-    n_inducing: int = 192  # inducing points per GP at prediction time (bounds the step's cost)
+    max_pose_examples: int = 2000  # pose-GP training examples per mobile class
+    max_landmark_examples: int = 500  # position-GP training examples per landmark class (simple shapes)
+    # Inducing points of each GP's predictive mean: they bound the step's cost per candidate whatever
+    # the training set, and a GP trained on this many examples or fewer predicts its exact mean. The
+    # mobile classes' pose GPs run on a few candidates per scan (the model's max_objects) and get the
+    # most, since heading accuracy depends on them; the classifier's GPs run on every candidate and
+    # the landmark classes' position GPs learn a simple shape: they get fewer. The pose GPs' variance
+    # (O(M^2) per candidate) uses the first n_inducing_var.
+    n_inducing: int = 2048
+    n_inducing_class: int = 512
+    n_inducing_var: int = 64
     restarts: int = 3  # optimiser starts per GP fit
     holdout: float = 0.2  # fraction of one-second blocks held out for evaluation
     label_radius: float = 0.3  # m: a candidate this close to a labelled object is that object
@@ -220,14 +229,23 @@ def label_log(log: ScanLog, fe: dict, tf: dict, site: Site, classes: tuple[str, 
     ), np.where(use, cls, 0)
 
 
+def informative_columns(vectors: np.ndarray) -> tuple[int, ...]:
+    """Indices of the columns of ``vectors`` [n, d] that vary (relative spread above 1e-9)."""
+    if len(vectors) == 0:
+        return tuple(range(vectors.shape[-1]))
+    spread = vectors.max(axis=0) - vectors.min(axis=0)
+    scale = np.maximum(np.abs(vectors).max(axis=0), 1.0)
+    return tuple(int(c) for c in np.flatnonzero(spread > 1e-9 * scale))
+
+
 def _sample(rng, idx, cap):
     return idx if idx.size <= cap else np.sort(rng.choice(idx, cap, replace=False))
 
 
-def _fit32(x, y, key, cfg, progress, label):
+def _fit32(x, y, key, cfg, progress, label, n_inducing: int):
     t0 = time.perf_counter()
     gp = fit(x, y, key=key, restarts=cfg.restarts, jitter=cfg.noise_floor)
-    sparse = gp.sparse(cfg.n_inducing).astype(jnp.float32)
+    sparse = gp.sparse(n_inducing, cfg.n_inducing_var).astype(jnp.float32)
     p = gp.params
     info = {"gp": label, "n": int(x.shape[0]), "seconds": round(time.perf_counter() - t0, 2),
             "lml": float(gp.log_marginal_likelihood()),
@@ -269,6 +287,10 @@ def train(logs: Sequence[ScanLog], site: Site, cfg: TrainConfig = TrainConfig(),
     for log in logs:
         fe = run_front_end(log, fe_cfg, n_beams)
         per_log.append(fe)
+    # GP inputs that never vary (the intensity profile of a scanner without intensity) are left out.
+    columns = informative_columns(np.concatenate([fe["vector"][fe["keep"]] for fe in per_log]))
+    for fe in per_log:
+        fe["vector"] = fe["vector"][..., list(columns)]
 
     # Pass 1: transforms from raw ORS origins; landmark targets; landmark position GPs.
     rng = np.random.default_rng(cfg.seed)
@@ -288,14 +310,16 @@ def train(logs: Sequence[ScanLog], site: Site, cfg: TrainConfig = TrainConfig(),
     pose: list[PoseRegressor | None] = [None] * len(classes)
     for name in landmarks:
         k = classes.index(name)
-        idx = _sample(rng, np.flatnonzero((ex_all.cls == k) & ~np.isin(ex_all.group, list(held))), cfg.max_pose_examples)
+        idx = _sample(rng, np.flatnonzero((ex_all.cls == k) & ~np.isin(ex_all.group, list(held))),
+                      cfg.max_landmark_examples)
         if idx.size < 3:
             raise InputError("training data", f"only {idx.size} examples of landmark class '{name}'; are the site's "
                                               "landmarks in view and sensor_pose roughly right?")
         gps = []
         for j, comp in enumerate(("x", "y")):
             key, sub = jax.random.split(key)
-            gp, info = _fit32(ex_all.vectors[idx], ex_all.target[idx, j], sub, cfg, progress, f"{name}.{comp}")
+            gp, info = _fit32(ex_all.vectors[idx], ex_all.target[idx, j], sub, cfg, progress, f"{name}.{comp}",
+                              cfg.n_inducing_class)
             gps.append(gp)
             fits.append(info)
         pose[k] = PoseRegressor(gps[0], gps[1])
@@ -320,12 +344,14 @@ def train(logs: Sequence[ScanLog], site: Site, cfg: TrainConfig = TrainConfig(),
     clf_gps = []
     for k, name in enumerate(classes):
         key, sub = jax.random.split(key)
-        gp, info = _fit32(x_cls, (ex_all.cls[train_idx] == k).astype(np.float64), sub, cfg, progress, f"class.{name}")
+        gp, info = _fit32(x_cls, (ex_all.cls[train_idx] == k).astype(np.float64), sub, cfg, progress, f"class.{name}",
+                          cfg.n_inducing_class)
         clf_gps.append(gp)
         fits.append(info)
     classifier = Classifier(tuple(clf_gps), jnp.full(len(classes), cfg.threshold, jnp.float32))
 
     # Pose regressors of the mobile classes: x̃, ỹ, sin θ̃, cos θ̃ (eq. 15, 17).
+    calibration = {}
     for name in mobiles:
         k = classes.index(name)
         idx = _sample(rng, np.flatnonzero((ex_all.cls == k) & ~is_held), cfg.max_pose_examples)
@@ -336,9 +362,15 @@ def train(logs: Sequence[ScanLog], site: Site, cfg: TrainConfig = TrainConfig(),
         gps = {}
         for comp, y in comps.items():
             key, sub = jax.random.split(key)
-            gps[comp], info = _fit32(ex_all.vectors[idx], y, sub, cfg, progress, f"{name}.{comp}")
+            gps[comp], info = _fit32(ex_all.vectors[idx], y, sub, cfg, progress, f"{name}.{comp}", cfg.n_inducing)
             fits.append(info)
         pose[k] = PoseRegressor(gps["x"], gps["y"], gps["sin"], gps["cos"])
+        # Variances calibrated on the held-out examples (on the training ones if too few are held out).
+        cal = np.flatnonzero((ex_all.cls == k) & is_held)
+        cal = cal if cal.size >= 20 else idx
+        pose[k] = calibrate(pose[k], ex_all.vectors[cal], ex_all.target[cal])
+        calibration[name] = {"examples": int(cal.size), "held_out": bool(cal is not idx),
+                             "var_scale": [round(float(v), 4) for v in np.asarray(pose[k].var_scale)]}
 
     rate = _rate(logs)
     tracked = [c in mobiles for c in classes]
@@ -356,12 +388,14 @@ def train(logs: Sequence[ScanLog], site: Site, cfg: TrainConfig = TrainConfig(),
         max_tracks=cfg.max_tracks,
         sensor_model=first.sensor_model or "unknown",
         n_beams=n_beams,
+        gp_columns=columns,
     )
     report = {
         "classes": list(classes),
         "examples": counts,
         "examples_used": {c: int(np.sum(ex_all.cls[train_idx] == k)) for k, c in enumerate(classes)},
         "fits": fits,
+        "variance_calibration": calibration,
         "scans": n_scans,
         "degraded_scans": degraded,
         "heldout": evaluate_examples(model, ex_all.take(np.flatnonzero(is_held))),
@@ -438,5 +472,7 @@ def evaluate_examples(model: Model, ex: Examples) -> dict:
         err_xy = np.linalg.norm(rel[:, :2] - ex.target[sel, :2], axis=1)
         err_th = wrap(rel[:, 2] - ex.target[sel, 2])
         out["pose"][name] = {"n": int(sel.sum()), "rmse_xy_m": float(np.sqrt(np.mean(err_xy**2))),
-                             "rmse_theta_deg": float(np.degrees(np.sqrt(np.mean(err_th**2))))}
+                             "rmse_theta_deg": float(np.degrees(np.sqrt(np.mean(err_th**2)))),
+                             "median_theta_deg": float(np.degrees(np.median(np.abs(err_th)))),
+                             "misread_fraction": float(np.mean(np.abs(err_th) > np.radians(30)))}
     return out

@@ -1,6 +1,6 @@
 """Build the model shipped inside the package (``gtsjax/data/demo-model.npz``) that ``gtsjax demo``
 uses: trained reproducibly on simulated data of the paper's SPL field (the training grid plus a log
-with a person walking, so that legs are background), with small caps so that it stays small.
+with a person walking, so that legs are background), with the training defaults of ``gtsjax train``.
 
     python scripts/build_demo_model.py [--out gtsjax/data/demo-model.npz]
 """
@@ -16,8 +16,7 @@ from gtsjax.io.modelfile import save_model
 from gtsjax.sim import simulate
 from gtsjax.training import TrainConfig, train
 
-DEMO_CONFIG = dataclasses.replace(TrainConfig(), max_per_class=300, max_pose_examples=600, n_inducing=128,
-                                  restarts=2, seed=0)
+DEMO_CONFIG = dataclasses.replace(TrainConfig(), seed=0)
 
 
 def main():

@@ -21,8 +21,12 @@ def train_cmd(
     site: Path = typer.Option(..., "--site", help="Site file (.json) the logs were recorded on."),
     out: Path = typer.Option(..., "--out", help="Model file to write."),
     max_per_class: int = typer.Option(TrainConfig.max_per_class, help="Classifier examples per class (balanced)."),
-    max_pose: int = typer.Option(TrainConfig.max_pose_examples, help="Pose-GP examples per class."),
-    inducing: int = typer.Option(TrainConfig.n_inducing, help="Inducing points per GP at run time."),
+    max_pose: int = typer.Option(TrainConfig.max_pose_examples, help="Pose-GP examples per mobile class."),
+    max_landmark: int = typer.Option(TrainConfig.max_landmark_examples, help="Position-GP examples per landmark class."),
+    inducing: int = typer.Option(TrainConfig.n_inducing,
+                                 help="Inducing points of the mobile classes' pose GPs (exact mean up to this size)."),
+    inducing_class: int = typer.Option(TrainConfig.n_inducing_class,
+                                       help="Inducing points of the classifier's and landmark GPs."),
     restarts: int = typer.Option(TrainConfig.restarts, help="Optimiser starts per GP fit."),
     seed: int = typer.Option(0, help="Seed for sampling, the held-out split and restarts."),
     report: Path | None = typer.Option(None, "--report", help="Also write the training report as JSON."),
@@ -32,7 +36,8 @@ def train_cmd(
     site_obj = load_site(site)
     loaded = [load_log(p) for p in logs]
     cfg = dataclasses.replace(TrainConfig(), max_per_class=max_per_class, max_pose_examples=max_pose,
-                              n_inducing=inducing, restarts=restarts, seed=seed)
+                              max_landmark_examples=max_landmark, n_inducing=inducing, n_inducing_class=inducing_class,
+                              restarts=restarts, seed=seed)
 
     def progress(info):
         console.print(f"  fitted GP {info['gp']:<22} n={info['n']:<5} LML={info['lml']:10.1f}  {info['seconds']:6.1f} s")
@@ -67,6 +72,10 @@ def _summary(console: Console, rep: dict, out: Path) -> None:
     if held.get("n"):
         console.print(f"held-out classification accuracy: {100 * held['accuracy']:.2f} % on {held['n']} candidates")
         for name, p in held.get("pose", {}).items():
-            console.print(f"held-out pose error ({name}, in the ORS): position RMSE {100 * p['rmse_xy_m']:.1f} cm, "
-                          f"heading RMSE {p['rmse_theta_deg']:.1f}° on {p['n']} candidates")
+            console.print(f"held-out pose error per scan ({name}, in the ORS): position RMSE {100 * p['rmse_xy_m']:.1f} cm, "
+                          f"heading median {p['median_theta_deg']:.1f}°, RMSE {p['rmse_theta_deg']:.1f}°, "
+                          f"{100 * p['misread_fraction']:.1f} % misread (> 30°), on {p['n']} candidates")
+    for name, c in rep.get("variance_calibration", {}).items():
+        console.print(f"pose variances of {name} scaled by {', '.join(f'{v:.3g}' for v in c['var_scale'])} "
+                      f"(x̃, ỹ, θ̃; calibrated on {c['examples']} {'held-out' if c['held_out'] else 'training'} examples)")
     console.print(f"{rep['degraded_scans']} of {rep['scans']} scans without a map transformation; model written to {out}")
