@@ -1,9 +1,15 @@
 """The live loop: frames from the sensor link through the same jitted ``step`` as replay, into the
 GTD CSV (flushed per scan), optionally JSON lines on stdout or UDP, a raw recording, and a live view.
 
-The loop owns nothing numeric: it turns each :class:`~gtsjax.io.serial.LinkFrame` into a padded
-:class:`~gtsjax.Scan`, calls ``step``, writes rows, and measures latency from the moment the frame's
-last byte was decoded (``LinkFrame.recv_perf``) to the moment its rows are flushed.
+The loop owns nothing numeric: it pads each :class:`~gtsjax.io.serial.LinkFrame`'s ranges, calls
+the step, writes rows, and measures latency from the moment the frame's last byte was read
+(``LinkFrame.recv_perf``) to the moment its rows are flushed.
+
+What crosses between host and device per scan is kept small, since at 40 Hz the host's share of the
+latency matters as much as the step's: the frame goes in as three NumPy arrays (the :class:`Scan` is
+assembled inside the compiled function), and what comes back is one array with the GTD rows' fields
+(:func:`pack_tracks`); the full :class:`~gtsjax.Output` stays on the device, where the live view
+reads it when it redraws.
 """
 
 import dataclasses
@@ -19,7 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._pipeline import init_state, make_step
+from ._pipeline import Output, init_state, step_unjitted
 from ._scan import Scan
 from .errors import InputError
 from .io.gtd import GTDWriter, json_line, rows_from_output
@@ -43,20 +49,65 @@ class LiveStats:
         return float(np.median(a)), float(np.percentile(a, 99))
 
 
-def frame_to_scan(ranges_m: np.ndarray, intensities: np.ndarray | None, sensor: SensorModel, n_beams: int,
-                  dt: float) -> Scan:
-    """One frame as the padded scan the step takes (beams past the frame's are padding)."""
+def frame_arrays(ranges_m: np.ndarray, intensities: np.ndarray | None, sensor: SensorModel, n_beams: int):
+    """One frame's ranges, intensities and validity, padded to ``n_beams`` (beams past the frame's
+    are padding), as the float32/bool NumPy arrays of a :class:`Scan`."""
     n = ranges_m.shape[0]
-    r = np.zeros(n_beams, np.float32)
-    r[:n] = ranges_m
     valid = np.zeros(n_beams, bool)
     valid[:n] = (ranges_m >= sensor.range_min) & (ranges_m <= sensor.range_max) & np.isfinite(ranges_m)
-    r = np.where(valid, r, 0.0).astype(np.float32)
+    r = np.zeros(n_beams, np.float32)
+    r[:n] = np.where(valid[:n], ranges_m, 0.0)
     inten = np.zeros(n_beams, np.float32)
     if intensities is not None:
         inten[:n] = np.where(valid[:n], intensities, 0.0)
+    return r, inten, valid
+
+
+def frame_to_scan(ranges_m: np.ndarray, intensities: np.ndarray | None, sensor: SensorModel, n_beams: int,
+                  dt: float) -> Scan:
+    """One frame as the padded scan the step takes."""
+    r, inten, valid = frame_arrays(ranges_m, intensities, sensor, n_beams)
     return Scan(jnp.asarray(r), jnp.asarray(inten), jnp.asarray(valid), jnp.asarray(sensor.angle_min, jnp.float32),
                 jnp.asarray(sensor.angle_increment, jnp.float32), jnp.asarray(dt, jnp.float32))
+
+
+# Columns of :func:`pack_tracks`.
+PACKED = ("track_id", "class", "x", "y", "theta", "var_x", "var_y", "var_theta", "reported")
+
+
+def pack_tracks(o: Output):
+    """The GTD rows' fields of one output as a single ``[M + 1, 9]`` float32 array (columns
+    :data:`PACKED`; track ids and classes are exact in float32 below 2^24), so that one transfer
+    brings a scan's rows to the host. The last row holds the scan's status: degraded, objects."""
+    f32 = jnp.float32
+    tracks = jnp.concatenate([
+        o.track_id[:, None].astype(f32), o.track_class[:, None].astype(f32), o.track_pose.astype(f32),
+        o.track_var.astype(f32), o.track_mask[:, None].astype(f32)], axis=1)
+    status = jnp.zeros((1, len(PACKED)), f32).at[0, 0].set(o.degraded.astype(f32)).at[0, 1].set(o.n_objects.astype(f32))
+    return jnp.concatenate([tracks, status], axis=0)
+
+
+def make_live_step(model: Model, sensor: SensorModel):
+    """``f(state, ranges, intensities, valid, dt) -> (state, output, packed)``, jitted once with the
+    model closed over: the step of :func:`~gtsjax._pipeline.make_step` on a frame's padded arrays
+    (:func:`frame_arrays`), with :func:`pack_tracks` of its output."""
+    angle_min = jnp.asarray(sensor.angle_min, jnp.float32)
+    angle_increment = jnp.asarray(sensor.angle_increment, jnp.float32)
+
+    @jax.jit
+    def live_step(state, ranges, intensities, valid, dt):
+        scan = Scan(ranges, intensities, valid, angle_min, angle_increment, jnp.asarray(dt, jnp.float32))
+        state, o = step_unjitted(model, state, scan)
+        return state, o, pack_tracks(o)
+
+    return live_step
+
+
+def rows_from_packed(stamp: float, packed: np.ndarray, class_names) -> list:
+    """GTD rows from :func:`pack_tracks`'s array (reported tracks, in id order)."""
+    t = packed[:-1]
+    return rows_from_output(stamp, t[:, 0].astype(np.int64), t[:, 1].astype(np.int64), t[:, 2:5], t[:, 5:8],
+                            t[:, 8] > 0.5, class_names)
 
 
 def check_sensor(model: Model, sensor: SensorModel, where: str) -> None:
@@ -98,20 +149,21 @@ class Outputs:
 
 
 def warm_up(model: Model, sensor: SensorModel):
-    """The step for ``model``, compiled before the first real frame so that the first latency is not a
-    compile; and the initial state."""
+    """The live step for ``model`` on ``sensor``'s frames, compiled before the first real frame so
+    that the first latency is not a compile; and the initial state."""
     state = init_state(model)
-    step = make_step(model)
-    scan = frame_to_scan(np.zeros(sensor.n_beams, np.float32), None, sensor, model.n_beams, 0.0)
-    jax.block_until_ready(step(state, scan))
+    step = make_live_step(model, sensor)
+    r, inten, valid = frame_arrays(np.zeros(sensor.n_beams, np.float32), None, sensor, model.n_beams)
+    jax.block_until_ready(step(state, r, inten, valid, np.float32(0.0)))
     return step, state
 
 
 def run_live(link, model: Model, out: Path, *, record: Path | None = None, outputs: Outputs | None = None,
              duration: float | None = None, stop: threading.Event | None = None, on_scan=None,
-             with_intensity: bool = False, compiled=None) -> LiveStats:
-    """Track from a started :class:`~gtsjax.io.serial.Link` until ``duration`` seconds, ``stop`` is set,
-    or Ctrl-C. ``on_scan(stats, output, stamp)`` is called after each scan (the live view).
+             with_intensity: bool = False, compiled=None, max_frames: int | None = None) -> LiveStats:
+    """Track from a started :class:`~gtsjax.io.serial.Link` until ``duration`` seconds, ``max_frames``
+    frames processed, ``stop`` set, or Ctrl-C. ``on_scan(stats, output, stamp)`` is called after each
+    scan (the live view; ``output`` is the step's full output, still on the device).
     ``compiled``: ``(step, state)`` from :func:`warm_up`, done before the link started streaming."""
     from .io.record import Recorder
 
@@ -125,29 +177,32 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
     recorder = Recorder(record, model=sensor, intensities=with_intensity and sensor.has_intensity) if record else None
     t_end = None if duration is None else time.monotonic() + duration
     prev_stamp = None
+    period_ms = sensor.period * 1000.0
     try:
         with GTDWriter(out) as writer:
-            while not (stop is not None and stop.is_set()) and (t_end is None or time.monotonic() < t_end):
+            while (not (stop is not None and stop.is_set()) and (t_end is None or time.monotonic() < t_end)
+                   and (max_frames is None or stats.frames < max_frames)):
                 lf = link.get(timeout=0.2)
                 if lf is None:
                     continue
-                if recorder is not None:
-                    recorder.append_frame(lf)
                 dt = 0.0 if prev_stamp is None else max(0.0, lf.stamp - prev_stamp)
                 prev_stamp = lf.stamp
-                scan = frame_to_scan(lf.ranges_m, lf.intensities, sensor, model.n_beams, dt)
-                state, o = step(state, scan)
-                o = jax.device_get(o)
-                rows = rows_from_output(lf.stamp, o.track_id, o.track_class, o.track_pose, o.track_var, o.track_mask,
-                                        model.classes)
+                r, inten, valid = frame_arrays(lf.ranges_m, lf.intensities, sensor, model.n_beams)
+                state, o, packed = step(state, r, inten, valid, np.float32(dt))
+                packed = np.asarray(packed)
+                rows = rows_from_packed(lf.stamp, packed, model.classes)
                 writer.write(rows)
-                outputs.send(rows, lf.stamp, degraded=bool(o.degraded))
+                degraded = bool(packed[-1, 0] > 0.5)
+                outputs.send(rows, lf.stamp, degraded=degraded)
                 lat = (time.perf_counter() - lf.recv_perf) * 1000.0
+                # Bookkeeping after the latency is taken: the recording and the view are not on the path.
+                if recorder is not None:
+                    recorder.append_frame(lf)
                 stats.latencies_ms.append(lat)
                 stats.frames += 1
                 stats.rows += len(rows)
-                stats.degraded += int(o.degraded)
-                stats.late += int(lat > sensor.period * 1000.0)
+                stats.degraded += int(degraded)
+                stats.late += int(lat > period_ms)
                 if on_scan is not None:
                     on_scan(stats, o, lf.stamp)
     except KeyboardInterrupt:

@@ -44,7 +44,7 @@ def live_view(model, link, stats, output, stamp) -> Group:
 
 def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Path | None = None,
                json_lines: bool = False, udp: str | None = None, duration: float | None = None,
-               intensity: bool = True, view: bool = True, console: Console | None = None):
+               frames: int | None = None, intensity: bool = True, view: bool = True, console: Console | None = None):
     """Open the sensor, run the live loop, show the view; returns (live stats, link stats)."""
     from ..io.modelfile import load_model
     from ..io.serial import Link
@@ -72,10 +72,10 @@ def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Pa
 
                 stats = run_live(link, model, out, record=record, outputs=Outputs(json_lines, udp),
                                  duration=duration, on_scan=on_scan, with_intensity=intensity,
-                                 compiled=compiled)
+                                 compiled=compiled, max_frames=frames)
         else:
             stats = run_live(link, model, out, record=record, outputs=Outputs(json_lines, udp), duration=duration,
-                             with_intensity=intensity, compiled=compiled)
+                             with_intensity=intensity, compiled=compiled, max_frames=frames)
     finally:
         link.stop()
     return stats, link.stats
@@ -91,13 +91,14 @@ def run_cmd(
     json_lines: bool = typer.Option(False, "--json", help="Stream each scan's tracks as JSON lines on stdout."),
     udp: str | None = typer.Option(None, "--udp", help="Send each scan's tracks as JSON to HOST:PORT."),
     duration: float | None = typer.Option(None, help="Stop after this many seconds (default: until Ctrl-C)."),
+    frames: int | None = typer.Option(None, "--frames", min=1, help="Stop after this many frames (default: until Ctrl-C)."),
     intensity: bool = typer.Option(True, "--intensity/--no-intensity",
                                    help="Stream intensities (ME) if the sensor has them (models trained with them need them)."),
     quiet: bool = typer.Option(False, help="No live view."),
 ):
     """Track robots live from a sensor: GTD CSV, optional JSON lines / UDP, optional raw recording."""
     stats, link_stats = track_live(port, model, site, out, record=record, json_lines=json_lines, udp=udp,
-                                   duration=duration, intensity=intensity, view=not quiet)
+                                   duration=duration, frames=frames, intensity=intensity, view=not quiet)
     med, p99 = stats.latency()
     Console(stderr=True).print(
         f"{stats.frames} frames, {stats.rows} rows -> {out}; latency median {med:.2f} ms, p99 {p99:.2f} ms; "

@@ -74,7 +74,7 @@ class LinkFrame:
     """One decoded scan with its times.
 
     ``stamp``: host time (epoch seconds) of the scan, from :class:`ClockSync`. ``recv_time`` /
-    ``recv_perf``: ``time.time()`` / ``time.perf_counter()`` when its last byte was decoded.
+    ``recv_perf``: ``time.time()`` / ``time.perf_counter()`` when its last byte was read (before decoding).
     ``sensor_ms``: the sensor's unwrapped millisecond count. ``seq``: order of arrival (0, 1, ...).
     """
 
@@ -365,10 +365,11 @@ class Link:
         chunk = ser.read(ser.in_waiting or 1)
         if not chunk:
             return
+        # The moment the bytes (a frame's last among them) were in hand: the live latency runs from here.
+        t_wall, t_perf = time.time(), time.perf_counter()
         replies = self._decoder.feed(chunk)
         if not replies:
             return
-        t_wall, t_perf = time.time(), time.perf_counter()
         for r in replies:
             if isinstance(r, scip.ScanFrame):
                 self._deliver(r, t_wall, t_perf)
