@@ -23,7 +23,7 @@ from ._frontend import front_end_unjitted
 from ._maptransform import Transform, poses_to_field, update_transform
 from ._pose import regress, to_sensor_frame
 from ._scan import Scan
-from ._track import Detections, TrackerState, track_step
+from ._track import Detections, TrackerState, reported, track_step
 from .model import Model
 
 _F32 = jnp.float32
@@ -49,6 +49,7 @@ class Perception(eqx.Module):
     n_kept: Int[Array, ""]
     overflow: Int[Array, ""]
     too_long: Int[Array, ""]
+    unposed: Int[Array, ""]  # objects beyond their class's cap (see ``_pose.regress``), dropped
 
 
 class Output(eqx.Module):
@@ -70,6 +71,7 @@ class Output(eqx.Module):
     n_objects: Int[Array, ""]  # candidates classified as landmarks or tracked objects
     overflow: Int[Array, ""]  # segments beyond K, dropped
     too_long: Int[Array, ""]  # segments longer than L beams, filtered
+    unposed: Int[Array, ""]  # objects beyond their class's cap (see ``_pose.regress``), dropped
     degraded: Bool[Array, ""]  # too few landmarks: the previous transform was kept
 
 
@@ -82,16 +84,31 @@ def init_state(model: Model) -> PipelineState:
     )
 
 
+def landmark_cap(model: Model) -> int:
+    """Landmark candidates worth a position per scan: as many as the site has landmarks, plus room for
+    as many look-alikes as there may be objects (static: the site's landmark count is a shape)."""
+    return model.site.landmark_xy.shape[0] + model.max_objects
+
+
 def perceive(model: Model, scan: Scan) -> Perception:
     """Stages a–e (segmentation … pose regression) of one scan; no state."""
     fe = front_end_unjitted(model.frontend, scan)
     f = fe.features
-    x = gp_inputs(f.vector, f.origin, f.height)
+    x = gp_inputs(f.vector, f.origin, f.height, model.gp_columns)
     scores, cls, ok = classify(model.classifier, x, fe.keep)
-    rel, var = regress(model.pose, x, cls)
+    rel, var, posed = regress(model.pose, x, cls, ok, scores, model.max_objects, landmark_cap(model))
     pose_s, cov_s = to_sensor_frame(f.origin, f.heading, rel, var)
     d = fe.diagnostics
-    return Perception(cls, ok, scores, pose_s, cov_s, d.n_segments, d.n_kept, d.overflow_count, d.too_long_count)
+    unposed = jnp.sum(ok & ~posed, dtype=jnp.int32)
+    return Perception(cls, ok & posed, scores, pose_s, cov_s, d.n_segments, d.n_kept, d.overflow_count,
+                      d.too_long_count, unposed)
+
+
+def _inside(site, pose: Float[Array, "n 3"]) -> Bool[Array, " n"]:
+    """Whether each pose lies inside the site's bounds (all True for a site without bounds)."""
+    x, y = pose[:, 0], pose[:, 1]
+    b = site.bounds
+    return ~site.has_bounds | ((x >= b[0]) & (y >= b[1]) & (x <= b[2]) & (y <= b[3]))
 
 
 def update(model: Model, state: PipelineState, p: Perception, dt: Float[Array, ""]) -> tuple[PipelineState, Output]:
@@ -105,10 +122,7 @@ def update(model: Model, state: PipelineState, p: Perception, dt: Float[Array, "
     )
     pose_o, cov_o = poses_to_field(tf, p.pose_s, p.cov_s)
     cov_o = cov_o + jnp.diag(model.meas_var_floor)[None]
-    x, y = pose_o[:, 0], pose_o[:, 1]
-    b = site.bounds
-    inside = ~site.has_bounds | ((x >= b[0]) & (y >= b[1]) & (x <= b[2]) & (y <= b[3]))
-    tracked = p.ok & model.tracker.tracked[p.cls] & inside
+    tracked = p.ok & model.tracker.tracked[p.cls] & _inside(site, pose_o)
     det = Detections(pose_o, cov_o, p.cls, tracked)
     tracker, _ = track_step(state.tracker, det, dt, model.tracker)
     ts = tracker
@@ -117,7 +131,8 @@ def update(model: Model, state: PipelineState, p: Perception, dt: Float[Array, "
         track_class=ts.class_id,
         track_pose=ts.mean[:, :3],
         track_var=jnp.diagonal(ts.cov, axis1=1, axis2=2)[:, :3],
-        track_mask=ts.live & ts.confirmed,
+        # Confirmed, recently observed, and inside the site's bounds (a coasting track may leave them).
+        track_mask=reported(ts, model.tracker) & _inside(site, ts.mean[:, :3]),
         transform=tf,
         landmark_residual=residual,
         landmark_seen=seen,
@@ -129,6 +144,7 @@ def update(model: Model, state: PipelineState, p: Perception, dt: Float[Array, "
         n_objects=jnp.sum(p.ok, dtype=jnp.int32),
         overflow=p.overflow,
         too_long=p.too_long,
+        unposed=p.unposed,
         degraded=tf.degraded,
     )
     return PipelineState(tf, tracker, state.n_scans + 1), out

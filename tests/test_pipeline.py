@@ -154,3 +154,34 @@ def test_train_cli_bad_input(tmp_path):
     assert main(["train", str(tmp_path / "u.npz"), "--site", str(tmp_path / "s.json"), "--out",
                  str(tmp_path / "m.npz")]) == 2
     assert not (tmp_path / "m.npz").exists()
+
+
+def test_live_step_rows_equal_the_step_rows(tiny):
+    """The live loop's step (frame arrays in, the GTD fields packed into one array out) gives the rows
+    that ``rows_from_output`` gives from the full output of ``make_step`` on the same scans."""
+    from gtsjax._pipeline import make_step
+    from gtsjax.io.gtd import rows_from_output
+    from gtsjax.live import frame_arrays, make_live_step, rows_from_packed
+    from gtsjax.sensors import URG_04LX
+
+    log, site = simulate("spl-crossing", seed=21, n_scans=60)
+    model = tiny["model"].with_site(site)
+    live, ref = make_live_step(model, URG_04LX), make_step(model)
+    s_live = s_ref = init_state(model)
+    scans = to_scans(log, model.n_beams)
+    n_rows = 0
+    for t in range(log.n_scans):
+        dt = 0.0 if t == 0 else float(log.stamps[t] - log.stamps[t - 1])
+        r, inten, valid = frame_arrays(log.ranges[t], None, URG_04LX, model.n_beams)
+        s_live, _, packed = live(s_live, r, inten, valid, np.float32(dt))
+        s_ref, o = ref(s_ref, jax.tree.map(lambda a, t=t: a[t], scans))
+        got = rows_from_packed(log.stamps[t], np.asarray(packed), model.classes)
+        want = rows_from_output(log.stamps[t], o.track_id, o.track_class, o.track_pose, o.track_var, o.track_mask,
+                                model.classes)
+        assert [(r.track_id, r.cls) for r in got] == [(r.track_id, r.cls) for r in want]
+        for a, b in zip(got, want, strict=True):
+            np.testing.assert_allclose([a.x, a.y, a.theta, a.var_x, a.var_y, a.var_theta],
+                                       [b.x, b.y, b.theta, b.var_x, b.var_y, b.var_theta], rtol=1e-5, atol=1e-6)
+        assert bool(np.asarray(packed)[-1, 0] > 0.5) == bool(o.degraded)
+        n_rows += len(got)
+    assert n_rows > 20  # the robots were tracked, so rows were compared

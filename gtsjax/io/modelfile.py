@@ -27,7 +27,7 @@ from ..errors import InputError
 from ..model import Model, SiteArrays
 
 FORMAT = "gtsjax-model"
-VERSION = 1
+VERSION = 2  # 2: tracker gates position and heading separately (heading_gate, heading_inflation)
 _HEADER_KEY = "gtsjax_model"
 _TYPES = {c.__name__: c for c in (Model, FrontEndConfig, Classifier, PoseRegressor, TrackerParams, SparseGP, GP,
                                   Hyperparameters, SiteArrays)}
