@@ -112,6 +112,7 @@ def evaluate_outputs(model: Model, log: ScanLog, out, *, match_radius: float = 0
         "det_position_rmse_m": float(np.sqrt(np.mean(d_pos**2))) if d_pos.size else float("nan"),
         "det_heading_rmse_deg": float(np.degrees(np.sqrt(np.mean(d_th**2)))) if d_th.size else float("nan"),
         "det_heading_median_deg": float(np.degrees(np.median(np.abs(d_th)))) if d_th.size else float("nan"),
+        "det_misread_fraction": float(np.mean(np.abs(d_th) > np.radians(30))) if d_th.size else float("nan"),
     }
     sensor_truth = log.extra.get("truth_sensor_pose")
     if sensor_truth is not None:
