@@ -6,10 +6,11 @@ training-set size N; GP fit time against N; batch throughput against the chunk s
   count changes.
 * **K** and **M**: the demo model with ``max_candidates`` / ``max_tracks`` changed (both fix shapes:
   each value compiles its own step), on the URG-04LX scans of ``spl-crossing``.
-* **N**: a GP fitted (``gtsjax.gp.fit``, one start) on N robot examples, put in place of every GP of
-  the demo model, once as the model ships it (DTC, capped at 128 inducing points) and once as the
-  exact GP; the step's latency with each. Past the cap the DTC step's cost stays flat; the exact
-  one grows with N. The fit itself grows (O(N³) per evaluation).
+* **N**: a GP fitted (``gtsjax.gp.fit``, one start) on N robot examples (the demo model's input
+  columns), put in place of every GP of the demo model, once in the capped form ``gtsjax train``
+  gives the classifier (mean on at most 512 inducing points, variance on the first 64) and once as
+  the exact GP; the step's latency with each. Past the cap the capped step's cost stays flat; the
+  exact one grows with N. The fit itself grows (O(N³) per evaluation).
 * **Chunk size**: ``process_log`` (bit-exact path) throughput over ``spl-trajectory``.
 """
 
@@ -27,11 +28,13 @@ from gtsjax._pipeline import init_state, make_step, process_log
 from gtsjax._scan import Scan
 from gtsjax.io import to_scans
 from gtsjax.sensors import URG_04LX, UTM_30LX, RangeNoise, SensorModel
+from gtsjax.training import TrainConfig
 
 from . import _data
 
 SECTION = "scaling"
-INDUCING = 128
+INDUCING = TrainConfig().n_inducing_class  # the classifier's cap
+INDUCING_VAR = TrainConfig().n_inducing_var
 
 SYNTH_2161 = SensorModel(name="synthetic-2161", amin=0, amax=2160, ares=2880, afrt=1080, dmin_mm=20, dmax_mm=30000,
                          scan_rpm=2400, has_intensity=True, noise=RangeNoise(sigma=0.01))
@@ -143,23 +146,24 @@ def run(ctx) -> None:
     # training-set size N: fit (timed), then the step with the fitted GP in both forms
     from gtsjax import gp as gplib
 
-    sizes = (160,) if q else (100, 200, 400, 800)
+    sizes = (160,) if q else (100, 250, 500, 1000, 2000)
     ns = {"x": list(sizes), "dtc_median_us": [], "exact_median_us": [], "fit_s": [], "inducing": []}
     for n in sizes:
         x, y = _data.gp_problem(n)
+        x = x[:, list(model.gp_columns)] if model.gp_columns else x
         jax.block_until_ready(gplib.fit(x, y, key=jax.random.key(0), restarts=1))  # compiles for this shape
         t0 = time.perf_counter()
         g = jax.block_until_ready(gplib.fit(x, y, key=jax.random.key(0), restarts=1))  # the same work again
         t = [time.perf_counter() - t0]
         res.add(f"scaling.N.{n}.fit", "s", t, section=SECTION, label=f"GP fit vs N: {n} (one start)", N=n)
         ns["fit_s"].append(float(np.median(t)))
-        sparse = g.sparse(INDUCING).astype(jnp.float32)
+        sparse = g.sparse(INDUCING, INDUCING_VAR).astype(jnp.float32)
         ns["inducing"].append(int(sparse.z.shape[0]))
         for kind, gp_ in (("dtc", sparse), ("exact", g.astype(jnp.float32))):
             name = f"scaling.N.{n}.step_{kind}"
             steppers[name] = Stepper(with_gp(model, gp_), crossing)
             reps_of[name] = reps // 2
-            meta[name] = (f"step vs N: {n}, {'DTC ≤128 inducing' if kind == 'dtc' else 'exact GP'}",
+            meta[name] = (f"step vs N: {n}, {f'DTC ≤{INDUCING} inducing' if kind == 'dtc' else 'exact GP'}",
                           {"N": n, "predictor": kind, "inducing": int(sparse.z.shape[0])})
 
     samples = round_robin(ctx, steppers, reps_of)
@@ -212,7 +216,7 @@ def plot(series: dict, path, machine: dict) -> None:
         a.grid(alpha=0.3)
     s = series["N"]
     a = ax[1, 0]
-    a.plot(s["x"], np.asarray(s["dtc_median_us"]) / 1e3, "o-", label=f"DTC, ≤{INDUCING} inducing (shipped form)")
+    a.plot(s["x"], np.asarray(s["dtc_median_us"]) / 1e3, "o-", label=f"DTC, ≤{INDUCING} inducing, variance on ≤{INDUCING_VAR} (classifier form)")
     for xv, yv, m in zip(s["x"], np.asarray(s["dtc_median_us"]) / 1e3, s["inducing"], strict=True):
         a.annotate(f"M={m}", (xv, yv), textcoords="offset points", xytext=(0, -12), fontsize=7, ha="center")
     a.plot(s["x"], np.asarray(s["exact_median_us"]) / 1e3, "s--", label="exact GP")

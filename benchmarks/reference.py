@@ -124,24 +124,29 @@ class _Track:
     confirmed: bool
     hits: int = 1
     misses: int = 0
+    rival: float = 0.0
+    support: float = 1.0
+    rival_support: float = 0.0
 
 
 class _Tracker:
     """Stage g with one filterpy ``KalmanFilter`` per track (same model and life cycle as gtsjax).
 
-    Gating follows the model's tracker: on ``(x, y, θ)`` (3 dof), or, when its parameters carry a
-    ``heading_gate``, on position (2 dof), with an assigned detection's heading used only if its own
-    innovation passes that gate (otherwise a position-only update, and the track's heading variance
-    grows by ``heading_inflation``)."""
+    Gating follows the model's tracker: on position (2 dof), with an assigned detection's heading used
+    only if its own innovation passes ``heading_gate`` (otherwise a position-only update, and the
+    turn rate is forgotten); ``|ω| ≤ max_turn_rate``; a rival heading with fading support that takes
+    over when more detections agree with it; tracks reported while confirmed and missed fewer than
+    ``m_report`` scans (written out plainly from the module docstring of ``gtsjax._track``)."""
 
     def __init__(self, params, max_tracks: int):
         g = {f.name: np.asarray(getattr(params, f.name)) for f in dataclasses.fields(params)}
         self.q_pos, self.q_theta = float(g["q_pos"]), float(g["q_theta"])
         self.vel_var0, self.omega_var0 = float(g["vel_var0"]), float(g["omega_var0"])
         self.gate = g["gate"].astype(np.float64)
-        # Models whose tracker gates on position only and accepts a heading only within its own gate.
-        self.heading_gate = float(g["heading_gate"]) if "heading_gate" in g else None
-        self.heading_inflation = float(g.get("heading_inflation", 0.0))
+        self.heading_gate = float(g["heading_gate"])
+        self.heading_memory = float(g["heading_memory"])
+        self.max_turn_rate = float(g["max_turn_rate"])
+        self.m_report = int(g["m_report"])
         self.tracked = g["tracked"].astype(bool)
         self.n_confirm, self.m_tentative, self.m_delete = int(g["n_confirm"]), int(g["m_tentative"]), int(g["m_delete"])
         self.birth_exclusion = float(g["birth_exclusion"])
@@ -186,10 +191,7 @@ class _Tracker:
                 nu = z[j] - x
                 nu[2] = wrap(nu[2])
                 S = P + R[j]
-                if self.heading_gate is None:
-                    d2 = nu @ np.linalg.solve(S, nu)  # (x, y, θ): 3 dof
-                else:
-                    d2 = nu[:2] @ np.linalg.solve(S[:2, :2], nu[:2])  # position only: 2 dof
+                d2 = nu[:2] @ np.linalg.solve(S[:2, :2], nu[:2])  # position only: 2 dof
                 if d2 <= self.gate[cls[j]]:
                     cost[j, i] = d2
         # Greedy one-to-one: repeatedly the globally closest gated pair.
@@ -199,21 +201,43 @@ class _Tracker:
             det_of[i] = j
             cost[j, :] = np.inf
             cost[:, i] = np.inf
+        fade = math.exp(-dt / self.heading_memory)
         for i in live:
             t = self.slots[i]
+            t.support *= fade
+            t.rival_support *= fade
             if i in det_of:
                 j = det_of[i]
                 zj = z[j].copy()
                 zj[2] = t.kf.x[2, 0] + wrap(zj[2] - t.kf.x[2, 0])  # innovation wrapped
-                head_ok = self.heading_gate is None or (
-                    (zj[2] - t.kf.x[2, 0]) ** 2 <= self.heading_gate * (t.kf.P[2, 2] + R[j][2, 2]))
+                r_theta = R[j][2, 2]
+                head_ok = (zj[2] - t.kf.x[2, 0]) ** 2 <= self.heading_gate * (t.kf.P[2, 2] + r_theta)
                 if head_ok:
                     t.kf.update(zj, R=R[j])
-                else:  # position-only update; the heading's variance grows so that its gate widens
+                    t.kf.x[5] = min(max(t.kf.x[5, 0], -self.max_turn_rate), self.max_turn_rate)
+                    t.support += 1.0
+                else:  # position-only update; the turn rate is forgotten
                     t.kf.update(zj[:2, None], R=R[j][:2, :2], H=self.H[:2])
-                    t.kf.P[2, 2] += self.heading_inflation
+                    t.kf.P[5, :] = 0.0
+                    t.kf.P[:, 5] = 0.0
+                    t.kf.P[5, 5] = self.omega_var0
+                    t.kf.x[5] = 0.0
+                    # the rejected heading joins an agreeing rival, or replaces a faded one
+                    nu = wrap(z[j, 2] - t.rival)
+                    if nu**2 <= self.heading_gate * 2.0 * r_theta:
+                        t.rival_support += 1.0
+                        t.rival = wrap(t.rival + nu / t.rival_support)
+                    elif t.rival_support < 1.0:
+                        t.rival, t.rival_support = z[j, 2], 1.0
                 t.kf.x[2] = wrap(t.kf.x[2])
                 t.kf.P = 0.5 * (t.kf.P + t.kf.P.T)
+                if t.rival_support > t.support + 0.5:  # the rival takes over
+                    theta = t.kf.x[2, 0]
+                    t.kf.x[2] = t.rival
+                    t.kf.P[2, :] = 0.0
+                    t.kf.P[:, 2] = 0.0
+                    t.kf.P[2, 2] = r_theta
+                    t.rival, t.support, t.rival_support = theta, t.rival_support, t.support
                 t.hits += 1
                 t.misses = 0
             else:
@@ -283,6 +307,7 @@ class ReferencePipeline:
                                              for c in ("x", "y", "sin", "cos")} for r in model.pose]
         self.var_scale = [None if r is None or r.var_scale is None else _f(r.var_scale) for r in model.pose]
         self.max_objects = model.max_objects
+        self.max_landmarks = int(model.site.landmark_xy.shape[0]) + self.max_objects  # the site's posts + look-alikes
         self.gp_columns = model.gp_columns
         self.landmark_mask = np.asarray(model.landmark_mask, bool)
         self.map_gate = float(model.map_gate)
@@ -379,8 +404,8 @@ class ReferencePipeline:
 
     def regress(self, x, cls, ok, scores):
         """Stage e: ORS-relative pose and variances under each candidate's class's GPs; of a mobile
-        class, the ``max_objects`` candidates with the highest class score only (the others are
-        dropped: the second output is False for them)."""
+        class, the ``max_objects`` candidates with the highest class score only, of a landmark class the
+        ``landmark_cap`` best (the others are dropped: the second output is False for them)."""
         rel = np.zeros((len(x), 3))
         var = np.zeros((len(x), 3))
         ok = ok.copy()
@@ -388,8 +413,9 @@ class ReferencePipeline:
             rows = np.flatnonzero(ok & (cls == k))
             if reg is None or rows.size == 0:
                 continue
-            if reg["sin"] is not None and rows.size > self.max_objects:
-                keep = rows[np.argsort(-scores[rows, k], kind="stable")[: self.max_objects]]
+            cap = self.max_objects if reg["sin"] is not None else self.max_landmarks
+            if rows.size > cap:
+                keep = rows[np.argsort(-scores[rows, k], kind="stable")[:cap]]
                 ok[np.setdiff1d(rows, keep)] = False
                 rows = np.sort(keep)
             v = x[rows]
@@ -470,7 +496,10 @@ class ReferencePipeline:
             inside = np.ones(len(xy), bool)
         z = np.column_stack([xy, theta])[inside]
         self.tracker.step(z, cov_o[inside], kc[inside], float(dt))
-        tracks = [t for t in self.tracker.slots if t is not None and t.confirmed]
+        b = self.bounds
+        tracks = [t for t in self.tracker.slots
+                  if t is not None and t.confirmed and t.misses < self.tracker.m_report
+                  and (b is None or b[0] <= t.kf.x[0, 0] <= b[2] and b[1] <= t.kf.x[1, 0] <= b[3])]
         return RefOutput(
             track_id=np.array([t.track_id for t in tracks], int),
             track_class=np.array([t.cls for t in tracks], int),
