@@ -135,7 +135,8 @@ class _Tracker:
     Gating follows the model's tracker: on position (2 dof), with an assigned detection's heading used
     only if its own innovation passes ``heading_gate`` (otherwise a position-only update, and the
     turn rate is forgotten); ``|ω| ≤ max_turn_rate``; a rival heading with fading support that takes
-    over when more detections agree with it; tracks reported while confirmed and missed fewer than
+    over when more detections agree with it; leftover detections within ``birth_exclusion`` of a
+    leftover track recaptured by it; tracks reported while confirmed and missed fewer than
     ``m_report`` scans (written out plainly from the module docstring of ``gtsjax._track``)."""
 
     def __init__(self, params, max_tracks: int):
@@ -201,6 +202,21 @@ class _Tracker:
             det_of[i] = j
             cost[j, :] = np.inf
             cost[:, i] = np.inf
+        # Recapture: a leftover detection within birth_exclusion of a leftover track of its class.
+        near = np.full((n, self.max_tracks), np.inf)
+        for i in live:
+            t = self.slots[i]
+            if i in det_of:
+                continue
+            for j in np.flatnonzero(cls == t.cls):
+                d = math.hypot(z[j, 0] - t.kf.x[0, 0], z[j, 1] - t.kf.x[1, 0])
+                if j not in det_of.values() and d < self.birth_exclusion:
+                    near[j, i] = d
+        while n and np.isfinite(near).any():
+            j, i = np.unravel_index(np.argmin(near), near.shape)
+            det_of[i] = j
+            near[j, :] = np.inf
+            near[:, i] = np.inf
         fade = math.exp(-dt / self.heading_memory)
         for i in live:
             t = self.slots[i]
@@ -247,7 +263,7 @@ class _Tracker:
                 self.slots[i] = None
         # Births: the i-th free slot takes the i-th unused detection not near a live track of its class.
         used = set(det_of.values())
-        born = []
+        may_start = []
         for j in range(n):
             if j in used:
                 continue
@@ -255,7 +271,11 @@ class _Tracker:
                        and math.hypot(z[j, 0] - t.kf.x[0, 0], z[j, 1] - t.kf.x[1, 0]) < self.birth_exclusion
                        for t in self.slots)
             if not near:
-                born.append(j)
+                may_start.append(j)
+        # of detections closer than birth_exclusion, only the first may start a track
+        born = [j for j in may_start
+                if not any(i < j and cls[i] == cls[j] and math.hypot(*(z[j, :2] - z[i, :2])) < self.birth_exclusion
+                           for i in may_start)]
         free = [i for i, t in enumerate(self.slots) if t is None]
         for rank, (i, j) in enumerate(zip(free, born, strict=False)):
             kf = KalmanFilter(dim_x=NX, dim_z=3)

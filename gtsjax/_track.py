@@ -23,12 +23,20 @@ exceeds the heading's by half a detection, the two swap. Whatever the track was 
 agree on wins within about ``heading_memory``; scattered misreads never build up a rival.
 
 Track life cycle (the paper leaves it open): an unassigned detection of a tracked class starts a
-tentative track in a free slot unless a live track of its class is closer than ``birth_exclusion``;
+tentative track in a free slot unless a live track of its class, or an earlier detection of its
+class that may start one in the same scan, is closer than ``birth_exclusion``;
 ``n_confirm`` hits confirm it; a tentative track dies after ``m_tentative`` consecutive misses, a
 confirmed one after ``m_delete``. A confirmed track is *reported* only while it has missed fewer than
 ``m_report`` scans in a row: a robot picked up or hidden behind another is not reported at a
 predicted pose, yet its track (and id) lives on for ``m_delete`` scans to take it back when it
 reappears. Ids are integers handed out in order and never reused.
+
+**Recapture.** A robot that changes direction abruptly (an omnidirectional walk turning into a
+sidestep) can leave a confident track's gate for a few scans while its detections stay a few
+centimetres from the prediction; the track then coasts away and a second track is born beside it.
+So after the gated assignment, a detection left over that lies within ``birth_exclusion`` of a live
+track of its class that is also left over (the distance under which a detection may not start a
+track of its own) updates that track, nearest first.
 
 Assignment is greedy on the Mahalanobis distance (repeatedly take the globally closest gated pair):
 one-to-one, deterministic, and ``min(K, M)`` cheap iterations of fixed shape. With well-separated
@@ -316,6 +324,19 @@ def track_step(
     )
     cost = jnp.where(gated, d2, jnp.inf)
     det_of_track, has = assign(cost)
+    # Recapture: a detection too close to a live track of its class to start one of its own
+    # (``birth_exclusion``) goes to that track if both are still unmatched, whatever the gate says.
+    used = jnp.zeros(det.mask.shape, bool).at[det_of_track].max(has)
+    dist = jnp.linalg.norm(det.pose[:, None, :2] - state.mean[None, :, :2], axis=-1)  # [K, M]
+    close = (
+        tracked_det[:, None] & ~used[:, None]
+        & state.live[None, :] & ~has[None, :]
+        & (det.class_id[:, None] == state.class_id[None, :])
+        & (dist < params.birth_exclusion)
+    )
+    det2, has2 = assign(jnp.where(close, dist, jnp.inf))
+    det_of_track = jnp.where(has, det_of_track, det2)
+    has = has | has2
 
     z, R = det.pose[det_of_track], det.cov[det_of_track]
     head_ok = jax.vmap(heading_consistent, in_axes=(0, 0, 0, 0, None))(state.mean, state.cov, z, R, params.heading_gate)
@@ -341,6 +362,14 @@ def track_step(
     dist = jnp.linalg.norm(det.pose[:, None, :2] - mean[None, :, :2], axis=-1)
     near_live = jnp.any(live[None, :] & (det.class_id[:, None] == state.class_id[None, :]) & (dist < params.birth_exclusion), 1)
     born_ok = tracked_det & ~used & ~near_live
+    # Nor may two detections of a class closer than that start two tracks in one scan (a robot seen
+    # in two pieces): the first of them in slot order starts it.
+    dd = jnp.linalg.norm(det.pose[:, None, :2] - det.pose[None, :, :2], axis=-1)  # [K, K]
+    k = det.mask.shape[0]
+    earlier = jnp.arange(k)[None, :] < jnp.arange(k)[:, None]  # [j, i]: i comes before j
+    shadowed = jnp.any(earlier & born_ok[None, :] & (det.class_id[:, None] == det.class_id[None, :])
+                       & (dd < params.birth_exclusion), axis=1)
+    born_ok = born_ok & ~shadowed
     free = ~live
     rank_det = jnp.cumsum(born_ok, dtype=jnp.int32) - 1
     rank_slot = jnp.cumsum(free, dtype=jnp.int32) - 1
