@@ -66,7 +66,7 @@ def evaluate_targets(res) -> None:
             rest_us = sum(v["median_us"] for k, v in stages.items() if k != heavy)
             why += (f" XLA counts {sum(parts.values()):.1f} MFLOP per scan, {parts[heavy]:.1f} of them in {heavy} "
                     f"({parts[heavy] / stages[heavy]['median_us'] * 1e3:.0f} GFLOP/s on its own: bound by arithmetic, "
-                    "the pose GPs' DTC variance); the other stages do "
+                    "the pose GPs' predictive means over their training points); the other stages do "
                     f"{rest_mflop:.1f} MFLOP in {fmt(rest_us, 'us')} ({rest_mflop / max(rest_us, 1e-9) * 1e3:.1f} "
                     "GFLOP/s): bound by the number of small operations and their per-op overhead, not by arithmetic.")
         targets.append({"name": "step_p99_urg04lx_8_tracks", "target": f"p99 ≤ {TARGET_STEP_P99_US:.0f} µs",
@@ -91,13 +91,14 @@ def evaluate_targets(res) -> None:
                "batch replay runs the very step in a compiled loop, which saves the per-call host overhead but not "
                f"the per-scan computation. Of the {total:.1f} MFLOP XLA counts per scan, {heavy[1].get('mflop', 0):.1f} "
                f"are {heavy[0]} ({fmt(stages.get(heavy[0], {}).get('median_us', float('nan')), 'us')} median on "
-               "its own): every class's pose GPs on all K candidate slots, each with two M×M products for the DTC "
-               f"variance. The vmap variant ({fmt(v['median'], 'scans/s') if v else 'n/a'}) does not help here: it vmaps "
+               "its own): the pose GPs' means over up to 2 048 training points (exact means: the shipped model's "
+               "pose GPs cover their 2 000 examples) for the best max_objects robot and landmark-cap post "
+               f"candidates, variances on 64 inducing points. The vmap variant ({fmt(v['median'], 'scans/s') if v else 'n/a'}) does not help here: it vmaps "
                "stages a–e over the whole chunk at once, whereas the front end alone, mapped in sub-chunks of 8 "
                "(front_end_log), runs at "
                f"{fmt(res.profiles['batch']['frontend_batch_scans_per_s'] or float('nan'), 'scans/s')}. What would "
-               "close it: fewer pose-GP FLOPs (variance only for tracked classes, one precomputed M×M matrix instead "
-               "of two products, pose GPs only on the candidates classified as objects) and sub-chunked vmap.")
+               "close it: fewer pose-GP FLOPs (a model trained with `--inducing 512` predicts its pose means from "
+               "512 inducing points: a quarter of the FLOPs, at some cost in accuracy), and sub-chunked vmap.")
         targets.append({"name": "batch_replay_throughput", "target": f"≥ {TARGET_BATCH:.0f} scans/s",
                         "measured": b["median"], "unit": "scans/s", "met": best >= TARGET_BATCH,
                         "why": why, "profile": "batch",
@@ -117,10 +118,10 @@ def evaluate_targets(res) -> None:
         why = (f"The reference takes {fmt(ref_us, 'us')} per scan, {100 * top[1]:.0f} % of it in {top[0]}; gtsjax's "
                f"step takes {fmt(g_us, 'us')}, of which the GP stages d and e are {100 * gp_share:.0f} % (stage sums). "
                f"For {TARGET_VS_REFERENCE:.0f}× the step would have to take {fmt(ref_us / TARGET_VS_REFERENCE, 'us')}. "
-               "The step's fixed shapes make it evaluate every class's GPs on all K candidate slots, where the "
-               "reference evaluates only the candidates that survive each stage (a few per scan). What would close "
-               "it: a cheaper step, above all stage e (see the batch profile: most of the step's FLOPs are the "
-               "pose GPs' DTC variance).")
+               "The step's fixed shapes make it run the classifier's GPs on all K candidate slots and the pose GPs "
+               "on their max_objects / landmark-cap slots whether they hold candidates or not, where the reference "
+               "evaluates only the candidates that survive each stage (a few per scan). What would close it: a "
+               "cheaper step, above all stages d and e (see the batch profile).")
         fe_name = "step.urg-04lx.stage.frontend_a_to_c"
         fe_us = res.get(fe_name)["median"] if res.has(fe_name) else float("nan")
         if fe_us > ref_us / TARGET_VS_REFERENCE:
@@ -144,14 +145,13 @@ def evaluate_targets(res) -> None:
         n_g, n_s = n_ev.get("gtsjax", 0), n_ev.get("scikit-learn", 0)
         why = (f"One LML-and-gradient evaluation costs {fmt(1e3 * e_g, 'ms')} in gtsjax and {fmt(1e3 * e_s, 'ms')} in "
                f"scikit-learn ({e_s / e_g:.1f}× cheaper: closed-form gradient, no N×N×d tensor), but gtsjax's fit "
-               f"lasts {n_g} such evaluations against scikit-learn's {n_s} ({n_g / max(n_s, 1):.1f}×): each start "
-               "runs BFGS twice (the second from the optimum with the length scales clamped) to tight tolerances"
+               f"lasts {n_g} such evaluations against scikit-learn's {n_s} ({n_g / max(n_s, 1):.1f}×): three BFGS "
+               "starts, each to convergence (a second, clamped stage only where a length scale ran past its clamp)"
                + (f"; SciPy's L-BFGS-B on tinygp's objective made {prof['tinygp_lbfgsb_evaluations_counted']} "
                   "evaluations in all" if "tinygp_lbfgsb_evaluations_counted" in prof else "")
                + ". LML difference (gtsjax − scikit-learn, same function): "
-               f"{diff:+.3f} nats. What would close it: fewer evaluations (the clamped second stage only when a "
-               "length scale ran past the clamp; a looser tolerance on −LML/N), and the random starts screened on "
-               "a subset at every size, not only above 500 points.")
+               f"{diff:+.3f} nats. What would close it: fewer evaluations (a looser tolerance on −LML/N, and the "
+               "random starts screened on a subset at every size, not only above 500 points).")
         targets.append({"name": f"gp_fit_speedup_{tag}", "target": f"≥ {TARGET_GP_SPEEDUP:.0f}× scikit-learn, LML ≥ "
                         f"scikit-learn's − {LML_TOLERANCE} nats", "measured": r["value"], "unit": "×",
                         "lml_difference": diff, "met": r["value"] >= TARGET_GP_SPEEDUP and ok_lml, "why": why,
