@@ -260,3 +260,31 @@ def test_serve_prints_the_path_and_serves_a_saved_log_until_stopped(tmp_path):
         stop.set()
         t.join(timeout=3.0)
     assert not t.is_alive()
+
+
+@pytest.mark.parametrize("model", [URG_04LX, UTM_30LX], ids=lambda m: m.name)
+def test_urg_library_sample_sequence(model):
+    """The order Hokuyo's own client library (urg_library's samples) speaks in, with no SCIP2.0 or VV
+    first: an empty line (whose reply it reads and discards until a timeout), QT, PP (of which it
+    needs all seven of DMIN, DMAX, ARES, AMIN, AMAX, AFRT, SCAN), then MD (or ME where the sensor has
+    intensities) streaming, then QT."""
+    with SensorEmulator(model, _source(model)) as emu:
+        c = Client(emu.path)
+        try:
+            c.ser.write(b"\n")
+            time.sleep(0.1)
+            c.ser.read(c.ser.in_waiting or 1)
+            (qt,) = c.ask(scip.qt_command())
+            assert qt.ok and qt.status == "00"
+            (pp,) = c.ask(scip.pp_command())
+            assert {"DMIN", "DMAX", "ARES", "AMIN", "AMAX", "AFRT", "SCAN"} <= set(pp.fields)
+            assert scip.sensor_model_from_pp(pp) == model
+            cmd = (scip.me_command if model.has_intensity else scip.md_command)(model.amin, model.amax, count=0)
+            frames = [f for f in c.ask(cmd, n=4, timeout=3.0) if isinstance(f, scip.ScanFrame) and f.status == "99"]
+            assert len(frames) >= 2 and all(f.n_values == model.n_beams for f in frames)
+            c.ser.write(scip.qt_command())
+            replies = c.read_replies(20, timeout=1.0)  # frames already on their way, then QT's reply
+            assert any(getattr(r, "command", "") == "QT" and r.ok for r in replies)
+            assert c.dec.stats.dropped == 0
+        finally:
+            c.close()
