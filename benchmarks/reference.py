@@ -519,7 +519,8 @@ class ReferencePipeline:
         b = self.bounds
         tracks = [t for t in self.tracker.slots
                   if t is not None and t.confirmed and t.misses < self.tracker.m_report
-                  and (b is None or b[0] <= t.kf.x[0, 0] <= b[2] and b[1] <= t.kf.x[1, 0] <= b[3])]
+                  and (b is None or b[0] <= t.kf.x[0, 0] <= b[2] and b[1] <= t.kf.x[1, 0] <= b[3])
+                  and (t.misses == 0 or not self.seen_through(t.kf.x[:2, 0], ranges, valid, angle_min, angle_increment))]
         return RefOutput(
             track_id=np.array([t.track_id for t in tracks], int),
             track_class=np.array([t.cls for t in tracks], int),
@@ -528,6 +529,19 @@ class ReferencePipeline:
             A=self.A.copy(), mu_s=self.mu_s.copy(), mu_o=self.mu_o.copy(), degraded=degraded,
             n_detections=int(len(z)),
         )
+
+    def seen_through(self, xy_o, ranges, valid, angle_min, angle_increment, margin=0.3) -> bool:
+        """Whether the three beams nearest the bearing of field point ``xy_o`` show it empty: none
+        returns before ``margin`` past it (no return counts as empty)."""
+        x, y = self.mu_s + np.linalg.solve(self.A, np.asarray(xy_o, np.float64) - self.mu_o)
+        rho = math.hypot(x, y)
+        beam = int(np.round((math.atan2(y, x) - float(angle_min)) / float(angle_increment)))
+        for i in (beam - 1, beam, beam + 1):
+            if not 0 <= i < len(ranges):
+                return False
+            if valid[i] and ranges[i] <= rho + margin:
+                return False
+        return True
 
     def run(self, scans) -> list[RefOutput]:
         """Every scan of a stack (NumPy arrays from :func:`scans_to_numpy`), from a fresh state."""

@@ -111,9 +111,38 @@ def _inside(site, pose: Float[Array, "n 3"]) -> Bool[Array, " n"]:
     return ~site.has_bounds | ((x >= b[0]) & (y >= b[1]) & (x <= b[2]) & (y <= b[3]))
 
 
-def update(model: Model, state: PipelineState, p: Perception, dt: Float[Array, ""]) -> tuple[PipelineState, Output]:
+# How far beyond a track's predicted centre its beams must reach for its spot to count as empty:
+# more than any robot's radius is not needed (a robot that is there stops the beam before its centre);
+# this covers the prediction's error while the track coasts.
+SEE_THROUGH_MARGIN = 0.3
+
+
+def seen_through(scan: Scan, tf: Transform, xy_o: Float[Array, "n 2"]) -> Bool[Array, " n"]:
+    """Whether the scan sees through each field position: none of the three beams nearest its
+    bearing returns before ``SEE_THROUGH_MARGIN`` past it (a beam with no return saw nothing within
+    the sensor's range: on an open field, the usual view past a far robot). A position outside the
+    field of view is never seen through."""
+    xy_s = tf.mu_s[None, :] + jnp.linalg.solve(tf.A, (xy_o - tf.mu_o[None, :]).T).T
+    rho = jnp.sqrt(jnp.sum(xy_s**2, axis=-1))
+    beam = jnp.round((jnp.arctan2(xy_s[:, 1], xy_s[:, 0]) - scan.angle_min) / scan.angle_increment).astype(jnp.int32)
+    idx = beam[:, None] + jnp.arange(-1, 2, dtype=jnp.int32)[None, :]  # [n, 3]
+    n = scan.n_beams
+    in_view = jnp.all((idx >= 0) & (idx < n), axis=1)
+    idx = jnp.clip(idx, 0, n - 1)
+    r, ok = scan.ranges[idx], scan.valid[idx]
+    short = ok & (r <= rho[:, None] + SEE_THROUGH_MARGIN)
+    return in_view & ~jnp.any(short, axis=1)
+
+
+def update(model: Model, state: PipelineState, p: Perception, scan: Scan) -> tuple[PipelineState, Output]:
     """Stages f–g: re-estimate the map transformation from this scan's landmarks, map detections into
-    O, and track. The transform estimated from a scan is used for that same scan's detections."""
+    O, and track. The transform estimated from a scan is used for that same scan's detections.
+
+    A confirmed track is reported while it is observed, and for up to ``m_report`` scans without a
+    detection (a missed scan or two), unless this scan sees through the spot it is predicted at:
+    then the robot was lifted or walked out of the scan plane, and reporting it would be a false
+    track."""
+    dt = scan.dt
     site = model.site
     is_landmark = p.ok & model.landmark_mask[p.cls]
     tf, residual, seen = update_transform(
@@ -131,8 +160,10 @@ def update(model: Model, state: PipelineState, p: Perception, dt: Float[Array, "
         track_class=ts.class_id,
         track_pose=ts.mean[:, :3],
         track_var=jnp.diagonal(ts.cov, axis1=1, axis2=2)[:, :3],
-        # Confirmed, recently observed, and inside the site's bounds (a coasting track may leave them).
-        track_mask=reported(ts, model.tracker) & _inside(site, ts.mean[:, :3]),
+        # Confirmed, recently observed, inside the site's bounds (a coasting track may leave them), and
+        # if missed in this scan, not where the scan sees through.
+        track_mask=reported(ts, model.tracker) & _inside(site, ts.mean[:, :3])
+        & ((ts.misses == 0) | ~seen_through(scan, tf, ts.mean[:, :2])),
         transform=tf,
         landmark_residual=residual,
         landmark_seen=seen,
@@ -151,7 +182,7 @@ def update(model: Model, state: PipelineState, p: Perception, dt: Float[Array, "
 
 
 def step_unjitted(model: Model, state: PipelineState, scan: Scan) -> tuple[PipelineState, Output]:
-    return update(model, state, perceive(model, scan), scan.dt)
+    return update(model, state, perceive(model, scan), scan)
 
 
 def _run_scans(model: Model, state: PipelineState, scans: Scan, n_real: Int[Array, ""]):
@@ -223,13 +254,13 @@ def process_chunk(model: Model, state: PipelineState, scans: Scan, n_real: Int[A
     percepts = jax.vmap(perceive, in_axes=(None, 0))(model, scans)
 
     def body(s, inp):
-        p, dt, i = inp
-        new, out = update(model, s, p, dt)
+        p, sc, i = inp
+        new, out = update(model, s, p, sc)
         keep = i < n_real
         return jax.tree.map(lambda a, b: jnp.where(keep, a, b), new, s), out
 
     idx = jnp.arange(scans.dt.shape[0], dtype=jnp.int32)
-    return jax.lax.scan(body, state, (percepts, scans.dt, idx))
+    return jax.lax.scan(body, state, (percepts, scans, idx))
 
 
 def process_log(model: Model, scans: Scan, *, chunk: int = 256, state: PipelineState | None = None,

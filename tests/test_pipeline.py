@@ -185,3 +185,33 @@ def test_live_step_rows_equal_the_step_rows(tiny):
         assert bool(np.asarray(packed)[-1, 0] > 0.5) == bool(o.degraded)
         n_rows += len(got)
     assert n_rows > 20  # the robots were tracked, so rows were compared
+
+
+def test_seen_through_reads_the_beams_at_a_tracks_bearing():
+    """A sensor at (3, 4) looking along −y; 181 beams over ±90°, 1° apart. Hand-placed returns: the
+    spot (3, 2) lies 2 m ahead on the middle beam; (4, 3) is 1.41 m away at +45° (to the sensor's
+    left, beam 135)."""
+    import jax.numpy as jnp
+
+    from gtsjax._maptransform import Transform
+    from gtsjax._pipeline import seen_through
+    from gtsjax._scan import Scan
+
+    def scan(ranges):
+        r = np.asarray(ranges, np.float32)
+        return Scan(jnp.asarray(r), jnp.zeros_like(jnp.asarray(r)), jnp.asarray(r > 0),
+                    jnp.asarray(-np.pi / 2, jnp.float32), jnp.asarray(np.pi / 180, jnp.float32),
+                    jnp.asarray(0.1, jnp.float32))
+
+    tf = Transform.from_sensor_pose(jnp.asarray([3.0, 4.0, -np.pi / 2]))
+    spots = jnp.asarray([[3.0, 2.0], [4.0, 3.0], [3.0, 5.0]], jnp.float32)  # ahead, to the left, behind the sensor
+    far = np.full(181, 4.0)
+    assert np.asarray(seen_through(scan(far), tf, spots)).tolist() == [True, True, False]
+    robot = far.copy()
+    robot[89:92] = [2.0, 1.9, 2.2]  # something within 0.3 m past the spot: still there
+    assert np.asarray(seen_through(scan(robot), tf, spots)).tolist() == [False, True, False]
+    one_beam = far.copy()
+    one_beam[136] = 1.5  # one of the three beams at +45° (135 ± 1) stops 9 cm past (4, 3)
+    assert np.asarray(seen_through(scan(one_beam), tf, spots)).tolist() == [True, False, False]
+    empty = np.zeros(181)  # no return at all: nothing within the sensor's range
+    assert np.asarray(seen_through(scan(empty), tf, spots)).tolist() == [True, True, False]
