@@ -48,7 +48,7 @@ def evaluate_targets(res) -> None:
                                     "xla_cost_per_stage": res.profiles.get("xla_cost.urg-04lx", {})}
         met = m["p99"] <= TARGET_STEP_P99_US
         if m["median"] <= TARGET_STEP_P99_US:
-            why = (f"The median ({fmt(m['median'], 'us')}) is within the budget; the tail is {m['p99'] / m['median']:.1f}× "
+            why = (f"The median ({fmt(m['median'], 'us')}) is within the p99 budget; the tail is {m['p99'] / m['median']:.1f}× "
                    f"the median: host-side jitter (the scheduler, other processes: load average {load[0]:.1f} at the "
                    "start on this machine) more than computation. "
                    + ("What would widen the margin" if met else "What would close it")
