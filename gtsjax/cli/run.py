@@ -73,6 +73,8 @@ def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Pa
                 stats = run_live(link, model, out, record=record, outputs=Outputs(json_lines, udp),
                                  duration=duration, on_scan=on_scan, with_intensity=intensity,
                                  compiled=compiled, max_frames=frames)
+            if not console.is_terminal:  # rich ends the last view with a newline only on a terminal
+                console.line()
         else:
             stats = run_live(link, model, out, record=record, outputs=Outputs(json_lines, udp), duration=duration,
                              with_intensity=intensity, compiled=compiled, max_frames=frames)
