@@ -179,8 +179,10 @@ SUMMARY = [
     ("kalman.one_step.gtsjax", "Kalman predict + update, one track: gtsjax (jitted call)"),
     ("kalman.one_step.filterpy", "Kalman predict + update, one track: filterpy"),
     ("scip.decode_me_1081", "SCIP decode, one UTM-30LX ME frame (1081 beams + intensity)"),
-    ("live.urg-04lx_10hz", "live, frame decoded → GTD row flushed, URG-04LX at 10 Hz"),
-    ("live.utm-30lx_40hz", "live, frame decoded → GTD row flushed, UTM-30LX at 40 Hz"),
+    ("live.urg-04lx_10hz", "live, frame read → GTD row flushed, URG-04LX at 10 Hz (emulator over a pty)"),
+    ("live.utm-30lx_40hz", "live, frame read → GTD row flushed, UTM-30LX at 40 Hz (emulator over a pty)"),
+    ("live.utm-30lx_40hz.step_back_to_back", "live step alone, UTM-30LX frames, called back to back"),
+    ("live.utm-30lx_40hz.step_every_period", "live step alone, UTM-30LX frames, called every 25 ms (idle between)"),
 ]
 
 

@@ -1,7 +1,11 @@
 """Live frame-to-GTD latency: the emulated scanner on a real pseudo-terminal, the real serial link
 (pyserial, reader thread, SCIP stream decoder) and the real live loop (``gtsjax.live.run_live``, as
-``gtsjax run`` runs it), measured by the loop itself: from the moment a frame's last byte was
-decoded to the moment its GTD rows were written and flushed.
+``gtsjax run`` runs it), measured by the loop itself: from the moment a frame's last byte was read
+(before decoding) to the moment its GTD rows were written and flushed.
+
+Beside each case, the live step alone on the same frames, no sensor, no threads: called back to back,
+and called once per sensor period with the thread asleep in between, as the live loop calls it. The
+difference is what an idle period costs the next step (caches, the core's clock), not the host loop.
 
 Two cases: the SPL field with a URG-04LX at 10 Hz (``spl-trajectory``, the shipped demo model), and
 the lab with a UTM-30LX at 40 Hz with intensities (``lab-trajectory``, the benchmark's UTM model).
@@ -9,12 +13,13 @@ The step is compiled before the sensor streams, as ``gtsjax run`` does.
 """
 
 import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
 
 from gtsjax.io.serial import Link
-from gtsjax.live import run_live, warm_up
+from gtsjax.live import frame_arrays, run_live, warm_up
 from gtsjax.sensors import URG_04LX, UTM_30LX
 from gtsjax.sim.emulator import SensorEmulator
 
@@ -41,16 +46,43 @@ def live_case(ctx, key: str, sensor, log, model, duration: float) -> None:
     if lat.size == 0:
         raise RuntimeError(f"live {sensor.name}: no frame reached the loop in {duration} s")
     ctx.results.add(f"live.{key}", "ms", lat, section=SECTION,
-                    label=f"live, frame decoded → GTD row flushed, {sensor.name} at {sensor.rate_hz:g} Hz",
+                    label=f"live, frame read → GTD row flushed, {sensor.name} at {sensor.rate_hz:g} Hz",
                     sensor=sensor.name, rate_hz=sensor.rate_hz, duration_s=duration, frames=stats.frames,
                     rows=stats.rows, late=stats.late, bad_frames=link_stats.bad_frames, dropped=link_stats.dropped)
     ctx.results.checks[f"live.{key}"] = {"frames": stats.frames, "gtd_rows": stats.rows, "late_frames": stats.late,
                                          "expected_frames": int(duration * sensor.rate_hz)}
 
 
+def step_alone(ctx, key: str, sensor, log, model, n: int) -> None:
+    """The live step on ``n`` frames of ``log``: back to back, and with ``sensor.period`` of sleep
+    between calls."""
+    step, state0 = warm_up(model, sensor)
+    frames = [frame_arrays(log.ranges[i % log.n_scans].astype(np.float64),
+                           None if log.intensities is None or not sensor.has_intensity else log.intensities[i % log.n_scans],
+                           sensor, model.n_beams) for i in range(n)]
+    dt = np.float32(sensor.period)
+    for pause, tag, what in ((0.0, "back_to_back", "back to back"), (sensor.period, "every_period", "once per period")):
+        state = state0
+        out = np.empty(n)
+        for i, (r, inten, valid) in enumerate(frames):
+            t0 = time.perf_counter()
+            state, _, packed = step(state, r, inten, valid, dt)
+            np.asarray(packed)
+            out[i] = time.perf_counter() - t0
+            if pause:
+                time.sleep(pause)
+        ctx.results.add(f"live.{key}.step_{tag}", "ms", out[10:], section=SECTION,
+                        label=f"live step alone, {sensor.name}, called {what}", sensor=sensor.name)
+
+
 def run(ctx) -> None:
     duration = 3.0 if ctx.quick else 15.0
     log, site = _data.scenario("spl-trajectory", 7, 300)
-    live_case(ctx, "urg-04lx_10hz", URG_04LX, log, _data.demo_model(site), duration)
+    model = _data.demo_model(site)
+    live_case(ctx, "urg-04lx_10hz", URG_04LX, log, model, duration)
     ulog, usite = _data.scenario("lab-trajectory", 5, 200 if ctx.quick else 600)
-    live_case(ctx, "utm-30lx_40hz", UTM_30LX, ulog, _data.utm_model(usite, ctx.log), duration)
+    umodel = _data.utm_model(usite, ctx.log)
+    live_case(ctx, "utm-30lx_40hz", UTM_30LX, ulog, umodel, duration)
+    n = 30 if ctx.quick else 300
+    step_alone(ctx, "urg-04lx_10hz", URG_04LX, log, model, n)
+    step_alone(ctx, "utm-30lx_40hz", UTM_30LX, ulog, umodel, n)
