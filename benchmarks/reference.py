@@ -347,6 +347,7 @@ class ReferencePipeline:
         self.A = np.array([[math.cos(th), -math.sin(th)], [math.sin(th), math.cos(th)]])
         self.mu_s = np.zeros(2)
         self.mu_o = np.array([x, y])
+        self.supported = False  # no fit from landmarks yet: the gate allows for a guessed heading
         self.tracker.reset()
 
     # ---- stages a–c
@@ -468,7 +469,10 @@ class ReferencePipeline:
         d2[self.landmark_class[:, None] != det_cls[None, :]] = np.inf
         best_det = d2.argmin(axis=1)
         best_map = d2.argmin(axis=0)
-        hit = (best_map[best_det] == np.arange(len(self.landmark_xy))) & (d2.min(axis=1) <= self.map_gate**2)
+        # while the transform rests on no landmarks, the gate allows a guessed heading 0.06 rad off
+        slack = 0.0 if self.supported else 0.06
+        gate = self.map_gate + slack * np.linalg.norm(det_s[best_det], axis=1)
+        hit = (best_map[best_det] == np.arange(len(self.landmark_xy))) & (d2.min(axis=1) <= gate**2)
         n = int(hit.sum())
         if n < 3:
             return False
@@ -501,6 +505,7 @@ class ReferencePipeline:
         cov_s[:, 2, 2] = var[:, 2]
         lm = ok & self.landmark_mask[cls]
         degraded = not self.update_transform(pose_s[lm, :2], cls[lm])
+        self.supported = not degraded
         # S -> O (eq. 10) and tracking of the mobile classes inside the bounds.
         trk = ok & self.tracker.tracked[cls]
         ps, cs, kc = pose_s[trk], cov_s[trk], cls[trk]

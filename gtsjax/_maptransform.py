@@ -67,11 +67,12 @@ def associate(
     map_o: Float[Array, "landmarks 2"],
     map_class: Int[Array, " landmarks"],
     gate: Float[Array, ""],
+    slack: Float[Array, ""] | float = 0.0,
 ) -> tuple[Int[Array, " landmarks"], Bool[Array, " landmarks"]]:
     """Each map landmark's detection: index into the candidates and whether it is associated.
 
-    Mutual nearest neighbour of the same class within ``gate`` metres, after mapping the detections
-    into O with ``prev``.
+    Mutual nearest neighbour of the same class within ``gate + slack · r`` metres (``r`` the
+    detection's range from the sensor), after mapping the detections into O with ``prev``.
     """
     det_o = prev.apply(det_s)
     d2 = jnp.sum((map_o[:, None, :] - det_o[None, :, :]) ** 2, axis=-1)  # [L, K]
@@ -80,8 +81,15 @@ def associate(
     best_det = jnp.argmin(d2, axis=1)  # per landmark
     best_map = jnp.argmin(d2, axis=0)  # per detection
     mutual = best_map[best_det] == jnp.arange(map_o.shape[0])
-    hit = mutual & (jnp.min(d2, axis=1) <= gate**2)
+    r = jnp.sqrt(jnp.sum(det_s[best_det] ** 2, axis=-1))
+    hit = mutual & (jnp.min(d2, axis=1) <= (gate + slack * r) ** 2)
     return best_det, hit
+
+
+# While the transform rests on no landmarks (the user's rough sensor pose, or a scan whose fit
+# failed), association also allows for a heading this far off (radians, about 3.4°): the error of a
+# guessed laser heading moves a landmark 8 m away by half a metre, beyond the gate.
+GUESS_HEADING_SLACK = 0.06
 
 
 def fit_transform(
@@ -126,9 +134,12 @@ def update_transform(
     min_spread: Float[Array, ""],
 ) -> tuple[Transform, Float[Array, "landmarks 2"], Bool[Array, " landmarks"]]:
     """Stage f for one scan: associate, fit, and keep ``prev`` (marked degraded) if the fit is not
-    supported. Returns the transform, each landmark's residual in O (detected minus map position,
+    supported. While ``prev`` rests on no landmarks, the gate widens with range
+    (``GUESS_HEADING_SLACK``). Returns the transform, each landmark's residual in O (detected minus map position,
     under the new transform; 0 where not associated), and the association mask."""
-    idx, hit = associate(prev, det_s, det_class, det_mask, map_o, map_class, gate)
+    unsupported = prev.degraded | (prev.n_landmarks == 0)
+    slack = jnp.where(unsupported, jnp.asarray(GUESS_HEADING_SLACK, gate.dtype), jnp.zeros((), gate.dtype))
+    idx, hit = associate(prev, det_s, det_class, det_mask, map_o, map_class, gate, slack)
     matched_s = det_s[idx]
     new, ok = fit_transform(matched_s, map_o, hit, min_spread)
     tf = jax.tree.map(lambda a, b: jnp.where(ok, a, b), new, prev)
