@@ -135,10 +135,10 @@ def update_transform(
 ) -> tuple[Transform, Float[Array, "landmarks 2"], Bool[Array, " landmarks"]]:
     """Stage f for one scan: associate, fit, and keep ``prev`` (marked degraded) if the fit is not
     supported. While ``prev`` rests on no landmarks, the gate widens with range
-    (``GUESS_HEADING_SLACK``). Returns the transform, each landmark's residual in O (detected minus map position,
-    under the new transform; 0 where not associated), and the association mask."""
+    (``GUESS_HEADING_SLACK``). Returns the transform, each landmark's residual in O (detected minus
+    map position, under the new transform; 0 where not associated), and the association mask."""
     unsupported = prev.degraded | (prev.n_landmarks == 0)
-    slack = jnp.where(unsupported, jnp.asarray(GUESS_HEADING_SLACK, gate.dtype), jnp.zeros((), gate.dtype))
+    slack = GUESS_HEADING_SLACK * unsupported.astype(gate.dtype)
     idx, hit = associate(prev, det_s, det_class, det_mask, map_o, map_class, gate, slack)
     matched_s = det_s[idx]
     new, ok = fit_transform(matched_s, map_o, hit, min_spread)

@@ -358,7 +358,7 @@ def track_step(
     live = state.live & ~dead
 
     # Births: the i-th free slot takes the i-th unused detection of a tracked class.
-    used = jnp.zeros(det.mask.shape, bool).at[det_of_track].max(has)
+    used = used.at[det2].max(has2)  # the recaptured ones too
     dist = jnp.linalg.norm(det.pose[:, None, :2] - mean[None, :, :2], axis=-1)
     near_live = jnp.any(live[None, :] & (det.class_id[:, None] == state.class_id[None, :]) & (dist < params.birth_exclusion), 1)
     born_ok = tracked_det & ~used & ~near_live

@@ -63,14 +63,6 @@ def frame_arrays(ranges_m: np.ndarray, intensities: np.ndarray | None, sensor: S
     return r, inten, valid
 
 
-def frame_to_scan(ranges_m: np.ndarray, intensities: np.ndarray | None, sensor: SensorModel, n_beams: int,
-                  dt: float) -> Scan:
-    """One frame as the padded scan the step takes."""
-    r, inten, valid = frame_arrays(ranges_m, intensities, sensor, n_beams)
-    return Scan(jnp.asarray(r), jnp.asarray(inten), jnp.asarray(valid), jnp.asarray(sensor.angle_min, jnp.float32),
-                jnp.asarray(sensor.angle_increment, jnp.float32), jnp.asarray(dt, jnp.float32))
-
-
 # Columns of :func:`pack_tracks`.
 PACKED = ("track_id", "class", "x", "y", "theta", "var_x", "var_y", "var_theta", "reported")
 

@@ -20,6 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from gtsjax import FrontEndConfig
+from gtsjax.evaluation import wrap
 from gtsjax.gp import fit
 from gtsjax.sim import simulate
 from gtsjax.training import TrainConfig, class_list, estimate_transforms, label_log, run_front_end
@@ -39,10 +40,6 @@ def robot_examples(log, site, fe: FrontEndConfig, cfg: TrainConfig):
     ex, _ = label_log(log, out, tf, site, classes, cfg, 0)
     sel = ex.cls == classes.index("robot")
     return ex.vectors[sel], ex.target[sel]
-
-
-def wrap(a):
-    return np.pi - np.mod(np.pi - a, 2 * np.pi)
 
 
 def main():
