@@ -271,6 +271,34 @@ def test_subsample_cap():
     assert float(jnp.max(jnp.abs(m - jnp.asarray(np.sin(x[:20, 0]))))) < 0.1
 
 
+def test_fit_on_a_subsample_conditions_on_all_rows():
+    """``max_fit_points``: hyperparameters from a subsample, posterior on every row kept. Checked
+    against scikit-learn conditioned on all rows with those hyperparameters held fixed, and against a
+    fit on the subsample alone (same hyperparameters, which the fit on all rows is not bound to)."""
+    rng = np.random.default_rng(12)
+    x = rng.uniform(-3, 3, (240, 2))
+    y = np.sin(x[:, 0]) * np.cos(0.5 * x[:, 1]) + 0.05 * rng.normal(size=240)
+    g = gp.fit(x, y, key=jax.random.key(6), restarts=1, max_fit_points=60)
+    assert g.n_points == 240 and int(jnp.sum(g.mask)) == 240
+    # scikit-learn on the same standardised inputs and centred targets, kernel fixed at ours.
+    xs_all = (x - np.asarray(g.x_mean)) / np.asarray(g.x_scale)
+    yc = y - float(g.y_mean)
+    noise = float(g.params.noise_var) + float(g.jitter) * float(g.params.signal_var)
+    reg = sk_gp.GaussianProcessRegressor(_sk_kernel(g.params, noise, fixed=True), alpha=0.0, optimizer=None)
+    reg.fit(xs_all, yc)
+    xt = rng.uniform(-3, 3, (30, 2))
+    mean, var = g.predict(jnp.asarray(xt), include_noise=True)
+    m_sk, s_sk = reg.predict((xt - np.asarray(g.x_mean)) / np.asarray(g.x_scale), return_std=True)
+    np.testing.assert_allclose(np.asarray(mean), m_sk + float(g.y_mean), atol=1e-6)
+    # scikit-learn counts the whole white noise (ours plus the jitter floor) in its predictive variance.
+    np.testing.assert_allclose(np.asarray(var), s_sk**2 - noise + float(g.params.noise_var), atol=1e-6)
+    # More rows in the posterior than in the fit predict better than the fit's rows alone would.
+    sub = gp.fit(x, y, key=jax.random.key(6), restarts=1, max_points=60)
+    truth = np.sin(xt[:, 0]) * np.cos(0.5 * xt[:, 1])
+    m_sub, _ = sub.predict(jnp.asarray(xt))
+    assert np.sqrt(np.mean((np.asarray(mean) - truth) ** 2)) < np.sqrt(np.mean((np.asarray(m_sub) - truth) ** 2))
+
+
 def test_sparse_full_rank_matches_exact_and_low_rank_is_close():
     rng = np.random.default_rng(11)
     x = rng.uniform(-3, 3, (60, 2))
