@@ -232,12 +232,16 @@ class _Tracker:
                     t.kf.update(zj, R=R[j])
                     t.kf.x[5] = min(max(t.kf.x[5, 0], -self.max_turn_rate), self.max_turn_rate)
                     t.support += 1.0
-                else:  # position-only update; the turn rate is forgotten
+                else:  # position-only update; a turn rate learnt from headings is forgotten
+                    learnt = t.kf.P[5, 5] < self.omega_var0  # predicted covariance, before this update
                     t.kf.update(zj[:2, None], R=R[j][:2, :2], H=self.H[:2])
-                    t.kf.P[5, :] = 0.0
-                    t.kf.P[:, 5] = 0.0
-                    t.kf.P[5, 5] = self.omega_var0
-                    t.kf.x[5] = 0.0
+                    if learnt:
+                        t.kf.P[5, :] = 0.0
+                        t.kf.P[:, 5] = 0.0
+                        t.kf.P[5, 5] = self.omega_var0
+                        t.kf.x[5] = 0.0
+                    else:
+                        t.kf.x[5] = min(max(t.kf.x[5, 0], -self.max_turn_rate), self.max_turn_rate)
                     # the rejected heading joins an agreeing rival, or replaces a faded one
                     nu = wrap(z[j, 2] - t.rival)
                     if nu**2 <= self.heading_gate * 2.0 * r_theta:

@@ -159,13 +159,16 @@ def test_assignment_is_one_to_one_and_gated(seed):
 
 def test_rejected_heading_is_a_position_only_update():
     """A detection whose heading disagrees by 90° updates the position exactly as the textbook filter
-    with ``H = [I₂ 0]`` does; the heading mean and variance are untouched, the turn rate is reset to
-    zero with its initial variance, and the rejected heading becomes the (weaker) rival."""
+    with ``H = [I₂ 0]`` does; the heading mean and variance are untouched, the turn rate (learnt from
+    the headings before) is reset to zero with its initial variance, and the rejected heading becomes
+    the (weaker) rival."""
     params = TrackerParams.default([False, True], n_confirm=1)
     R = np.diag([1e-3, 2e-3, 4e-3])
     state = TrackerState.empty(2)
-    state, _ = step(state, dets([1.0, 1.0, 0.3], var=np.diag(R)), jnp.asarray(0.0, F32), params)
+    for i in range(3):
+        state, _ = step(state, dets([1.0, 1.0, 0.3], var=np.diag(R)), jnp.asarray(0.1 if i else 0.0, F32), params)
     s = int(np.argmax(np.asarray(state.live)))
+    support_before = float(state.support[s])
     x0, P0 = np.asarray(state.mean[s], np.float64), np.asarray(state.cov[s], np.float64)
     z = np.array([1.02, 0.99, 0.3 + np.pi / 2])
     state, _ = step(state, dets(z, var=np.diag(R)), jnp.asarray(0.1, F32), params)
@@ -175,6 +178,7 @@ def test_rejected_heading_is_a_position_only_update():
     F = np.block([[np.eye(3), dt * np.eye(3)], [np.zeros((3, 3)), np.eye(3)]])
     Q = np.block([[np.diag(q * dt**3 / 3), np.diag(q * dt**2 / 2)], [np.diag(q * dt**2 / 2), np.diag(q * dt)]])
     x, P = F @ x0, F @ P0 @ F.T + Q
+    assert P[5, 5] < float(params.omega_var0)  # the turn rate was learnt from the three headings
     H = np.hstack([np.eye(2), np.zeros((2, 4))])
     K = P @ H.T @ np.linalg.inv(H @ P @ H.T + R[:2, :2])
     x = x + K @ (z[:2] - H @ x)
@@ -187,7 +191,32 @@ def test_rejected_heading_is_a_position_only_update():
     np.testing.assert_allclose(np.asarray(state.cov[s]), P, rtol=1e-3, atol=1e-6)
     assert abs(float(state.rival[s]) - z[2]) < 1e-6 and float(state.rival_support[s]) == 1.0
     fade = np.exp(-0.1 / float(params.heading_memory))
-    assert abs(float(state.support[s]) - fade) < 1e-6  # the birth's one detection, faded over 0.1 s
+    assert abs(float(state.support[s]) - support_before * fade) < 1e-5  # faded over 0.1 s, nothing added
+
+
+def test_turning_robot_is_followed_through_misreads():
+    """A robot turning at 1.2 rad/s, seen with its true heading every scan but three: two misreads
+    20° and 25° ahead (let in: they drag the track) and one 35° behind (rejected). The rejection
+    discards the turn rate learnt so far; the track then lags the turn and rejects the true headings
+    too. Its heading variance must then grow as fast as a turn could move the heading (the
+    discarded turn rate's variance staying correlated with the heading) so that it takes the turn
+    back within a few scans. Resetting that variance at every rejection, as before, made it grow
+    only linearly: the track coasted on, 160° behind after 3 s."""
+    params = TrackerParams.default([False, True], n_confirm=1)
+    rng = np.random.default_rng(4)
+    state = TrackerState.empty(2)
+    misreads = {10: 20.0, 11: 25.0, 12: -35.0}
+    theta, dt, errors = 0.0, 0.1, []
+    for i in range(40):
+        theta -= 1.2 * dt
+        th = theta + (np.radians(misreads[i]) if i in misreads else rng.normal(0, 0.03))
+        z = [2.0 + rng.normal(0, 0.01), 1.0 + rng.normal(0, 0.01), float(wrap(jnp.asarray(th)))]
+        state, _ = step(state, dets(z, var=(1e-4, 1e-4, 1e-3)), jnp.asarray(dt if i else 0.0, F32), params)
+        s = int(np.argmax(np.asarray(state.live)))
+        errors.append(abs(float(wrap(state.mean[s, 2] - theta))))
+    errors = np.degrees(errors)
+    assert np.all(errors[:10] < 6.0), errors  # following the turn
+    assert np.all(errors[18:] < 12.0), errors  # back on it within 0.6 s of the last misread
 
 
 def test_track_born_on_a_flipped_heading_recovers_the_majority_heading():
