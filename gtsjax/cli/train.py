@@ -21,7 +21,12 @@ def train_cmd(
     site: Path = typer.Option(..., "--site", help="Site file (.json) the logs were recorded on."),
     out: Path = typer.Option(..., "--out", help="Model file to write."),
     max_per_class: int = typer.Option(TrainConfig.max_per_class, help="Classifier examples per class (balanced)."),
-    max_pose: int = typer.Option(TrainConfig.max_pose_examples, help="Pose-GP examples per mobile class."),
+    max_pose: int = typer.Option(TrainConfig.max_pose_examples,
+                                 help="Pose-GP examples per mobile class (the GPs' posterior; the step's cost grows "
+                                      "with it)."),
+    max_pose_fit: int = typer.Option(TrainConfig.max_pose_fit,
+                                     help="Of those, how many the pose GPs' hyperparameters are fitted on (the "
+                                          "fit's cost grows with its cube)."),
     max_landmark: int = typer.Option(TrainConfig.max_landmark_examples, help="Position-GP examples per landmark class."),
     inducing: int = typer.Option(TrainConfig.n_inducing,
                                  help="Inducing points of the mobile classes' pose GPs (exact mean up to this size)."),
@@ -36,6 +41,7 @@ def train_cmd(
     site_obj = load_site(site)
     loaded = [load_log(p) for p in logs]
     cfg = dataclasses.replace(TrainConfig(), max_per_class=max_per_class, max_pose_examples=max_pose,
+                              max_pose_fit=max_pose_fit,
                               max_landmark_examples=max_landmark, n_inducing=inducing, n_inducing_class=inducing_class,
                               restarts=restarts, seed=seed)
 
