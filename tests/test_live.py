@@ -26,7 +26,15 @@ def test_run_tracks_the_emulated_robot(tmp_path):
     rows = read_gtd(tmp_path / "gtd.csv")
     # 60 frames: the robot is there in about 40, less 2 each time it is put down, before confirmation.
     assert len(rows) >= 25
-    assert len({r.track_id for r in rows}) <= 2  # one track per time the robot is put down
+    # One track per time the robot is put down: a new id only after a gap (the robot carried away for
+    # 1 s). How many put-downs the 60 frames span depends on how long the start took (the emulator
+    # scans on from its own start, as a sensor does), so count the gaps rather than assume them.
+    stamps = np.array([r.stamp for r in rows])
+    ids = [r.track_id for r in rows]
+    gaps = int(np.sum(np.diff(stamps) > 0.5))
+    assert len(set(ids)) <= gaps + 1, list(zip(stamps.round(1), ids, strict=True))
+    changes = np.flatnonzero(np.diff(ids) != 0)
+    assert np.all(np.diff(stamps)[changes] > 0.5)  # ...and only across such a gap
     truth = log.truth_poses[:, 0]
     where = truth[~np.isnan(truth[:, 0])][0, :2]  # the headings change; the point does not
     xy = np.array([[r.x, r.y] for r in rows])

@@ -62,7 +62,10 @@ def test_reference_gives_the_same_tracks(spl):
     assert [bool(o.degraded) for o in ref] == [bool(d) for d in np.asarray(out.degraded)]
     # and the transforms agree too (both re-estimated every scan from the detected posts)
     a = np.stack([o.A for o in ref])
-    np.testing.assert_allclose(np.asarray(out.transform.A, np.float64), a, atol=1e-4)
+    # to the rounding of float32 against the reference's float64 (the least-squares fit on a handful of
+    # posts amplifies it; the largest differences fall on sporadic scans): 3e-4 of A is under 2 mm at
+    # the far posts, the tracks' own tolerance above.
+    np.testing.assert_allclose(np.asarray(out.transform.A, np.float64), a, atol=3e-4)
 
 
 def test_reference_tracks_several_robots():
