@@ -90,13 +90,14 @@ def landmark_cap(model: Model) -> int:
     return model.site.landmark_xy.shape[0] + model.max_objects
 
 
-def perceive(model: Model, scan: Scan) -> Perception:
-    """Stages a–e (segmentation … pose regression) of one scan; no state."""
+def perceive(model: Model, scan: Scan, *, bucket: bool = True) -> Perception:
+    """Stages a–e (segmentation … pose regression) of one scan; no state. ``bucket``: see
+    :func:`~gtsjax._pose.regress` (off where ``perceive`` is ``vmap``ped)."""
     fe = front_end_unjitted(model.frontend, scan)
     f = fe.features
     x = gp_inputs(f.vector, f.origin, f.height, model.gp_columns)
     scores, cls, ok = classify(model.classifier, x, fe.keep)
-    rel, var, posed = regress(model.pose, x, cls, ok, scores, model.max_objects, landmark_cap(model))
+    rel, var, posed = regress(model.pose, x, cls, ok, scores, model.max_objects, landmark_cap(model), bucket)
     pose_s, cov_s = to_sensor_frame(f.origin, f.heading, rel, var)
     d = fe.diagnostics
     unposed = jnp.sum(ok & ~posed, dtype=jnp.int32)
@@ -251,7 +252,7 @@ def process_chunk(model: Model, state: PipelineState, scans: Scan, n_real: Int[A
     ``lax.scan``; batched reductions may then round differently (about 1e-7 relative)."""
     if not vectorise:
         return _run_scans(model, state, scans, n_real)
-    percepts = jax.vmap(perceive, in_axes=(None, 0))(model, scans)
+    percepts = jax.vmap(lambda sc: perceive(model, sc, bucket=False))(scans)
 
     def body(s, inp):
         p, sc, i = inp

@@ -14,6 +14,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
+from ._buckets import bucketed
 from ._gp import GP, SparseGP, predict_mean
 
 # Heading variance is capped where the sine and cosine predictions carry no information.
@@ -134,6 +135,7 @@ def regress(
     scores: Float[Array, "cands classes"],
     max_objects: int,
     max_landmarks: int,
+    bucket: bool = True,
 ) -> tuple[Float[Array, "cands 3"], Float[Array, "cands 3"], Bool[Array, " cands"]]:
     """Each kept candidate's ORS-relative pose and variances under the regressors of its own class,
     and which candidates got one.
@@ -141,10 +143,14 @@ def regress(
     Fixed shapes, and no GP runs on a candidate that cannot use it: per class, the candidates of the
     class with the highest class scores are gathered (``top_k``), regressed and scattered back; the
     ``max_objects`` best of a mobile class get the mean and variance GPs, the ``max_landmarks`` best
-    of a landmark class the position means only (stage f reads no variance). A candidate beyond its
+    of a landmark class the position means only (stage f reads no variance). With ``bucket`` each
+    runs at the smallest of a few fixed sizes that holds the candidates present
+    (:func:`~gtsjax._buckets.bucketed`: a scan with one robot pays for one, not eight); leave it off
+    under ``vmap``, which turns the branches into selects that all run. A candidate beyond its
     class's cap gets no pose and must be dropped (the third output is False for it). Background and
     unkept candidates give zeros."""
     n = vectors.shape[0]
+    run = bucketed if bucket else (lambda fn, v, _n, _w: tuple(fn(v)))
     rel = jnp.zeros((n, 3), vectors.dtype)
     var = jnp.zeros_like(rel)
     posed = jnp.zeros((n,), bool)
@@ -154,14 +160,17 @@ def regress(
         sel = ok & (cls == k)
         if reg.sin is None or reg.cos is None:
             idx, chosen = _top(sel, scores[:, k], min(max_landmarks, n))
-            v = vectors[idx]
-            mx = predict_mean(reg.x, v).astype(vectors.dtype)
-            my = predict_mean(reg.y, v).astype(vectors.dtype)
-            r = jnp.stack([mx, my, jnp.zeros_like(mx)], -1)
+
+            def means(v, reg=reg):
+                mx = predict_mean(reg.x, v).astype(vectors.dtype)
+                my = predict_mean(reg.y, v).astype(vectors.dtype)
+                return (jnp.stack([mx, my, jnp.zeros_like(mx)], -1),)
+
+            (r,) = run(means, vectors[idx], jnp.sum(chosen), 3)
             rel = rel.at[idx].set(jnp.where(chosen[:, None], r, rel[idx]))
         else:
             idx, chosen = _top(sel, scores[:, k], min(max_objects, n))
-            r, v = regress_one_class(reg, vectors[idx])
+            r, v = run(lambda v, reg=reg: regress_one_class(reg, v), vectors[idx], jnp.sum(chosen), 3)
             rel = rel.at[idx].set(jnp.where(chosen[:, None], r, rel[idx]))
             var = var.at[idx].set(jnp.where(chosen[:, None], v, var[idx]))
         posed = posed.at[idx].max(chosen)

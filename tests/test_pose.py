@@ -50,3 +50,27 @@ def test_only_the_best_candidates_of_a_mobile_class_get_a_pose():
     np.testing.assert_allclose(rel[best], ref_rel, rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(var[best], ref_var, rtol=1e-5, atol=1e-9)
     assert np.all(rel[~posed] == 0) and np.all(var[~posed] == 0)
+
+
+def test_bucketed_regression_equals_regression_of_every_slot():
+    """However many candidates a scan holds (none, one, a bucket's worth, one past it, all), the
+    bucketed pose regression gives the poses that regressing every slot gives, and zeros elsewhere."""
+    from gtsjax._buckets import sizes
+
+    assert sizes(8) == (1, 2, 4, 8) and sizes(14) == (1, 2, 4, 8, 14) and sizes(1) == (1,)
+    rng = np.random.default_rng(2)
+    reg, _ = _regressor(rng)
+    n = 16
+    xs = jnp.asarray(rng.uniform(-2, 2, (n, 2)), jnp.float32)
+    scores = jnp.asarray(np.column_stack([np.zeros(n), rng.uniform(0.5, 1, n)]), jnp.float32)
+    cls = jnp.ones(n, jnp.int32)
+    f = jax.jit(lambda ok, bucket: regress((None, reg), xs, cls, ok, scores, 8, 8, bucket), static_argnums=1)
+    for present in (0, 1, 2, 3, 4, 5, 8, 12):
+        ok = jnp.asarray(np.arange(n) < present)
+        a = [np.asarray(v) for v in f(ok, True)]
+        b = [np.asarray(v) for v in f(ok, False)]
+        np.testing.assert_array_equal(a[2], b[2])
+        # float32 matrix products of another shape round differently (the kernel's |a|² + |b|² − 2a·b)
+        np.testing.assert_allclose(a[0], b[0], rtol=1e-3, atol=1e-5)
+        np.testing.assert_allclose(a[1], b[1], rtol=5e-3, atol=1e-7)  # the DTC variance: a difference of sums
+        assert a[2].sum() == min(present, 8)

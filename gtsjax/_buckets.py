@@ -1,0 +1,38 @@
+"""Fixed shapes at a cost that follows the load: run a per-row computation on the first ``b`` rows of
+a padded array, ``b`` the smallest of a few fixed sizes that holds the rows in use.
+
+The step's arrays have fixed sizes (``K`` candidate slots, ``max_objects`` pose slots) so that it
+compiles once, but a typical scan fills few of them: one robot in eight pose slots, a dozen kept
+candidates in 32. Each size is a branch of one ``lax.switch``, compiled once with the rest; at run
+time only the branch for the rows present runs. The rows must be packed first (the ones in use
+before the others); the result's rows past ``b`` are zeros.
+"""
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float, Int
+
+
+def sizes(cap: int) -> tuple[int, ...]:
+    """Bucket sizes up to ``cap``: powers of two below it, then ``cap`` (8 -> 1, 2, 4, 8; 32 -> 1, 2,
+    4, 8, 16, 32; 14 -> 1, 2, 4, 8, 14)."""
+    out = [1]
+    while out[-1] * 2 < cap:
+        out.append(out[-1] * 2)
+    return tuple(sorted(set(out + [cap])))
+
+
+def bucketed(fn, v: Float[Array, "rows features"], n: Int[Array, ""], width: int):
+    """``fn`` (``[b, features]`` -> a tuple of ``[b, width]`` arrays) on the first ``b`` rows of
+    ``v``, ``b`` the smallest of :func:`sizes` at least ``n``; each result padded with zeros to
+    ``v``'s row count."""
+    cap = v.shape[0]
+    bs = sizes(cap)
+
+    def branch(b):
+        def run(v):
+            return tuple(jnp.zeros((cap, width), o.dtype).at[:b].set(o) for o in fn(v[:b]))
+        return run
+
+    which = jnp.searchsorted(jnp.asarray(bs, jnp.int32), jnp.asarray(n, jnp.int32), side="left")
+    return jax.lax.switch(jnp.minimum(which, len(bs) - 1), [branch(b) for b in bs], v)
