@@ -90,9 +90,13 @@ def landmark_cap(model: Model) -> int:
     return model.site.landmark_xy.shape[0] + model.max_objects
 
 
-def perceive(model: Model, scan: Scan, *, bucket: bool = True) -> Perception:
+def perceive(model: Model, scan: Scan, *, bucket: bool | None = None) -> Perception:
     """Stages a–e (segmentation … pose regression) of one scan; no state. ``bucket``: see
-    :func:`~gtsjax._pose.regress` (off where ``perceive`` is ``vmap``ped)."""
+    :func:`~gtsjax._pose.regress`; off where ``perceive`` is ``vmap``ped, and by default on a CPU
+    only: on a GPU each branch choice waits for its index on the host (an H100's step took 2.23 ms
+    with it, 1.61 ms without)."""
+    if bucket is None:
+        bucket = jax.default_backend() == "cpu"
     fe = front_end_unjitted(model.frontend, scan)
     f = fe.features
     x = gp_inputs(f.vector, f.origin, f.height, model.gp_columns)
