@@ -465,6 +465,8 @@ def fit(
         raise InputError("gp.fit", f"need x [N, d] and y [N], got {x.shape} and {y.shape}")
     if restarts < 1:
         raise InputError("gp.fit", f"restarts must be >= 1, got {restarts}")
+    if max_fit_points is not None and max_fit_points < 1:
+        raise InputError("gp.fit", f"max_fit_points must be >= 1, got {max_fit_points}")
     valid = np.ones(y.shape, bool) if mask is None else np.asarray(mask, bool).copy()
     valid &= np.isfinite(y) & np.all(np.isfinite(x), axis=1)
     rows = np.flatnonzero(valid)
@@ -501,13 +503,11 @@ def fit(
     # The rows the hyperparameters are fitted on (all, unless max_fit_points is smaller).
     xf, yf, mf, nf = xj, yj, mj, n
     if max_fit_points is not None and n > max_fit_points:
-        if max_fit_points < 1:
-            raise InputError("gp.fit", f"max_fit_points must be >= 1, got {max_fit_points}")
         sub = np.sort(np.asarray(jax.random.choice(jax.random.fold_in(key_sub, 1), n, (max_fit_points,),
                                                    replace=False)))
+        xs, yc = xs[sub], yc[sub] - yc[sub].mean()  # screening below subsamples from these too
         nf = int(max_fit_points)
-        xf, yf, mf = jnp.asarray(xs[sub]), jnp.asarray(yc[sub] - yc[sub].mean()), jnp.ones((nf,), bool)
-        xs, yc = xs[sub], yc[sub] - yc[sub].mean()  # what screening subsamples from
+        xf, yf, mf = jnp.asarray(xs), jnp.asarray(yc), jnp.ones((nf,), bool)
 
     failures: list[str] = []
     if constant:
