@@ -124,6 +124,7 @@ class _Track:
     confirmed: bool
     hits: int = 1
     misses: int = 0
+    contrary: int = 0
     rival: float = 0.0
     support: float = 1.0
     rival_support: float = 0.0
@@ -134,10 +135,16 @@ class _Tracker:
 
     Gating follows the model's tracker: on position (2 dof), with an assigned detection's heading used
     only if its own innovation passes ``heading_gate`` (otherwise a position-only update, and the
-    turn rate is forgotten); ``|ω| ≤ max_turn_rate``; a rival heading with fading support that takes
-    over when more detections agree with it; leftover detections within ``birth_exclusion`` of a
-    leftover track recaptured by it; tracks reported while confirmed and missed fewer than
-    ``m_report`` scans (written out plainly from the module docstring of ``gtsjax._track``)."""
+    turn rate is forgotten); ``|ω| ≤ max_turn_rate`` of the track's class; a rival heading with fading
+    support that takes over when more detections agree with it; leftover detections within
+    ``birth_exclusion`` of a leftover track recaptured by it; confirmation after ``n_confirm`` hits, if
+    more than the tentative scans with no detection but an "other" candidate within
+    ``birth_exclusion`` of the prediction (``contrary``), and if the motion is plausible: speed at most
+    ``max_speed + 2 σ_v`` (``σ_v²`` the largest eigenvalue of the velocity covariance, from
+    ``eigvalsh``), turn rate before clipping at most ``max_turn_rate + 2 σ_ω``; an implausible scan
+    takes the confirmation away and restarts ``hits`` and ``contrary`` at 0; tracks reported while
+    confirmed and missed fewer than ``m_report`` scans (written out plainly from the module docstring
+    of ``gtsjax._track``)."""
 
     def __init__(self, params, max_tracks: int):
         g = {f.name: np.asarray(getattr(params, f.name)) for f in dataclasses.fields(params)}
@@ -146,7 +153,8 @@ class _Tracker:
         self.gate = g["gate"].astype(np.float64)
         self.heading_gate = float(g["heading_gate"])
         self.heading_memory = float(g["heading_memory"])
-        self.max_turn_rate = float(g["max_turn_rate"])
+        self.max_speed = np.broadcast_to(g["max_speed"], g["tracked"].shape).astype(np.float64)
+        self.max_turn_rate = np.broadcast_to(g["max_turn_rate"], g["tracked"].shape).astype(np.float64)
         self.m_report = int(g["m_report"])
         self.tracked = g["tracked"].astype(bool)
         self.n_confirm, self.m_tentative, self.m_delete = int(g["n_confirm"]), int(g["m_tentative"]), int(g["m_delete"])
@@ -174,15 +182,30 @@ class _Tracker:
             Q[:3, :3] = np.diag(q * dt)
         return F, Q
 
-    def step(self, z: np.ndarray, R: np.ndarray, cls: np.ndarray, dt: float) -> None:
+    def plausible(self, t: _Track, omega: float) -> bool:
+        """Whether the track's speed and turn rate (``omega``, before clipping) are its class's, within
+        twice their standard deviations."""
+        v = t.kf.x[3:5, 0]
+        sigma_v = math.sqrt(max(np.linalg.eigvalsh(t.kf.P[3:5, 3:5])[-1], 0.0))
+        sigma_w = math.sqrt(max(t.kf.P[5, 5], 0.0))
+        return bool(math.hypot(v[0], v[1]) <= self.max_speed[t.cls] + 2.0 * sigma_v
+                    and abs(omega) <= self.max_turn_rate[t.cls] + 2.0 * sigma_w)
+
+    def step(self, z: np.ndarray, R: np.ndarray, cls: np.ndarray, dt: float, other: np.ndarray | None = None) -> None:
         """Predict, gate, assign, update, and start, confirm and end tracks, for detections ``z`` [n, 3]
-        with covariances ``R`` [n, 3, 3] and classes ``cls`` [n] (all of tracked classes)."""
+        with covariances ``R`` [n, 3, 3] and classes ``cls`` [n] (all of tracked classes); ``other``
+        [n_o, 2]: positions of the scan's other candidates (not detections of a tracked class)."""
+        other = np.zeros((0, 2)) if other is None else np.asarray(other, np.float64).reshape(-1, 2)
         F, Q = self.motion_model(dt)
         live = [i for i, t in enumerate(self.slots) if t is not None]
         for i in live:
             kf = self.slots[i].kf
             kf.predict(F=F, Q=Q)
             kf.x[2] = wrap(kf.x[2])
+        # whether an "other" candidate lies near each track's prediction
+        other_near = {i: bool(np.any(np.hypot(other[:, 0] - self.slots[i].kf.x[0, 0],
+                                              other[:, 1] - self.slots[i].kf.x[1, 0]) < self.birth_exclusion))
+                      for i in live}
         n = len(z)
         cost = np.full((n, self.max_tracks), np.inf)
         for i in live:
@@ -222,15 +245,18 @@ class _Tracker:
             t = self.slots[i]
             t.support *= fade
             t.rival_support *= fade
+            omega = t.kf.x[5, 0]  # a coasting track's turn rate: clipped at its last update
             if i in det_of:
                 j = det_of[i]
                 zj = z[j].copy()
                 zj[2] = t.kf.x[2, 0] + wrap(zj[2] - t.kf.x[2, 0])  # innovation wrapped
                 r_theta = R[j][2, 2]
                 head_ok = (zj[2] - t.kf.x[2, 0]) ** 2 <= self.heading_gate * (t.kf.P[2, 2] + r_theta)
+                w_max = self.max_turn_rate[t.cls]
                 if head_ok:
                     t.kf.update(zj, R=R[j])
-                    t.kf.x[5] = min(max(t.kf.x[5, 0], -self.max_turn_rate), self.max_turn_rate)
+                    omega = t.kf.x[5, 0]
+                    t.kf.x[5] = min(max(omega, -w_max), w_max)
                     t.support += 1.0
                 else:  # position-only update; a turn rate learnt from headings is forgotten
                     learnt = t.kf.P[5, 5] < self.omega_var0  # predicted covariance, before this update
@@ -239,9 +265,10 @@ class _Tracker:
                         t.kf.P[5, :] = 0.0
                         t.kf.P[:, 5] = 0.0
                         t.kf.P[5, 5] = self.omega_var0
-                        t.kf.x[5] = 0.0
+                        t.kf.x[5] = omega = 0.0
                     else:
-                        t.kf.x[5] = min(max(t.kf.x[5, 0], -self.max_turn_rate), self.max_turn_rate)
+                        omega = t.kf.x[5, 0]
+                        t.kf.x[5] = min(max(omega, -w_max), w_max)
                     # the rejected heading joins an agreeing rival, or replaces a faded one
                     nu = wrap(z[j, 2] - t.rival)
                     if nu**2 <= self.heading_gate * 2.0 * r_theta:
@@ -262,7 +289,12 @@ class _Tracker:
                 t.misses = 0
             else:
                 t.misses += 1
-            t.confirmed = t.confirmed or t.hits >= self.n_confirm
+                if not t.confirmed and other_near[i]:
+                    t.contrary += 1
+            if self.plausible(t, omega):
+                t.confirmed = t.confirmed or (t.hits >= self.n_confirm and t.hits > t.contrary)
+            else:  # confirmation restarts, as for a new track
+                t.confirmed, t.hits, t.contrary = False, 0, 0
             if t.misses >= (self.m_delete if t.confirmed else self.m_tentative):
                 self.slots[i] = None
         # Births: the i-th free slot takes the i-th unused detection not near a live track of its class.
@@ -327,6 +359,11 @@ class ReferencePipeline:
         self.cells_on_bbox = bool(scalar["cells_on_bbox"])
         self.classifier = [SklearnGP(g) for g in model.classifier.gps]
         self.threshold = _f(model.classifier.threshold)
+        sup = model.classifier.support  # the open-set test: per class its examples, scale, threshold
+        self.support = [(_f(sup.x[k])[np.asarray(sup.mask[k])], _f(sup.mean[k]), _f(sup.inv_scale[k]),
+                         float(sup.threshold[k])) for k in range(len(self.classifier))]
+        env = model.envelope  # the per-class shape envelopes of stage c
+        self.env = (float(env.bin_width), _f(env.lo), _f(env.hi), np.asarray(env.whole, bool))
         self.pose = [None if r is None else {c: (None if getattr(r, c) is None else SklearnGP(getattr(r, c)))
                                              for c in ("x", "y", "sin", "cos")} for r in model.pose]
         self.var_scale = [None if r is None or r.var_scale is None else _f(r.var_scale) for r in model.pose]
@@ -381,10 +418,12 @@ class ReferencePipeline:
         return (w @ q) / w.sum(axis=1, keepdims=True)
 
     def candidates(self, ranges, intensities, valid, angles):
-        """Stages a–c: GP inputs, ORS origins and headings of the candidates that pass the filters."""
+        """Stages a–c: GP inputs, ORS origins and headings of the candidates that pass the filters, and
+        what the shape envelopes read: ``(width, depth, n · r)``, the range, whether occluded."""
         segs, r, x, y = self.segments(ranges, valid, angles)
+        ok_beam = valid & np.isfinite(ranges) & (ranges > 0)
         inten = np.where(valid & np.isfinite(intensities), intensities, 0.0)
-        vecs, origins, headings = [], [], []
+        vecs, origins, headings, shape, occluded = [], [], [], [], []
         for s, e in segs:
             n = e - s + 1
             if n > self.L or n < self.fe["min_points"]:
@@ -411,21 +450,45 @@ class ReferencePipeline:
             vecs.append(np.concatenate([[width], d, i, [height, abs(r_j)]]))
             origins.append((r_j * c, r_j * sn))
             headings.append(th)
+            shape.append((width, height, n * abs(r_j)))
+            # a nearer return just beside either end: something stands in front of it there
+            occluded.append(any(0 <= b < len(r) and ok_beam[b] and r[b] < r[end]
+                                for b, end in ((s - 1, s), (e + 1, e))))
         d = 1 + self.n_dist + self.n_intensity + 2
         x = np.array(vecs).reshape(-1, d)
         if self.gp_columns:  # the inputs the model was trained on
             x = x[:, list(self.gp_columns)]
-        return x, np.array(origins).reshape(-1, 2), np.array(headings)
+        origins = np.array(origins).reshape(-1, 2)
+        return x, origins, np.array(headings), np.array(shape).reshape(-1, 3), np.array(occluded, bool)
 
     # ---- stages d–e
-    def classify(self, x):
-        """Stage d: class of each candidate and whether it survives (not background, score ≥ threshold)."""
+    def in_envelope(self, shape, rng, occluded):
+        """Stage c's shape envelopes: which classes each candidate may be (a loop over candidates)."""
+        bin_width, lo, hi, whole = self.env
+        out = np.zeros((len(shape), lo.shape[0]), bool)
+        for i, (q, r, occ) in enumerate(zip(shape, rng, occluded, strict=True)):
+            b = min(max(int(math.floor(r / bin_width)), 0), lo.shape[1] - 1)
+            out[i] = np.all((q >= lo[:, b]) & (q <= hi[:, b]), axis=1) & ~(whole & occ)
+        return out
+
+    def classify(self, x, allowed):
+        """Stage d: class of each candidate (the best score among the classes its envelope allows, and
+        background) and whether it survives: not background, score ≥ threshold, and no farther from the
+        nearest training example of its class (in the class's scale) than the class's threshold."""
         if len(x) == 0:
             return np.zeros(0, int), np.zeros(0, bool), np.zeros((0, len(self.classifier)))
         scores = np.stack([g.predict_mean(x) for g in self.classifier], axis=1)
-        cls = scores.argmax(axis=1)
+        allowed = allowed.copy()
+        allowed[:, 0] = True
+        cls = np.where(allowed, scores, -np.inf).argmax(axis=1)
         best = scores[np.arange(len(cls)), cls]
-        return cls, (cls != 0) & (best >= self.threshold[cls]), scores
+        like = np.ones(len(cls), bool)
+        for i, k in enumerate(cls):
+            examples, mean, inv, thr = self.support[k]
+            if np.isfinite(thr):
+                u = (x[i] - mean) * inv
+                like[i] = len(examples) > 0 and float(np.min(np.sum((examples - u) ** 2, axis=1))) <= thr
+        return cls, (cls != 0) & (best >= self.threshold[cls]) & like, scores
 
     def regress(self, x, cls, ok, scores):
         """Stage e: ORS-relative pose and variances under each candidate's class's GPs; of a mobile
@@ -495,8 +558,8 @@ class ReferencePipeline:
         ranges, intensities = _f(ranges), _f(intensities)
         valid = np.asarray(valid, bool)
         angles = float(angle_min) + np.arange(ranges.shape[0]) * float(angle_increment)
-        x, origin, heading = self.candidates(ranges, intensities, valid, angles)
-        cls, ok, scores = self.classify(x)
+        x, origin, heading, shape, occluded = self.candidates(ranges, intensities, valid, angles)
+        cls, ok, scores = self.classify(x, self.in_envelope(shape, np.hypot(origin[:, 0], origin[:, 1]), occluded))
         rel, var, ok = self.regress(x, cls, ok, scores)
         # ORS -> S (eq. 16 with the ORS in place of O)
         c, s = np.cos(heading), np.sin(heading)
@@ -524,7 +587,14 @@ class ReferencePipeline:
         else:
             inside = np.ones(len(xy), bool)
         z = np.column_stack([xy, theta])[inside]
-        self.tracker.step(z, cov_o[inside], kc[inside], float(dt))
+        # Every other candidate kept by the filters (stage c) counts against the confirmation of a
+        # tentative track it lies near: background, rejected, landmarks, objects outside the bounds
+        # or without a pose, at its pose in O (its ORS origin where it got none: rel = 0).
+        det_idx = np.flatnonzero(trk)[inside]
+        is_other = np.ones(len(x), bool)
+        is_other[det_idx] = False
+        other_xy = self.mu_o + (pose_s[is_other, :2] - self.mu_s) @ self.A.T
+        self.tracker.step(z, cov_o[inside], kc[inside], float(dt), other_xy)
         b = self.bounds
         tracks = [t for t in self.tracker.slots
                   if t is not None and t.confirmed and t.misses < self.tracker.m_report

@@ -13,7 +13,7 @@ therefore gates on position only (2 dof); the heading of an assigned detection u
 only if its own innovation passes ``heading_gate`` (χ², 1 dof), otherwise the update is
 position-only. A rejected heading also discards the turn-rate estimate (``ω = 0`` with its initial
 variance): a turn rate learnt from misread headings would otherwise spin the track's heading past
-every right one it rejects. ``ω`` is kept within ``max_turn_rate``.
+every right one it rejects. ``ω`` is kept within its class's ``max_turn_rate``.
 
 Gating alone cannot undo a wrong start: a track born on a misread heading rejects every right one.
 So each track also keeps a *rival* heading, the running mean of the rejected headings that agree
@@ -24,12 +24,38 @@ agree on wins within about ``heading_memory``; scattered misreads never build up
 
 Track life cycle (the paper leaves it open): an unassigned detection of a tracked class starts a
 tentative track in a free slot unless a live track of its class, or an earlier detection of its
-class that may start one in the same scan, is closer than ``birth_exclusion``;
-``n_confirm`` hits confirm it; a tentative track dies after ``m_tentative`` consecutive misses, a
-confirmed one after ``m_delete``. A confirmed track is *reported* only while it has missed fewer than
+class that may start one in the same scan, is closer than ``birth_exclusion``; a tentative track is
+confirmed by its ``n_confirm``-th hit if its motion is plausible and most of its scans saw it as its
+class (both below); a tentative track dies after ``m_tentative`` consecutive misses, a confirmed one
+after ``m_delete``. A confirmed track is *reported* only while it has missed fewer than
 ``m_report`` scans in a row: a robot picked up or hidden behind another is not reported at a
 predicted pose, yet its track (and id) lives on for ``m_delete`` scans to take it back when it
 reappears. Ids are integers handed out in order and never reused.
+
+**Plausible motion.** On real scans people's legs (1–1.5 m/s, faster in the swing) and clutter are
+sometimes classified as robots, and such detections follow one another from scan to scan as a robot's
+would. Each tracked class has a top speed ``max_speed`` and turn rate ``max_turn_rate`` (defaults
+``DEFAULT_MAX_SPEED`` = 0.6 m/s, a Nao walks at most about 0.35 m/s, and ``DEFAULT_MAX_TURN_RATE`` =
+3 rad/s, for every class; training may set them per class from labelled motion, and a user can
+override them). A track's motion is *implausible* in a scan when, after that scan's update (or
+prediction, without a detection), its speed exceeds its class's ``max_speed`` by more than two
+standard deviations of the estimate, ``|v̂| > max_speed + 2 σ_v`` with ``σ_v²`` the largest eigenvalue
+of the 2×2 velocity covariance, or its turn rate before clipping exceeds ``max_turn_rate`` by more
+than ``2 σ_ω``. The margin lets a
+robot at its top speed pass while a few scans' estimate is still loose (a new track's velocity is 0
+± 0.5 m/s); a leg at twice the limit fails once three or four detections pin its velocity down. An
+implausible scan restarts the track's confirmation: a tentative track is not confirmed, a confirmed
+one loses its confirmation (it stops being reported; it keeps its id and slot, and dies after
+``m_tentative`` misses like any tentative track), and its ``hits`` and ``contrary`` counters restart
+at 0, so that it must earn confirmation again with ``n_confirm`` further hits, as a new track does.
+
+**Majority confirmation.** Clutter that the classifier calls "robot" in some scans is called something
+else in the others. The step also receives the scan's ``other`` candidates (kept by the front end's
+binary filters, not detections of a tracked class: background, rejected, landmarks, another class,
+outside the bounds), and a tentative track counts in ``contrary`` the scans in which it got no
+detection but such a candidate lay within ``birth_exclusion`` of its predicted position. It is
+confirmed only when ``hits > contrary``: most of the scans that saw something at its place saw it as
+its class.
 
 **Recapture.** A robot that changes direction abruptly (an omnidirectional walk turning into a
 sidestep) can leave a confident track's gate for a few scans while its detections stay a few
@@ -53,13 +79,29 @@ _F32 = jnp.float32
 NX = 6  # x, y, theta, vx, vy, omega
 
 
+# Defaults of the per-class motion limits (see the module docstring): m/s and rad/s.
+DEFAULT_MAX_SPEED = 0.6
+DEFAULT_MAX_TURN_RATE = 3.0
+# How many standard deviations of its own estimate a track's speed or turn rate may exceed its
+# class's limit by before its motion counts as implausible: one-sided, a robot at exactly its limit
+# is flagged in at most 2.3 % of scans by a calibrated estimate (fewer with the upper bound on σ_v
+# used, and the errors of consecutive scans are correlated, not independent trials), while a leg
+# at twice the limit is flagged once σ_v is below half the limit (2 m > m + 2 σ_v), three or four scans.
+_PLAUSIBLE_SIGMAS = 2.0
+
+
 def wrap(a: Float[Array, "*n"]) -> Float[Array, "*n"]:
     """Angle to (−π, π]."""
     return jnp.pi - jnp.mod(jnp.pi - a, 2 * jnp.pi)
 
 
 class TrackerParams(eqx.Module):
-    """Tuning of the tracker. All arrays, so that changing a value does not recompile the step."""
+    """Tuning of the tracker. All arrays, so that changing a value does not recompile the step.
+
+    ``max_speed`` and ``max_turn_rate`` are per class (defaults ``DEFAULT_MAX_SPEED`` = 0.6 m/s and
+    ``DEFAULT_MAX_TURN_RATE`` = 3 rad/s for every class): a track whose estimated motion exceeds its
+    class's limits by more than twice the estimate's standard deviation is not confirmed, or loses its
+    confirmation (see the module docstring)."""
 
     q_pos: Float[Array, ""]  # acceleration noise density, (m/s²)²·s (constant velocity) or m²/s (inflate-only)
     q_theta: Float[Array, ""]  # same for heading, rad²/s³ (or rad²/s)
@@ -68,7 +110,8 @@ class TrackerParams(eqx.Module):
     gate: Float[Array, " classes"]  # per-class Mahalanobis gate on position (χ², 2 dof)
     heading_gate: Float[Array, ""]  # gate on an assigned detection's heading innovation (χ², 1 dof)
     heading_memory: Float[Array, ""]  # s: time constant over which heading support fades
-    max_turn_rate: Float[Array, ""]  # rad/s: |ω| is kept below this
+    max_speed: Float[Array, " classes"]  # m/s: a track faster than its class's is implausible
+    max_turn_rate: Float[Array, " classes"]  # rad/s: |ω| is kept below its class's; faster is implausible
     tracked: Bool[Array, " classes"]  # which classes are mobile (tracked); landmarks and background are not
     n_confirm: Int[Array, ""]
     m_tentative: Int[Array, ""]
@@ -78,13 +121,17 @@ class TrackerParams(eqx.Module):
     constant_velocity: Bool[Array, ""]
 
     @classmethod
-    def default(cls, tracked, *, rate_hz: float = 10.0, gate: float = 13.82, **overrides) -> "TrackerParams":
-        """Defaults for a scanner at ``rate_hz``: confirmation after 3 hits, deletion of a confirmed
+    def default(cls, tracked, *, rate_hz: float = 10.0, gate: float = 13.82, max_speed=DEFAULT_MAX_SPEED,
+                max_turn_rate=DEFAULT_MAX_TURN_RATE, **overrides) -> "TrackerParams":
+        """Defaults for a scanner at ``rate_hz``: confirmation after 0.5 s of hits (at least 3; a
+        piece of clutter that looks like a robot for a moment, or a leg standing still between two
+        strides, does not make a track), deletion of a confirmed
         track after 1 s without detections, of a tentative one after 0.3 s, reported while it has
         missed less than 0.3 s; position gate
         χ²₂(0.999) = 13.82, heading gate χ²₁(0.999) = 10.83, heading support fading over 1 s (a wrong
-        heading is given up within about a second); turn rate at most 3 rad/s (a humanoid turns at
-        about 1 rad/s, a wheeled robot faster)."""
+        heading is given up within about a second); speed at most 0.6 m/s (a Nao walks at most about
+        0.35 m/s) and turn rate at most 3 rad/s (a humanoid turns at about 1 rad/s, a wheeled robot
+        faster). ``max_speed`` and ``max_turn_rate`` are one value for every class or one per class."""
         tracked = jnp.asarray(tracked, dtype=bool)
         vals = dict(
             q_pos=0.05,
@@ -94,9 +141,10 @@ class TrackerParams(eqx.Module):
             gate=jnp.full(tracked.shape, gate),
             heading_gate=10.83,
             heading_memory=1.0,
-            max_turn_rate=3.0,
+            max_speed=jnp.broadcast_to(jnp.asarray(max_speed, _F32), tracked.shape),
+            max_turn_rate=jnp.broadcast_to(jnp.asarray(max_turn_rate, _F32), tracked.shape),
             tracked=tracked,
-            n_confirm=3,
+            n_confirm=max(3, round(0.5 * rate_hz)),
             m_tentative=max(1, round(0.3 * rate_hz)),
             m_delete=max(2, round(1.0 * rate_hz)),
             m_report=max(1, round(0.3 * rate_hz)),
@@ -121,8 +169,9 @@ class TrackerState(eqx.Module):
     track_id: Int[Array, " tracks"]
     live: Bool[Array, " tracks"]
     confirmed: Bool[Array, " tracks"]
-    hits: Int[Array, " tracks"]
-    misses: Int[Array, " tracks"]
+    hits: Int[Array, " tracks"]  # detections since birth or since the last implausible scan
+    misses: Int[Array, " tracks"]  # consecutive scans without a detection
+    contrary: Int[Array, " tracks"]  # while tentative: scans with no detection but an ``other`` candidate near
     rival: Float[Array, " tracks"]  # the rival heading (see the module docstring)
     support: Float[Array, " tracks"]  # fading count of detections that agreed with the heading
     rival_support: Float[Array, " tracks"]  # ... and with the rival
@@ -140,6 +189,7 @@ class TrackerState(eqx.Module):
             confirmed=jnp.zeros(m, bool),
             hits=jnp.zeros(m, jnp.int32),
             misses=jnp.zeros(m, jnp.int32),
+            contrary=jnp.zeros(m, jnp.int32),
             rival=jnp.zeros(m, _F32),
             support=jnp.zeros(m, _F32),
             rival_support=jnp.zeros(m, _F32),
@@ -148,12 +198,17 @@ class TrackerState(eqx.Module):
 
 
 class Detections(eqx.Module):
-    """Pose observations in O for one scan: ``K`` slots, used where ``mask``."""
+    """Pose observations in O for one scan: ``K`` slots, used where ``mask``. Where ``other``, the slot
+    is instead a candidate that is not a detection of a tracked class (background, rejected by the
+    classifier, a landmark, another class, outside the bounds), whose position in O is in ``pose``: it
+    counts against the confirmation of a tentative track it lies near (see the module docstring).
+    ``None``: no such candidates."""
 
     pose: Float[Array, "dets 3"]
     cov: Float[Array, "dets 3 3"]
     class_id: Int[Array, " dets"]
     mask: Bool[Array, " dets"]
+    other: Bool[Array, " dets"] | None = None
 
 
 def motion_model(dt: Float[Array, ""], params: TrackerParams) -> tuple[Float[Array, "6 6"], Float[Array, "6 6"]]:
@@ -299,6 +354,27 @@ def rival_heading(state: TrackerState, mean, cov, z_theta, r_theta, has, head_ok
     return mean, cov, (jnp.where(swap, theta, rival), jnp.where(swap, rsup, sup), jnp.where(swap, sup, rsup))
 
 
+def plausible(mean: Float[Array, "tracks 6"], cov: Float[Array, "tracks 6 6"], omega: Float[Array, " tracks"],
+              class_id: Int[Array, " tracks"], params: TrackerParams) -> Bool[Array, " tracks"]:
+    """Whether each track's motion is one its class can make: ``|v̂| ≤ max_speed + 2 σ_v`` and
+    ``|ω| ≤ max_turn_rate + 2 σ_ω`` (``omega``: the turn rate before clipping).
+
+    ``σ_v²`` is the largest eigenvalue of the velocity covariance, ``(a + d)/2 + √(((a − d)/2)² + b²)``
+    for ``[[a, b], [b, d]]``: the variance of the speed's estimate is that of the velocity along its
+    own direction, which this bounds from above whatever the direction. So the test never rejects a
+    robot for the orientation of its uncertainty, needs no direction of a near-zero velocity, and is
+    the same for every heading of the track. Speeds are compared squared (no root of a zero speed)."""
+    a, b, d = cov[:, 3, 3], cov[:, 3, 4], cov[:, 4, 4]
+    disc = 0.25 * (a - d) ** 2 + b * b
+    pos = disc > 0
+    root = jnp.where(pos, jnp.sqrt(jnp.where(pos, disc, 1.0)), 0.0)  # double where: finite gradients at a = d, b = 0
+    sigma_v = jnp.sqrt(jnp.maximum(0.5 * (a + d) + root, 0.0))
+    sigma_w = jnp.sqrt(jnp.maximum(cov[:, 5, 5], 0.0))
+    v_max = params.max_speed[class_id] + _PLAUSIBLE_SIGMAS * sigma_v
+    w_max = params.max_turn_rate[class_id] + _PLAUSIBLE_SIGMAS * sigma_w
+    return (mean[:, 3] ** 2 + mean[:, 4] ** 2 <= v_max**2) & (jnp.abs(omega) <= w_max)
+
+
 def reported(state: TrackerState, params: TrackerParams) -> Bool[Array, " tracks"]:
     """Tracks to report: confirmed, and observed within the last ``m_report`` scans."""
     return state.live & state.confirmed & (state.misses < params.m_report)
@@ -335,6 +411,10 @@ def track_step(
         & (dist < params.birth_exclusion)
     )
     det2, has2 = assign(jnp.where(close, dist, jnp.inf))
+    # Majority confirmation: an ``other`` candidate near a track's predicted position (the same
+    # distances), counted below for tentative tracks left without a detection.
+    other = jnp.zeros(det.mask.shape, bool) if det.other is None else det.other
+    other_near = jnp.any(other[:, None] & (dist < params.birth_exclusion), axis=0)  # [M]
     det_of_track = jnp.where(has, det_of_track, det2)
     has = has | has2
 
@@ -350,14 +430,23 @@ def track_step(
     upd_cov = upd_cov.at[:, 5, :].set(jnp.where(forget, 0.0, upd_cov[:, 5, :]))
     upd_cov = upd_cov.at[:, :, 5].set(jnp.where(forget, 0.0, upd_cov[:, :, 5]))
     upd_cov = upd_cov.at[:, 5, 5].set(jnp.where(forget[:, 0], params.omega_var0, upd_cov[:, 5, 5]))
-    upd_mean = upd_mean.at[:, 5].set(jnp.where(forget[:, 0], 0.0, jnp.clip(upd_mean[:, 5], -params.max_turn_rate,
-                                                                          params.max_turn_rate)))
+    omega_raw = jnp.where(forget[:, 0], 0.0, upd_mean[:, 5])  # the turn rate before clipping, for plausible()
+    turn_max = params.max_turn_rate[state.class_id]
+    upd_mean = upd_mean.at[:, 5].set(jnp.clip(omega_raw, -turn_max, turn_max))
     upd_mean, upd_cov, rivals = rival_heading(state, upd_mean, upd_cov, z[:, 2], R[:, 2, 2], has, head_ok, dt, params)
     mean = jnp.where(has[:, None], upd_mean, state.mean)
     cov = jnp.where(has[:, None, None], upd_cov, state.cov)
     hits = state.hits + has.astype(jnp.int32)
     misses = jnp.where(has, 0, state.misses + 1)
-    confirmed = state.live & (state.confirmed | (hits >= params.n_confirm))
+    contrary = state.contrary + (~has & ~state.confirmed & other_near).astype(jnp.int32)
+    # Plausibility of the motion after this scan: the updated estimate, or for a track without a
+    # detection the predicted one (same velocity, larger covariance, turn rate clipped at its last
+    # update: coasting never makes a plausible track implausible). An implausible scan restarts
+    # confirmation, of a tentative and a confirmed track alike.
+    sane = plausible(mean, cov, jnp.where(has, omega_raw, state.mean[:, 5]), state.class_id, params)
+    hits = jnp.where(sane, hits, 0)
+    contrary = jnp.where(sane, contrary, 0)
+    confirmed = state.live & sane & (state.confirmed | ((hits >= params.n_confirm) & (hits > contrary)))
     dead = state.live & jnp.where(confirmed, misses >= params.m_delete, misses >= params.m_tentative)
     live = state.live & ~dead
 
@@ -395,6 +484,7 @@ def track_step(
         confirmed=jnp.where(born, params.n_confirm <= 1, confirmed & live),
         hits=jnp.where(born, 1, jnp.where(live, hits, 0)),
         misses=jnp.where(born | ~live, 0, misses),
+        contrary=jnp.where(born | ~live, 0, contrary),
         rival=jnp.where(born, 0.0, rivals[0]),
         support=jnp.where(born, 1.0, rivals[1]),
         rival_support=jnp.where(born, 0.0, rivals[2]),

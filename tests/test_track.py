@@ -97,10 +97,12 @@ def test_life_cycle_confirm_delete_and_ids():
     state = TrackerState.empty(3)
     zero = jnp.asarray(0.1, F32)
     seen = []
-    for i in range(3):
+    n = int(PARAMS.n_confirm)
+    assert n == 5  # 0.5 s at 10 Hz
+    for i in range(n):
         state, _ = step(state, dets([1.0 + 0.01 * i, 1.0, 0.0]), zero, PARAMS)
         seen.append(bool(np.any(np.asarray(state.confirmed))))
-    assert seen == [False, False, True]  # n_confirm = 3
+    assert seen == [False] * (n - 1) + [True]
     tid = int(np.asarray(state.track_id)[np.asarray(state.live)][0])
     assert tid == 0
     # Coast for m_delete - 1 scans: still there; one more miss ends it.
@@ -248,7 +250,7 @@ def test_unseen_track_is_not_reported_but_keeps_its_id():
 
     state = TrackerState.empty(3)
     dt = jnp.asarray(0.1, F32)
-    for _ in range(3):
+    for _ in range(int(PARAMS.n_confirm)):
         state, _ = step(state, dets([1.0, 1.0, 0.0]), dt, PARAMS)
     assert np.asarray(reported(state, PARAMS)).sum() == 1
     tid = int(np.asarray(state.track_id)[np.asarray(reported(state, PARAMS))][0])
@@ -301,3 +303,171 @@ def test_robot_seen_in_two_pieces_starts_one_track():
     assert live.sum() == 2
     np.testing.assert_allclose(np.sort(np.asarray(state.mean)[live][:, 0]), [1.0, 2.0])
     np.testing.assert_allclose(np.asarray(state.mean)[live][np.asarray(state.mean)[live][:, 0] < 1.5, 1], [3.0])
+
+
+# ------------------------------------------------------------------ plausible motion, majority confirmation
+
+
+# The tests below fix confirmation at 3 hits (the default is 0.5 s of scans) to keep their scans few.
+CONFIRM3 = TrackerParams.default([False, True], n_confirm=3)
+
+
+def scan(poses, cls=1, other=(), var=(1e-4, 1e-4, 4e-3), k=6):
+    """One scan's detections of class ``cls`` (one each, or one class per pose) at ``poses`` in the first
+    slots, then ``other`` candidates at the positions ``other``: the step's ``Detections`` and the
+    reference tracker's arguments ``(z, R, cls, other_xy)``."""
+    poses = np.asarray(poses, np.float64).reshape(-1, 3)
+    other = np.asarray(other, np.float64).reshape(-1, 2)
+    n, n_o = len(poses), len(other)
+    cls = np.broadcast_to(np.asarray(cls), (n,)).astype(np.int32)
+    pose = np.zeros((k, 3), np.float32)
+    pose[:n] = poses
+    pose[n:n + n_o, :2] = other
+    cov = np.broadcast_to(np.diag(np.asarray(var, np.float32)), (k, 3, 3)).copy()
+    cid = np.zeros(k, np.int32)
+    cid[:n] = cls
+    slot = np.arange(k)
+    d = Detections(jnp.asarray(pose), jnp.asarray(cov), jnp.asarray(cid), jnp.asarray(slot < n),
+                   jnp.asarray((slot >= n) & (slot < n + n_o)))
+    # the reference gets what the step sees (float32 poses), in float64
+    ref = (pose[:n].astype(np.float64), cov[:n].astype(np.float64), cls, pose[n:n + n_o, :2].astype(np.float64))
+    return d, ref
+
+
+def run_both(params, scans, m=4, dt=0.1):
+    """Step gtsjax's tracker and the reference's (``benchmarks.reference._Tracker``, filterpy in
+    float64) through ``scans``; per scan, both must have the same live ids with the same confirmation
+    and counters. Returns per scan ``{id: (confirmed, hits, contrary)}`` and the states (gtsjax's)."""
+    pytest.importorskip("filterpy")
+    from benchmarks.reference import _Tracker
+
+    ref = _Tracker(params, m)
+    state = TrackerState.empty(m)
+    hist, states = [], []
+    for d, (z, R, c, o) in scans:
+        state, _ = step(state, d, jnp.asarray(dt, F32), params)
+        ref.step(z, R, c, dt, o)
+        live = np.flatnonzero(np.asarray(state.live))
+        g = {int(state.track_id[s]): (bool(state.confirmed[s]), int(state.hits[s]), int(state.contrary[s]))
+             for s in live}
+        r = {t.track_id: (t.confirmed, t.hits, t.contrary) for t in ref.slots if t is not None}
+        assert g == r, (len(hist), g, r)
+        for s in live:
+            t = next(t for t in ref.slots if t is not None and t.track_id == int(state.track_id[s]))
+            np.testing.assert_allclose(np.asarray(state.mean[s]), t.kf.x[:, 0], atol=2e-4)
+        hist.append(g)
+        states.append(state)
+    return hist, states
+
+
+def walk(speeds, rng, noise=0.01, start=(1.0, 2.0), dt=0.1):
+    """Detections of a robot walking along x at ``speeds[i]`` m/s in scan ``i``, heading along x,
+    with position noise ``noise`` m and heading noise 0.05 rad."""
+    x = start[0] + np.cumsum(np.asarray(speeds) * dt)
+    return [[xi + rng.normal(0, noise), start[1] + rng.normal(0, noise), rng.normal(0, 0.05)] for xi in x]
+
+
+def test_default_motion_limits_per_class():
+    p = TrackerParams.default([False, True, True], max_speed=0.5, max_turn_rate=[3.0, 0.5, 2.0])
+    np.testing.assert_array_equal(np.asarray(p.max_speed), np.full(3, 0.5, np.float32))
+    np.testing.assert_array_equal(np.asarray(p.max_turn_rate), np.asarray([3.0, 0.5, 2.0], np.float32))
+    from gtsjax._track import DEFAULT_MAX_SPEED, DEFAULT_MAX_TURN_RATE
+
+    np.testing.assert_array_equal(np.asarray(PARAMS.max_speed), np.full(2, DEFAULT_MAX_SPEED, np.float32))
+    np.testing.assert_array_equal(np.asarray(PARAMS.max_turn_rate), np.full(2, DEFAULT_MAX_TURN_RATE, np.float32))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_too_fast_track_is_never_confirmed(seed):
+    """Detections of a tracked class moving at 1.2 m/s (a leg), the class's limit 0.5 m/s: one track
+    follows them (one id, never lost) but is never confirmed; its motion is implausible from its
+    third detection on (its velocity pinned to ± 0.1 m/s), so its hits never build up. With the limit
+    raised, the same detections confirm at the third scan."""
+    params = TrackerParams.default([False, True], max_speed=0.5, n_confirm=3)
+    dets_ = [scan(p) for p in walk(np.full(40, 1.2), np.random.default_rng(seed))]
+    hist, _ = run_both(params, dets_)
+    assert all(len(h) == 1 for h in hist) and {i for h in hist for i in h} == {0}
+    assert not any(c for h in hist for c, _, _ in h.values())
+    assert max(hits for h in hist[2:] for _, hits, _ in h.values()) == 0  # implausible at every scan from the third
+    fast, _ = run_both(TrackerParams.default([False, True], max_speed=1.5, n_confirm=3), dets_)
+    assert [h[0][0] for h in fast[:4]] == [False, False, True, True]
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_robot_at_its_top_speed_is_confirmed_and_stays_confirmed(seed):
+    """A robot walking at exactly its class's maximum speed, 0.5 m/s, for 10 s (detections 1 cm
+    off, as their variance says): confirmed at the third scan, as without a limit, and reported in
+    every scan after (the 2 σ margin covers the estimate's noise)."""
+    params = TrackerParams.default([False, True], max_speed=0.5, n_confirm=3)
+    hist, _ = run_both(params, [scan(p) for p in walk(np.full(100, 0.5), np.random.default_rng(seed))])
+    assert {i for h in hist for i in h} == {0}
+    assert [h[0][0] for h in hist] == [False, False] + [True] * 98
+
+
+def test_speeding_track_loses_confirmation_and_regains_it_after_slowing_down():
+    """A robot walks at 0.3 m/s, speeds up to 1.2 m/s (limit 0.5) and slows down again: confirmed,
+    then unconfirmed while too fast (the track and its id live on), then confirmed again under the
+    same id, ``n_confirm`` plausible hits after the last implausible scan, as a new track would be."""
+    params = TrackerParams.default([False, True], max_speed=0.5, n_confirm=3)
+    speeds = np.r_[np.full(20, 0.3), np.linspace(0.3, 1.2, 5), np.full(15, 1.2), np.linspace(1.2, 0.3, 5),
+                   np.full(35, 0.3)]
+    hist, _ = run_both(params, [scan(p) for p in walk(speeds, np.random.default_rng(5))])
+    assert {i for h in hist for i in h} == {0} and all(len(h) == 1 for h in hist)
+    conf = np.array([h[0][0] for h in hist])
+    hits = np.array([h[0][1] for h in hist])
+    assert conf[2:20].all()  # confirmed while slow
+    lost = int(np.argmin(conf[20:])) + 20
+    assert 20 < lost < 30 and hits[lost] == 0  # lost while speeding up, its hits restarted
+    assert not conf[30:40].any()  # and unconfirmed while fast
+    back = lost + int(np.argmax(conf[lost:]))
+    assert 40 < back < 60 and conf[back:].all()  # confirmed again once slow, and stays so
+    last_bad = back - int(params.n_confirm)  # the last implausible scan: hits 0; then n_confirm hits
+    np.testing.assert_array_equal(hits[last_bad:back + 1], np.arange(int(params.n_confirm) + 1))
+
+
+def test_track_seen_as_background_in_most_scans_is_not_confirmed():
+    """A spot detected as a robot in one scan in three and kept as another candidate (background) in
+    the other two: its track lives on (two misses are fewer than ``m_tentative``) and gets far more
+    than ``n_confirm`` hits, but more scans saw it as background: never confirmed. The other way round
+    (robot in two scans of three) it is confirmed; and "other" candidates farther than
+    ``birth_exclusion`` count for nothing."""
+    rng = np.random.default_rng(2)
+
+    def run(robot_scans, offset):
+        scans = []
+        for i in range(30):
+            z = [2.0 + rng.normal(0, 0.01), 1.5 + rng.normal(0, 0.01), 0.3 + rng.normal(0, 0.05)]
+            scans.append(scan(z) if i % 3 in robot_scans else scan(np.zeros((0, 3)), other=[[z[0] + offset, z[1]]]))
+        return run_both(CONFIRM3, scans)[0]
+
+    hist = run({0}, 0.05)
+    assert all(list(h) == [0] for h in hist)  # one track, alive throughout
+    assert hist[-1][0][1] == 10 and hist[-1][0][2] == 20  # 10 hits, 20 contrary scans
+    assert not any(h[0][0] for h in hist)
+    mostly = run({0, 1}, 0.05)
+    assert [h[0][0] for h in mostly[:5]] == [False, False, False, True, True]  # 3 hits > 1 contrary at the 4th
+    far = run({0}, 0.5)
+    assert far[6][0] == (True, 3, 0)  # 3 hits, no contrary scan: confirmed at the third hit
+
+
+def test_turn_rate_is_clipped_per_class():
+    """Two robots of two classes turning in place at 1.5 rad/s, the classes' limits 0.5 and 2 rad/s:
+    the first's turn-rate estimate is clipped at 0.5 rad/s, and once three headings have pinned its
+    turn rate its motion is implausible (unconfirmed from the fourth scan on); the second's follows
+    the turn unclipped and is confirmed from the third scan on."""
+    params = TrackerParams.default([False, True, True], max_turn_rate=[3.0, 0.5, 2.0], n_confirm=3)
+    rng = np.random.default_rng(0)
+    scans = []
+    for i in range(30):
+        th = float(wrap(jnp.asarray(1.5 * 0.1 * i)))
+        a = [1.0 + rng.normal(0, 0.005), 1.0 + rng.normal(0, 0.005), th + rng.normal(0, 0.02)]
+        b = [3.0 + rng.normal(0, 0.005), 3.0 + rng.normal(0, 0.005), th + rng.normal(0, 0.02)]
+        scans.append(scan([a, b], cls=[1, 2], var=(1e-4, 1e-4, 1e-3)))
+    hist, states = run_both(params, scans)
+    omega = np.array([[float(s.mean[np.flatnonzero(np.asarray(s.live & (s.class_id == c)))[0], 5]) for c in (1, 2)]
+                      for s in states])
+    assert np.all(np.abs(omega[:, 0]) <= 0.5 + 1e-6) and np.isclose(np.abs(omega[:, 0]).max(), 0.5)
+    assert np.all(np.abs(omega[10:, 1] - 1.5) < 0.3) and np.all(np.abs(omega[:, 1]) <= 2.0 + 1e-6)
+    ids = {c: int(states[-1].track_id[np.flatnonzero(np.asarray(states[-1].live & (states[-1].class_id == c)))[0]])
+           for c in (1, 2)}
+    assert not any(h[ids[1]][0] for h in hist[3:]) and all(h[ids[2]][0] for h in hist[2:])
