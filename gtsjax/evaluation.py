@@ -22,7 +22,7 @@ object's class nearest each object, before tracking, within ``match_radius``; it
 import numpy as np
 
 from ._pipeline import process_log
-from .io.logs import ScanLog, to_scans
+from .io.logs import ScanLog, fit_to_model, to_scans
 from .model import Model
 
 
@@ -155,8 +155,11 @@ def _detection_errors(log: ScanLog, out, classes, present, radius):
     return np.asarray(e_pos), np.asarray(e_th), found
 
 
-def evaluate_log(model: Model, log: ScanLog, **kw) -> dict:
-    """Replay ``log`` (``model`` must have its site attached) and score it."""
+def evaluate_log(model: Model, log: ScanLog, *, where: object = "scan log", **kw) -> dict:
+    """Replay ``log`` (``model`` must have its site attached) and score it. A log from another scanner
+    geometry than the model's is refused (:func:`~gtsjax.io.logs.fit_to_model`, naming ``where``), never
+    cropped: an accuracy figure is for the scans as they were recorded."""
+    log = fit_to_model(log, model, where)
     _, out = process_log(model, to_scans(log, model.n_beams))
     return evaluate_outputs(model, log, out, **kw)
 

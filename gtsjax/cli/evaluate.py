@@ -57,23 +57,28 @@ def evaluate_cmd(
     """Score a model against labelled logs or held-out simulated scenarios."""
     from ..evaluation import evaluate_log, per_point
     from ..io import load_log, load_site
+    from ..io.logs import fit_to_model
     from ..io.modelfile import load_model
     from ..sim import simulate
     from ..viz import error_map_figure
 
+    if not (scenario or logs):
+        raise fail("evaluate", "give labelled logs with --site, or --scenario NAME[:SEED]")
+    if logs and site is None:
+        raise fail("evaluate", "logs need --site SITE.json")
+    base = load_model(model)
     jobs = []
     for spec in scenario or []:
         name, _, seed = spec.partition(":")
         jobs.append((spec, lambda name=name, seed=seed: simulate(name, seed=int(seed or 1000))))
     if logs:
-        if site is None:
-            raise fail("evaluate", "logs need --site SITE.json")
         site_obj = load_site(site)
-        for p in logs:
-            jobs.append((str(p), lambda p=p: (load_log(p), site_obj)))
-    if not jobs:
-        raise fail("evaluate", "give labelled logs with --site, or --scenario NAME[:SEED]")
-    base = load_model(model)
+        for p in logs:  # every log is read and checked before the first is evaluated: a bad one fails fast
+            log = load_log(p)
+            if not log.labelled:
+                raise fail(p, "not a labelled log (no truth_poses)")
+            log = fit_to_model(log, base, p)
+            jobs.append((str(p), lambda log=log: (log, site_obj)))
     out_dir.mkdir(parents=True, exist_ok=True)
     results = {}
     for label, get in jobs:
@@ -81,7 +86,7 @@ def evaluate_cmd(
         if not log.labelled:
             raise fail(label, "not a labelled log (no truth_poses)")
         m = base.with_site(site_obj)
-        res = evaluate_log(m, log)
+        res = evaluate_log(m, log, where=label)
         pts, pos, th, cnt = per_point(log, res)
         errors = res.pop("_errors")
         static = len(pts) <= 64 and cnt.size and cnt.min() >= 3

@@ -1,6 +1,10 @@
-"""``gtsjax replay LOG --site SITE.json --model MODEL --out GTD.csv [--topic T]``: batch re-processing of a
-logged scan file (a ``.npz`` log, or a ROS bag, CARMEN or BreezySLAM log read as ``gtsjax convert`` reads
-it) through the same jitted pipeline as the live loop."""
+"""``gtsjax replay LOG --site SITE.json --model MODEL --out GTD.csv [--topic T] [--crop-fov]``: batch
+re-processing of a logged scan file (a ``.npz`` log, or a ROS bag, CARMEN or BreezySLAM log read as
+``gtsjax convert`` reads it) through the same jitted pipeline as the live loop.
+
+The log is checked against the scanner geometry the model was trained on before anything is written
+(:func:`~gtsjax.io.logs.fit_to_model`): another angular step is refused, and so is a wider field of
+view unless ``--crop-fov`` cuts it (and the range window) to the model's."""
 
 import csv
 import time
@@ -11,10 +15,10 @@ import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-from ..errors import InputError
 from ..io import load_site, to_scans
 from ..io.gtd import GTDWriter, rows_from_output, wrap_angle
 from ..io.importers import detect_format, format_name
+from ..io.logs import fit_to_model
 from ..io.modelfile import load_model
 from ._app import app
 from .convert import INPUT_HELP, TOPIC_HELP, describe, load_input, source_of
@@ -65,9 +69,9 @@ def replay_log(log, model, out: Path, *, chunk: int = 256, sensor_out: Path | No
     return totals
 
 
-def load_for_run(model_path: Path, site_path: Path, *, sensor_model: str | None, n_beams: int):
+def load_for_run(model_path: Path, site_path: Path, *, sensor_model: str | None):
     site = load_site(site_path)
-    model = load_model(model_path, sensor_model=sensor_model, n_beams=n_beams)
+    model = load_model(model_path, sensor_model=sensor_model)
     return model.with_site(site, where=str(site_path))
 
 
@@ -80,21 +84,23 @@ def replay_cmd(
     sensor_out: Path | None = typer.Option(None, "--sensor-out", help="Also write the estimated sensor pose per scan (CSV)."),
     chunk: int = typer.Option(256, min=1, help="Scans per vmapped chunk."),
     topic: str | None = typer.Option(None, "--topic", help=TOPIC_HELP),
+    crop_fov: bool = typer.Option(False, "--crop-fov",
+                                  help="Crop a wider field of view to the model's, and its range window."),
 ):
     """Process a logged scan file into ground truth (GTD CSV)."""
     console = Console(stderr=True)
-    scan_log = load_input(log, topic, console)
-    if scan_log.sensor_model is None:
-        sensor = None
-    else:
-        sensor = scan_log.sensor_model
-    m = load_for_run(model, site, sensor_model=sensor, n_beams=scan_log.n_beams)
-    if scan_log.n_beams > m.n_beams:
-        raise InputError(log, f"has {scan_log.n_beams} beams; the model was trained for {m.n_beams}")
+    raw = load_input(log, topic, console)
+    m = load_for_run(model, site, sensor_model=raw.sensor_model)
+    scan_log = fit_to_model(raw, m, log, crop=crop_fov, hint="" if crop_fov else "; crop it with --crop-fov")
     if detect_format(log) != "npz":  # what was read from another program's log, once it is known to fit
-        console.print(f"{log} ({format_name(log)}): {describe(scan_log)}", soft_wrap=True)
-        if (src := source_of(scan_log)) is not None:
+        console.print(f"{log} ({format_name(log)}): {describe(raw)}", soft_wrap=True)
+        if (src := source_of(raw)) is not None:
             console.print(f"  source: {src}", soft_wrap=True)
+    if crop_fov:
+        last = scan_log.angle_min + (scan_log.n_beams - 1) * scan_log.angle_increment
+        console.print(f"cropped to the model's field of view: {scan_log.n_beams} of {raw.n_beams} beams "
+                      f"({np.degrees(scan_log.angle_min):.1f}° … {np.degrees(last):.1f}°), returns in "
+                      f"[{scan_log.range_min:g}, {scan_log.range_max:g}] m", soft_wrap=True)
     t0 = time.perf_counter()
     with Progress(TextColumn("replay"), BarColumn(), MofNCompleteColumn(), TextColumn("scans"),
                   TimeRemainingColumn(), console=console, transient=True) as bar:

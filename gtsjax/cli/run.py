@@ -49,7 +49,7 @@ def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Pa
     from ..io.modelfile import load_model
     from ..io.serial import Link
     from ..io.site import load_site
-    from ..live import Outputs, run_live, warm_up
+    from ..live import Outputs, check_sensor, run_live, warm_up
     from ..sensors import MODELS
 
     console = console or Console(stderr=True)
@@ -59,9 +59,11 @@ def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Pa
     compiled = warm_up(model, MODELS[model.sensor_model]) if model.sensor_model in MODELS else None
     link = Link(port, intensity=intensity)
     link.start()
-    console.print(f"connected to {link.model.name} on {port} ({link.model.n_beams} beams, {link.model.rate_hz:g} Hz)")
     last = {"t": 0.0}
     try:
+        check_sensor(model, link.model, port)  # before anything is printed: a wrong scanner is one line
+        console.print(f"connected to {link.model.name} on {port} ({link.model.n_beams} beams, "
+                      f"{link.model.rate_hz:g} Hz)")
         if view:
             with Live(console=console, refresh_per_second=4, transient=False) as live:
                 def on_scan(stats, o, stamp):

@@ -7,6 +7,7 @@ and written back on save, so other programs' additions survive a round trip.
 """
 
 import dataclasses
+import math
 import os
 import zipfile
 from pathlib import Path
@@ -224,6 +225,101 @@ def _validate(d: dict[str, np.ndarray], where: object) -> None:
             bad(f"'truth_poses' row for object {j} at scan {i} is partly NaN (absent objects need an all-NaN row)")
         if np.isinf(poses).any():
             bad("'truth_poses' has an infinite value")
+
+
+# ------------------------------------------------------------------ a log against a model's scanner geometry
+
+STEP_TOLERANCE = 0.01  # relative difference of angular steps that still counts as the same scanner
+MIN_BEAM_FRACTION = 0.1  # a cropped log must keep at least this share of the model's beams
+
+
+def fit_geometry(
+    log: ScanLog,
+    *,
+    angle_min: float,
+    angle_increment: float,
+    n_beams: int,
+    range_min: float,
+    range_max: float,
+    where: object,
+    crop: bool,
+    hint: str = "",
+    sensor_model: str | None = None,
+) -> ScanLog:
+    """``log`` checked against (and with ``crop``, cut to) the scanner geometry a model was trained on:
+    beam ``i`` at ``angle_min + i * angle_increment``, ``n_beams`` beams, returns in ``[range_min, range_max]``.
+
+    The model's features (the characteristic vector, the shape envelopes) are measured in beams, so a
+    scan at another angular step gives other numbers for the same object: the steps must agree within
+    :data:`STEP_TOLERANCE`, and no cropping can fix that. The beams must lie inside the model's field
+    of view ``[angle_min, angle_min + (n_beams - 1) * angle_increment]``, half a beam of tolerance
+    either side (beams are never resampled, so a log whose beams fall between the model's is taken as
+    it is), and there must be at most ``n_beams`` of them: the step pads every scan to that width.
+
+    With ``crop`` a wider log is cut to the beams inside (its ``angle_min`` moves to the first kept
+    beam; at most ``n_beams`` are kept, the first ones; fewer than :data:`MIN_BEAM_FRACTION` of the
+    model's beams is refused), and every return outside the model's range window becomes 0 (no return),
+    since the model never saw anything there; the log's range window narrows to the overlap. Without
+    ``crop`` such a log is refused and ``hint`` (e.g. ``"; crop it with --crop-fov"``) ends the message.
+
+    A model from before its geometry was stored (``angle_increment`` NaN) takes any log of at most
+    ``n_beams`` beams, as it did then. Every refusal is :class:`InputError` naming ``where``; without
+    ``crop`` a log that fits is returned as it is (the same object).
+    """
+    name = sensor_model or "unknown scanner"
+    if not math.isfinite(angle_increment):
+        if log.n_beams > n_beams:
+            raise InputError(where, f"has {log.n_beams} beams per scan; the model ({name}) takes at most {n_beams}")
+        return log
+    keep = _beams_inside(log, angle_min, angle_increment, n_beams, where, crop, hint, name)
+    if not crop:
+        return log
+    lo, hi = max(log.range_min, range_min), min(log.range_max, range_max)
+    if not lo < hi:
+        raise InputError(where, f"range window [{log.range_min:g}, {log.range_max:g}] m does not overlap the "
+                                f"model's [{range_min:g}, {range_max:g}] m ({name})")
+    ranges = log.ranges[:, keep]
+    with np.errstate(invalid="ignore"):
+        outside = np.isfinite(ranges) & (ranges > 0) & ((ranges < range_min) | (ranges > range_max))
+    ranges = np.where(outside, np.float32(0.0), ranges).astype(np.float32)
+    inten = None if log.intensities is None else np.where(outside, np.float32(0.0), log.intensities[:, keep])
+    return dataclasses.replace(log, ranges=ranges, intensities=inten,
+                               angle_min=float(log.angle_min + keep.start * log.angle_increment),
+                               range_min=float(lo), range_max=float(hi))
+
+
+def fit_to_model(log: ScanLog, model, where: object, *, crop: bool = False, hint: str = "") -> ScanLog:
+    """:func:`fit_geometry` with the geometry ``model`` (a :class:`~gtsjax.model.Model`, read only for
+    its scanner attributes) was trained on."""
+    return fit_geometry(log, angle_min=model.angle_min, angle_increment=model.angle_increment,
+                        n_beams=model.n_beams, range_min=model.range_min, range_max=model.range_max, where=where,
+                        crop=crop, hint=hint, sensor_model=model.sensor_model)
+
+
+def _beams_inside(log: ScanLog, angle_min, angle_increment, n_beams, where, crop, hint, name) -> slice:
+    """The beams of ``log`` to keep (all of them, unless ``crop``), or :class:`InputError`; see
+    :func:`fit_geometry` for the rules."""
+    deg = math.degrees
+    if abs(log.angle_increment - angle_increment) > STEP_TOLERANCE * angle_increment:
+        raise InputError(where, f"angular step {deg(log.angle_increment):.3f}° differs from the model's "
+                                f"{deg(angle_increment):.3f}° ({name}) by more than {100 * STEP_TOLERANCE:g} %")
+    model_max = angle_min + (n_beams - 1) * angle_increment
+    half = 0.5 * angle_increment
+    angles = log.angles()
+    inside = (angles >= angle_min - half) & (angles <= model_max + half)
+    first, count = int(np.argmax(inside)), int(inside.sum())  # beam angles increase: the inside is one run
+    if count < log.n_beams:
+        log_max = log.angle_min + (log.n_beams - 1) * log.angle_increment
+        fov = (f"field of view {deg(log.angle_min):.1f}° … {deg(log_max):.1f}° is not inside the model's "
+               f"{deg(angle_min):.1f}° … {deg(model_max):.1f}° ({name})")
+        if not crop:
+            raise InputError(where, fov + hint)
+        need = math.ceil(MIN_BEAM_FRACTION * n_beams)
+        if count < need:
+            raise InputError(where, f"{fov}, and only {count} of its beams lie inside (at least {need} needed)")
+    elif count > n_beams and not crop:
+        raise InputError(where, f"has {count} beams per scan, more than the {n_beams} of the model ({name})")
+    return slice(first, first + min(count, n_beams))
 
 
 def to_scans(log: ScanLog, n_beams: int | None = None):
