@@ -174,3 +174,76 @@ def test_walking_robot_turns_no_faster_than_it_can(seed):
     motion = np.arctan2(np.diff(xy[:, 1]), np.diff(xy[:, 0]))
     lag = np.abs(np.pi - np.mod(np.pi - (motion - th[:-1]), 2 * np.pi))
     assert np.median(lag) < np.radians(5)  # mostly it faces where it walks
+
+
+HALL = ["hall-train", "hall-eval", "hall-trajectory"]
+
+
+def _to_o(pose, xy):
+    """Points ``[..., 2]`` of the sensor frame S into O, for a sensor at ``pose`` (x, y, θ)."""
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    return np.stack([pose[0] + c * xy[..., 0] - s * xy[..., 1], pose[1] + s * xy[..., 0] + c * xy[..., 1]], -1)
+
+
+def _segment_distance(p, a, b):
+    """Distance of points ``p [..., 2]`` to the segment from ``a`` to ``b``."""
+    ab = b - a
+    t = np.clip(((p - a) @ ab) / (ab @ ab), 0.0, 1.0)
+    return np.linalg.norm(p - (a + t[..., None] * ab), axis=-1)
+
+
+@pytest.mark.parametrize("name", HALL)
+def test_hall_is_clean(name):
+    """The clean hall holds the robot, posts and walls and nothing else: every candidate the binary
+    filters keep is a post or the robot (its ORS origin within 0.3 m of a site landmark or of the true
+    robot) or a piece of wall (every one of its points within 5 σ of the range noise of a wall of the layout: walls
+    cut short by a shadow or by the range window), and no wall piece comes within 0.5 m of the field
+    (training's margin for background examples). The front end finds every post in most scans and the
+    robot in nearly every scan it is on the field."""
+    from gtsjax._frontend import FrontEndConfig, front_end_log
+    from gtsjax.io import to_scans
+    from gtsjax.sim.scenarios import hall_layout
+
+    log, site = simulate(name, seed=5, n_scans=120)
+    fe = front_end_log(FrontEndConfig(), to_scans(log, URG_04LX.n_beams), windows=True)
+    keep, origin = np.asarray(fe.keep), np.asarray(fe.features.origin, np.float64)
+    xy, mask = np.asarray(fe.candidates.xy, np.float64), np.asarray(fe.candidates.mask)
+    sensor = log.extra["truth_sensor_pose"]
+    posts = np.array([(lm.x, lm.y) for lm in site.landmarks])
+    wall_ends = [(p.vertices[0], p.vertices[1]) for p in hall_layout().statics.polygons]
+    x0, y0, x1, y1 = site.bounds
+    robot = log.truth_poses[:, 0, :2]
+    post_seen = np.zeros((log.n_scans, len(posts)), bool)
+    robot_seen = np.zeros(log.n_scans, bool)
+    n_wall = 0
+    for t, k in zip(*np.nonzero(keep), strict=True):
+        o = _to_o(sensor[t], origin[t, k])
+        d_post = np.linalg.norm(posts - o, axis=1)
+        d_robot = np.linalg.norm(robot[t] - o) if np.isfinite(robot[t, 0]) else np.inf
+        if min(d_post.min(), d_robot) <= 0.3:
+            post_seen[t] |= d_post <= 0.15
+            robot_seen[t] |= d_robot <= 0.3
+            continue
+        pts_s = xy[t, k][mask[t, k]]
+        pts = _to_o(sensor[t], pts_s)
+        off_wall = np.min([_segment_distance(pts, a, b) for a, b in wall_ends], axis=0)
+        tol = 5 * URG_04LX.noise.std(np.linalg.norm(pts_s, axis=1)) + 0.001  # 5 σ of range noise, 1 mm steps
+        assert np.all(off_wall <= tol), f"scan {t}: a candidate at {o.round(2)} is neither post, robot nor wall"
+        assert not (x0 - 0.5 <= o[0] <= x1 + 0.5 and y0 - 0.5 <= o[1] <= y1 + 0.5), f"scan {t}: wall piece at {o}"
+        n_wall += 1
+    present = np.isfinite(robot[:, 0])
+    assert robot_seen[present].mean() >= 0.97
+    assert post_seen.mean(axis=0).min() >= 0.8, post_seen.mean(axis=0)
+    assert n_wall > 0  # the walls are in the scans (and cut into pieces, as real ones are)
+
+
+def test_hall_walls_fill_most_of_the_view():
+    """"Long walls": in the empty hall, the URG-04LX sees a wall within its range window on about two
+    thirds of its beams."""
+    from gtsjax.sim.scenarios import hall_layout
+
+    lay = hall_layout()
+    r, _, _ = cast(lay.statics, lay.sensor, np.array([lay.sensor_pose]))
+    assert np.mean(np.isfinite(r[0]) & (r[0] <= lay.sensor.range_max)) > 0.6
+    assert not lay.statics.movers and not lay.statics.moving_circles
+    assert all(c.radius < 0.05 for c in lay.statics.circles)  # the posts; nothing else stands in the hall

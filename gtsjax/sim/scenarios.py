@@ -1,5 +1,5 @@
-"""Scenarios: labelled scan logs and their site files, from the paper's SPL experiment and a second
-site with another sensor and layout.
+"""Scenarios: labelled scan logs and their site files, from the paper's SPL experiment, a second
+site with another sensor and layout, and a clean hall (robot, posts and walls, nothing else).
 
 Each scenario is a function of a seed that lays out a scene, the sensor's true pose over time and
 every labelled object's pose over time; :func:`simulate` renders it into a :class:`ScanLog` (with
@@ -54,6 +54,26 @@ def lab_layout() -> Layout:
         polygons=walls(-0.6, -0.6, 8.6, 5.6) + [box(3.6, 5.0, 5.2, 5.5, 0.3), box(8.0, 1.8, 8.5, 2.6, 0.6)],
     )
     return Layout(pillars, (0.3, 0.3, math.atan2(4.2, 7.4)), (1.0, 0.8, 7.2, 4.4), scene, UTM_30LX)
+
+
+def hall_layout() -> Layout:
+    """A clean hall: the 6 × 4 m field in an 8.8 × 6.3 m hall, a URG-04LX 0.5 m behind the middle of
+    a side line looking into the field, five thin posts (4.5 cm radius) just outside the field, not on
+    one line, and nothing else: no boxes, no chairs, no people.
+
+    The walls are long and close enough to be in the scans: within the URG-04LX's 5.6 m on two thirds
+    of its beams (the side walls, 1.4 m beside the field, from y ≈ 0.9 m up to the edges of the field
+    of view; the back wall behind the laser; the far wall, 5.5 m away, straight ahead). The posts stand
+    1 m or more in front of the walls, so that segmentation always breaks between them, and within
+    4.5 m of the laser, where a 9 cm post still spans three beams. Where a wall leaves the range window,
+    or a shadow of the robot or a post cuts it, a short piece of wall is a candidate, as with real
+    walls; those lie 1 m or more outside the field. Everything else the front end keeps is a post or
+    the robot (``tests/test_sim.py``).
+    """
+    posts = [("post", -0.3, 1.4, 0.045), ("post", -0.35, 3.2, 0.045), ("post", 6.3, 1.8, 0.045),
+             ("post", 6.35, 3.3, 0.045), ("post", 6.4, 4.3, 0.045)]
+    scene = Scene(circles=[Circle(x, y, r, 0.8) for _, x, y, r in posts], polygons=walls(-1.4, -1.0, 7.4, 5.3))
+    return Layout(posts, (3.0, 4.5, -math.pi / 2), (0.0, 0.0, 6.0, 4.0), scene, URG_04LX)
 
 
 @dataclasses.dataclass
@@ -248,6 +268,7 @@ def _crossing(layout_fn, seconds=22.0):
 
 SPL_EVAL_POINTS = [(1.0, 1.0), (5.0, 1.0), (2.0, 2.0), (4.0, 2.0), (3.0, 1.0), (1.0, 3.0), (5.0, 3.0), (3.0, 2.5)]
 LAB_EVAL_POINTS = [(2.2, 1.5), (6.2, 1.3), (4.1, 3.1), (5.7, 3.6), (3.3, 2.3)]
+HALL_EVAL_POINTS = [(1.0, 1.0), (5.0, 1.0), (3.0, 1.5), (1.5, 2.5), (4.5, 2.5), (3.0, 3.2)]
 
 SCENARIOS: dict[str, tuple[str, Callable]] = {
     "spl-train": ("paper's training grid on the SPL field: static robot every 0.5 × 0.4 m, 8 headings (one in "
@@ -266,6 +287,12 @@ SCENARIOS: dict[str, tuple[str, Callable]] = {
                  _eval(lab_layout, LAB_EVAL_POINTS)),
     "lab-trajectory": ("second site: a robot walking a Lissajous path for 30 s at 40 Hz",
                        _trajectory(lab_layout, seconds=30.0)),
+    "hall-train": ("clean hall: the 6 × 4 m field among long walls, five thin posts and nothing else "
+                   "(URG-04LX on the side); training grid as spl-train", _train(hall_layout)),
+    "hall-eval": ("clean hall: static robot put down at 6 points, headings every 45°, 3 s per pose, 1 s away "
+                  "between poses", _eval(hall_layout, HALL_EVAL_POINTS)),
+    "hall-trajectory": ("clean hall: a robot walking a Lissajous path at 0.1–0.4 m/s for 60 s",
+                        _trajectory(hall_layout)),
 }
 
 
