@@ -1,11 +1,23 @@
-"""Stage d, object classifier (eq. 13–14): one GP regressor per class on 1/0 targets, argmax, and a
-threshold on the winning score.
+"""Stage d, object classifier (eq. 13–14): one GP regressor per class on 1/0 targets, argmax, a
+threshold on the winning score, and an open-set test against the winning class's own examples.
 
 The paper's classifier is GP *regression* per class (class-vs-rest), not a GP classifier; its score
 is not a calibrated probability, so the threshold is per class and chosen on held-out data. Class 0
 is always ``background``: a candidate whose best class is background, or whose winning score is
 below its class's threshold, is dropped. Prediction uses each GP's bounded-cost form (a fixed number
 of inducing points), so the cost per candidate does not grow with the training set.
+
+**Open set** (issue 13). A regression score says which training class a candidate is *most* like,
+not whether it is like any: far from every training example each GP's mean falls back to its prior
+(the class's share of the examples), and in between it extrapolates, so clutter the model never saw
+(a table, a chair, a person's legs in another building) can win as "robot". So a candidate is also
+background when it is unlike every training example of its winning class: when its squared distance
+to the nearest of them, in that class's own scale (each input divided by the class's spread in it),
+exceeds the class's threshold. The examples kept for the test (:class:`Support`, a fixed number per
+class) and the thresholds (a high quantile of the distances of held-out examples of the class,
+with a margin) come from training and are stored in the model. Before the argmax, each class's
+shape envelope (stage c, :class:`~gtsjax._filters.Envelope`) removes the classes a candidate cannot
+be, so a leg is never "robot" because of its size.
 """
 
 import equinox as eqx
@@ -37,11 +49,45 @@ def gp_inputs(
     return x[..., list(columns)] if columns else x
 
 
+class Support(eqx.Module):
+    """The open-set test's examples: per class up to ``P`` training inputs, each class in its own scale
+    (``(x − mean) · inv_scale``), and the largest squared distance to the nearest of them that a
+    candidate of the class may have. A class with no examples (the background, or a class trained
+    without any) has an all-False mask and an infinite threshold: no test."""
+
+    x: Float[Array, "classes support inputs"]  # scaled examples, 0 where masked
+    mask: Bool[Array, "classes support"]
+    mean: Float[Array, "classes inputs"]
+    inv_scale: Float[Array, "classes inputs"]
+    threshold: Float[Array, " classes"]
+
+    @classmethod
+    def none(cls, n_classes: int, n_inputs: int) -> "Support":
+        """No open-set test (every class's threshold infinite)."""
+        f32 = jnp.float32
+        return cls(jnp.zeros((n_classes, 1, n_inputs), f32), jnp.zeros((n_classes, 1), bool),
+                   jnp.zeros((n_classes, n_inputs), f32), jnp.ones((n_classes, n_inputs), f32),
+                   jnp.full((n_classes,), jnp.inf, f32))
+
+
+def nearest_d2(sup: Support, x: Float[Array, "cands inputs"]) -> Float[Array, "cands classes"]:
+    """Squared distance from each candidate to the nearest support example of each class, in the
+    class's scale (``inf`` for a class without examples). One batched matrix product,
+    ``|u|² + |s|² − 2 u·s``, then a masked minimum over the examples."""
+    u = (x[None, :, :] - sup.mean[:, None, :]) * sup.inv_scale[:, None, :]  # [classes, cands, inputs]
+    ss = jnp.sum(sup.x * sup.x, axis=-1)  # [classes, support]
+    d2 = jnp.sum(u * u, axis=-1)[:, :, None] + ss[:, None, :] - 2.0 * jnp.einsum("cki,cpi->ckp", u, sup.x)
+    d2 = jnp.where(sup.mask[:, None, :], jnp.maximum(d2, 0.0), jnp.inf)
+    return jnp.min(d2, axis=-1).T
+
+
 class Classifier(eqx.Module):
-    """One score GP per class (index 0 is background) and a score threshold per class."""
+    """One score GP per class (index 0 is background), a score threshold per class, and the open-set
+    test's examples and thresholds."""
 
     gps: tuple[SparseGP | GP, ...]
     threshold: Float[Array, " classes"]
+    support: Support
 
     @property
     def n_classes(self) -> int:
@@ -53,13 +99,36 @@ def class_scores(clf: Classifier, vectors: Float[Array, "cands features"]) -> Fl
     return jnp.stack([predict_mean(gp, vectors).astype(vectors.dtype) for gp in clf.gps], axis=-1)
 
 
+class Decision(eqx.Module):
+    """Stage d's verdict on each candidate slot of one scan."""
+
+    scores: Float[Array, "cands classes"]
+    cls: Int[Array, " cands"]  # the winning class among those whose envelope the candidate lies in
+    ok: Bool[Array, " cands"]  # kept, not background, score at or above threshold, like its class's examples
+    unlike: Bool[Array, " cands"]  # would be ok, but unlike every training example of its class
+    off_envelope: Bool[Array, " cands"]  # kept, and its best score is a class whose envelope it lies outside
+
+
 def classify(
-    clf: Classifier, vectors: Float[Array, "cands features"], keep: Bool[Array, " cands"]
-) -> tuple[Float[Array, "cands classes"], Int[Array, " cands"], Bool[Array, " cands"]]:
-    """Scores, the argmax class of each candidate, and which candidates survive: kept by the binary
-    filters, not background, and with a winning score at or above the class's threshold."""
+    clf: Classifier,
+    vectors: Float[Array, "cands features"],
+    keep: Bool[Array, " cands"],
+    in_envelope: Bool[Array, "cands classes"] | None = None,
+) -> Decision:
+    """Scores; each candidate's class, the best score among the classes whose shape envelope it lies
+    in (``in_envelope``; background always qualifies); and which candidates survive: kept by the
+    binary filters, not background, a winning score at or above its class's threshold, and like the
+    training examples of its class (the open-set test, see the module docstring)."""
     scores = class_scores(clf, vectors)
-    cls = jnp.argmax(scores, axis=-1).astype(jnp.int32)
+    n = scores.shape[-1]
+    if in_envelope is None:
+        in_envelope = jnp.ones(scores.shape, bool)
+    allowed = in_envelope | (jnp.arange(n) == BACKGROUND)[None, :]
+    cls = jnp.argmax(jnp.where(allowed, scores, -jnp.inf), axis=-1).astype(jnp.int32)
     best = jnp.take_along_axis(scores, cls[:, None], axis=-1)[:, 0]
-    ok = keep & (cls != BACKGROUND) & (best >= clf.threshold[cls])
-    return scores, cls, ok
+    d2 = jnp.take_along_axis(nearest_d2(clf.support, vectors), cls[:, None], axis=-1)[:, 0]
+    scored = keep & (cls != BACKGROUND) & (best >= clf.threshold[cls])
+    like = d2 <= clf.support.threshold[cls]
+    top = jnp.argmax(scores, axis=-1)
+    off = keep & (top != BACKGROUND) & ~jnp.take_along_axis(in_envelope, top[:, None], axis=-1)[:, 0]
+    return Decision(scores, cls, scored & like, scored & ~like, off)

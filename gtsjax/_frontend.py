@@ -170,6 +170,7 @@ def _drop_windows(out: FrontEndOutput) -> FrontEndOutput:
         n_segments=c.n_segments,
         n_overflow=c.n_overflow,
         n_too_long=c.n_too_long,
+        occluded=c.occluded,
     )
     feats = Features(f.origin, f.heading, None, f.vector, f.n_points, f.width, f.height)
     return FrontEndOutput(cands, feats, out.keep, out.diagnostics)

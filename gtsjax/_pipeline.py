@@ -19,6 +19,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from ._classify import classify, gp_inputs
+from ._filters import envelope_pass, shape_quantities
 from ._frontend import front_end_unjitted
 from ._maptransform import Transform, poses_to_field, update_transform
 from ._pose import regress, to_sensor_frame
@@ -42,6 +43,7 @@ class Perception(eqx.Module):
 
     cls: Int[Array, " cands"]
     ok: Bool[Array, " cands"]  # kept by the filters and classified as an object (not background)
+    kept: Bool[Array, " cands"]  # kept by the binary filters (stage c), whatever the classifier said
     scores: Float[Array, "cands classes"]
     pose_s: Float[Array, "cands 3"]
     cov_s: Float[Array, "cands 3 3"]
@@ -50,6 +52,8 @@ class Perception(eqx.Module):
     overflow: Int[Array, ""]
     too_long: Int[Array, ""]
     unposed: Int[Array, ""]  # objects beyond their class's cap (see ``_pose.regress``), dropped
+    unlike: Int[Array, ""]  # candidates unlike every training example of their class (open set), dropped
+    off_envelope: Int[Array, ""]  # candidates whose best class's shape envelope they lie outside
 
 
 class Output(eqx.Module):
@@ -72,6 +76,8 @@ class Output(eqx.Module):
     overflow: Int[Array, ""]  # segments beyond K, dropped
     too_long: Int[Array, ""]  # segments longer than L beams, filtered
     unposed: Int[Array, ""]  # objects beyond their class's cap (see ``_pose.regress``), dropped
+    unlike: Int[Array, ""]  # candidates unlike every training example of their class (open set), dropped
+    off_envelope: Int[Array, ""]  # candidates whose best class's shape envelope they lie outside
     degraded: Bool[Array, ""]  # too few landmarks: the previous transform was kept
 
 
@@ -100,13 +106,18 @@ def perceive(model: Model, scan: Scan, *, bucket: bool | None = None) -> Percept
     fe = front_end_unjitted(model.frontend, scan)
     f = fe.features
     x = gp_inputs(f.vector, f.origin, f.height, model.gp_columns)
-    scores, cls, ok = classify(model.classifier, x, fe.keep)
+    rng = jnp.sqrt(jnp.sum(f.origin**2, axis=-1))
+    in_env = envelope_pass(model.envelope, shape_quantities(f.width, f.height, f.n_points, rng), rng,
+                           fe.candidates.occluded)
+    dec = classify(model.classifier, x, fe.keep, in_env)
+    cls, ok, scores = dec.cls, dec.ok, dec.scores
     rel, var, posed = regress(model.pose, x, cls, ok, scores, model.max_objects, landmark_cap(model), bucket)
     pose_s, cov_s = to_sensor_frame(f.origin, f.heading, rel, var)
     d = fe.diagnostics
     unposed = jnp.sum(ok & ~posed, dtype=jnp.int32)
-    return Perception(cls, ok & posed, scores, pose_s, cov_s, d.n_segments, d.n_kept, d.overflow_count,
-                      d.too_long_count, unposed)
+    count = lambda m: jnp.sum(m, dtype=jnp.int32)
+    return Perception(cls, ok & posed, fe.keep, scores, pose_s, cov_s, d.n_segments, d.n_kept, d.overflow_count,
+                      d.too_long_count, unposed, count(dec.unlike), count(dec.off_envelope))
 
 
 def _inside(site, pose: Float[Array, "n 3"]) -> Bool[Array, " n"]:
@@ -157,7 +168,7 @@ def update(model: Model, state: PipelineState, p: Perception, scan: Scan) -> tup
     pose_o, cov_o = poses_to_field(tf, p.pose_s, p.cov_s)
     cov_o = cov_o + jnp.diag(model.meas_var_floor)[None]
     tracked = p.ok & model.tracker.tracked[p.cls] & _inside(site, pose_o)
-    det = Detections(pose_o, cov_o, p.cls, tracked)
+    det = Detections(pose_o, cov_o, p.cls, tracked, p.kept & ~tracked)
     tracker, _ = track_step(state.tracker, det, dt, model.tracker)
     ts = tracker
     out = Output(
@@ -181,6 +192,8 @@ def update(model: Model, state: PipelineState, p: Perception, scan: Scan) -> tup
         overflow=p.overflow,
         too_long=p.too_long,
         unposed=p.unposed,
+        unlike=p.unlike,
+        off_envelope=p.off_envelope,
         degraded=tf.degraded,
     )
     return PipelineState(tf, tracker, state.n_scans + 1), out

@@ -11,7 +11,8 @@ a break sits before beam ``i`` when
 
 Everything runs on fixed shapes: break flags, a cumulative sum numbers the runs, a scatter puts the
 first ``K`` runs' starts and ends into ``[K]`` arrays, and a gather pulls each run's window of ``L``
-beams. Nothing is dropped silently: runs beyond ``K`` are counted in ``n_overflow``; a run longer
+beams, and whether a nearer return lies just beside either end (the candidate is occluded there).
+Nothing is dropped silently: runs beyond ``K`` are counted in ``n_overflow``; a run longer
 than ``L`` beams is kept as a slot with ``too_long`` set and an *empty* point mask, so it can never be
 truncated into a smaller, false object (a long wall is not a robot).
 """
@@ -49,6 +50,9 @@ class Candidates(eqx.Module):
     n_segments: Int[Array, "*scans"]  # segments found in the scan, including those beyond K
     n_overflow: Int[Array, "*scans"]  # segments beyond K, not in any slot
     n_too_long: Int[Array, "*scans"]  # live slots with too_long set
+    # A return nearer than the segment's end lies just beside it (the beam before its first or after
+    # its last): something stands in front of it there, so its outline may be cut short.
+    occluded: Bool[Array, "*scans cands"]
 
     @property
     def max_candidates(self) -> int:
@@ -125,6 +129,14 @@ def segment(
     def take(a):
         return jnp.where(mask, a[index], jnp.zeros((), a.dtype))
 
+    def nearer(beside, end):
+        inside = (beside >= 0) & (beside < n)
+        b = jnp.clip(beside, 0, n - 1)
+        return inside & valid[b] & (ranges[b] < ranges[jnp.clip(end, 0, n - 1)])
+
+    last = start + length - 1
+    occluded = live & (nearer(start - 1, start) | nearer(last + 1, last))
+
     return Candidates(
         index=index,
         mask=mask,
@@ -139,4 +151,5 @@ def segment(
         n_segments=n_segments,
         n_overflow=jnp.maximum(n_segments - k_max, 0),
         n_too_long=jnp.sum(too_long, dtype=_I32),
+        occluded=occluded,
     )

@@ -1,7 +1,7 @@
 """The trained model and the site, as the arrays the step needs.
 
-A :class:`Model` is what ``gtsjax train`` produces (front-end settings, one score GP per class, pose
-GPs per class, tracker tuning) plus the site it runs on (landmarks, the rough sensor pose, bounds),
+A :class:`Model` is what ``gtsjax train`` produces (front-end settings, per-class shape envelopes,
+one score GP per class with its open-set examples, pose GPs per class, tracker tuning) plus the site it runs on (landmarks, the rough sensor pose, bounds),
 attached with :meth:`Model.with_site` at load time: the same trained model serves any field with the
 same kinds of landmarks. Shapes that must be static (class count, maximum tracks) are static fields;
 everything a user may tune is an array, so tuning does not recompile the step.
@@ -13,6 +13,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from ._classify import Classifier
+from ._filters import Envelope
 from ._frontend import FrontEndConfig
 from ._pose import PoseRegressor
 from ._track import TrackerParams
@@ -36,6 +37,7 @@ class Model(eqx.Module):
 
     frontend: FrontEndConfig
     classifier: Classifier
+    envelope: Envelope  # per-class shape envelopes (stage c), applied before the classifier's argmax
     pose: tuple[PoseRegressor | None, ...]
     tracker: TrackerParams
     landmark_mask: Bool[Array, " classes"]  # which classes are static landmarks
@@ -53,6 +55,13 @@ class Model(eqx.Module):
     # The GP inputs (``_classify.gp_inputs``) that varied over the training set; the others (the
     # intensity profile of a scanner without intensity) carry nothing and are left out of every kernel.
     gp_columns: tuple[int, ...] = eqx.field(static=True, default=())
+    # The scanner geometry the model was trained on (beam ``i`` at ``angle_min + i * angle_increment``
+    # in S, ``n_beams`` beams, returns inside ``[range_min, range_max]``): every input is checked
+    # against it on the host (:func:`gtsjax.io.logs.fit_to_model`), never in the step.
+    angle_min: float = eqx.field(static=True, default=float("nan"))
+    angle_increment: float = eqx.field(static=True, default=float("nan"))
+    range_min: float = eqx.field(static=True, default=0.0)
+    range_max: float = eqx.field(static=True, default=float("inf"))
 
     @property
     def n_classes(self) -> int:

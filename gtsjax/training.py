@@ -27,14 +27,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._classify import Classifier, class_scores, gp_inputs
+from ._classify import Classifier, Support, classify, gp_inputs, nearest_d2
+from ._filters import Envelope, envelope_pass, shape_quantities
 from ._frontend import FrontEndConfig, front_end_log
 from ._gp import fit
 from ._maptransform import Transform, update_transform
 from ._pose import PoseRegressor, calibrate, regress_one_class
-from ._track import TrackerParams
+from ._track import DEFAULT_MAX_SPEED, DEFAULT_MAX_TURN_RATE, TrackerParams
 from .errors import InputError
-from .io.logs import ScanLog, to_scans
+from .io.logs import ScanLog, fit_geometry, to_scans
 from .io.site import Site
 from .model import Model
 from .sensors import get_model
@@ -66,6 +67,15 @@ class TrainConfig:
     n_inducing_class: int = 512
     n_inducing_var: int = 64
     restarts: int = 3  # optimiser starts per GP fit
+    # Classifier: the background class may get more examples than the others (None: max_per_class),
+    # as varied as real clutter is; with more than max_class_fit examples, the hyperparameters are fitted
+    # on a subsample of that many and the GPs conditioned on all (None: on all, up to 3 000).
+    max_background: int | None = None
+    max_class_fit: int | None = None
+    support_size: int = 512  # open-set test: training examples kept per class
+    # Motion limits per class (m/s, rad/s) that override what labelled motion, or the default, gives.
+    max_speed: dict[str, float] = dataclasses.field(default_factory=dict)
+    max_turn_rate: dict[str, float] = dataclasses.field(default_factory=dict)
     holdout: float = 0.2  # fraction of one-second blocks held out for evaluation
     label_radius: float = 0.3  # m: a candidate this close to a labelled object is that object
     landmark_radius: float = 0.25  # m: a candidate this close to a site landmark is that landmark
@@ -92,6 +102,9 @@ class Examples:
     group: np.ndarray  # [E] held-out block id
     origin: np.ndarray  # [E, 2] ORS origin in S
     heading: np.ndarray  # [E] ORS heading in S
+    shape: np.ndarray  # [E, 3] width, depth, n_points · range (what the shape envelopes bound)
+    rng: np.ndarray  # [E] range of the ORS origin
+    occluded: np.ndarray  # [E] a nearer return beside either end (``Candidates.occluded``)
 
     def take(self, idx) -> "Examples":
         return Examples(*(getattr(self, f.name)[idx] for f in dataclasses.fields(self)))
@@ -113,17 +126,23 @@ def class_list(logs: Sequence[ScanLog], site: Site) -> tuple[tuple[str, ...], tu
 
 
 def run_front_end(log: ScanLog, cfg: FrontEndConfig, n_beams: int, chunk: int = 1024):
-    """Stages a–c over a log, chunk by chunk; returns host arrays origin, heading, keep and ``vector``,
-    the GP inputs of each candidate (:func:`~gtsjax._classify.gp_inputs`)."""
-    outs = {"origin": [], "heading": [], "vector": [], "keep": []}
+    """Stages a–c over a log, chunk by chunk; returns host arrays ``[T, K, …]``: origin, heading,
+    keep, ``vector`` (the GP inputs of each candidate, :func:`~gtsjax._classify.gp_inputs`),
+    ``shape`` (:func:`~gtsjax._filters.shape_quantities`), ``rng`` (the ORS origin's range) and
+    ``occluded``."""
+    outs = {"origin": [], "heading": [], "vector": [], "keep": [], "shape": [], "rng": [], "occluded": []}
     for start in range(0, log.n_scans, chunk):
         scans = to_scans(log.slice(start, start + chunk), n_beams)
         fe = front_end_log(cfg, scans)
-        outs["origin"].append(np.asarray(fe.features.origin, np.float64))
-        outs["heading"].append(np.asarray(fe.features.heading, np.float64))
         f = fe.features
+        rng = jnp.sqrt(jnp.sum(f.origin**2, axis=-1))
+        outs["origin"].append(np.asarray(f.origin, np.float64))
+        outs["heading"].append(np.asarray(f.heading, np.float64))
         outs["vector"].append(np.asarray(gp_inputs(f.vector, f.origin, f.height), np.float64))
         outs["keep"].append(np.asarray(fe.keep))
+        outs["shape"].append(np.asarray(shape_quantities(f.width, f.height, f.n_points, rng), np.float64))
+        outs["rng"].append(np.asarray(rng, np.float64))
+        outs["occluded"].append(np.asarray(fe.candidates.occluded))
     return {k: np.concatenate(v) for k, v in outs.items()}
 
 
@@ -232,6 +251,9 @@ def label_log(log: ScanLog, fe: dict, tf: dict, site: Site, classes: tuple[str, 
         group=group_offset + t_idx // block,
         origin=origin[t_idx, k_idx],
         heading=heading[t_idx, k_idx],
+        shape=fe["shape"][t_idx, k_idx],
+        rng=fe["rng"][t_idx, k_idx],
+        occluded=fe["occluded"][t_idx, k_idx],
     ), np.where(use, cls, 0)
 
 
@@ -266,11 +288,254 @@ def _fit32(x, y, key, cfg, progress, label, n_inducing: int, max_fit: int | None
     return sparse, info
 
 
+# ------------------------------------------------------------------------------------- open set (issue 13)
+
+
+def fit_envelope(ex: "Examples", n_classes: int, beam_step: float, *, n_bins: int = 8, quantile: float = 0.01,
+                 min_per_bin: int = 20, whole_fraction: float = 0.95) -> tuple[Envelope, dict]:
+    """Per-class shape envelopes (:class:`~gtsjax._filters.Envelope`) from labelled examples: in each
+    range bin, the ``quantile`` and ``1 − quantile`` quantiles of the class's width, depth and
+    ``n · r``, widened by a tenth of their spread plus what one beam more or less and the range noise
+    can add at the bin's far edge (a beam's spacing for width, 1 cm for depth, one point for
+    ``n · r``). Bins with fewer than ``min_per_bin`` examples of the class take the limits of the
+    nearest bin that has enough (the quantities depend on range only through noise and spacing); a
+    class with no examples at all is closed, and background (class 0) is open. A class is ``whole``
+    (must be seen unoccluded) when at least ``whole_fraction`` of its examples were. The quantiles
+    leave out the rarest views (1 % at each end: a robot's outline half lost to grazing beams), which
+    a tracker coasts through. Returns the envelope and a summary per class for the training report."""
+    non_bg = ex.cls != 0
+    r_max = float(np.max(ex.rng[non_bg])) if non_bg.any() else 1.0
+    bin_width = max(0.05, math.ceil(r_max * 1.1 / n_bins / 0.05) * 0.05)
+    b = np.clip((ex.rng // bin_width).astype(int), 0, n_bins - 1)
+    lo = np.full((n_classes, n_bins, 3), np.inf)
+    hi = np.full((n_classes, n_bins, 3), -np.inf)
+    lo[0], hi[0] = -np.inf, np.inf
+    whole = np.zeros(n_classes, bool)
+    report = {}
+
+    def limits(q, far):
+        a, z = np.quantile(q, quantile, axis=0), np.quantile(q, 1 - quantile, axis=0)
+        slack = 0.1 * (z - a) + np.array([far * beam_step, 0.01, far])
+        return np.maximum(a - slack, 0.0), z + slack
+
+    for k in range(1, n_classes):
+        sel = ex.cls == k
+        if not sel.any():
+            continue
+        filled = []
+        for j in range(n_bins):
+            q = ex.shape[sel & (b == j)]
+            if len(q) >= min_per_bin:
+                lo[k, j], hi[k, j] = limits(q, (j + 1) * bin_width)
+                filled.append(j)
+        if not filled:  # too few examples for any bin: one interval over all of them
+            lo[k, :], hi[k, :] = limits(ex.shape[sel], r_max)
+            filled = list(range(n_bins))
+        filled = np.asarray(filled)
+        for j in range(n_bins):
+            if j not in filled:
+                near = filled[np.argmin(np.abs(filled - j))]
+                lo[k, j], hi[k, j] = lo[k, near], hi[k, near]
+        seen_whole = float(np.mean(~ex.occluded[sel]))
+        whole[k] = seen_whole >= whole_fraction
+        report[k] = {"width_m": [round(float(lo[k, :, 0].min()), 3), round(float(hi[k, :, 0].max()), 3)],
+                     "depth_m": [round(float(lo[k, :, 1].min()), 3), round(float(hi[k, :, 1].max()), 3)],
+                     "points_at_1m": [round(float(lo[k, :, 2].min()), 1), round(float(hi[k, :, 2].max()), 1)],
+                     "range_bins_seen": [round(float(filled.min() * bin_width), 2),
+                                         round(float((filled.max() + 1) * bin_width), 2)],
+                     "seen_whole": round(seen_whole, 4), "whole_required": bool(whole[k])}
+    f32 = jnp.float32
+    env = Envelope(jnp.asarray(bin_width, f32), jnp.asarray(lo, f32), jnp.asarray(hi, f32), jnp.asarray(whole))
+    return env, report
+
+
+def _nearest_d2_np(x: np.ndarray, s: np.ndarray, chunk: int = 4096) -> np.ndarray:
+    """Squared Euclidean distance from each row of ``x`` to the nearest row of ``s`` (host, float64)."""
+    out = np.full(len(x), np.inf)
+    if len(s) == 0:
+        return out
+    ss = np.sum(s * s, axis=1)
+    for i in range(0, len(x), chunk):
+        a = x[i : i + chunk]
+        d2 = np.sum(a * a, axis=1)[:, None] + ss[None, :] - 2.0 * a @ s.T
+        out[i : i + chunk] = np.maximum(d2.min(axis=1), 0.0)
+    return out
+
+
+def fit_support(ex: "Examples", is_held: np.ndarray, n_classes: int, rng, *, size: int = 512,
+                quantile: float = 0.995, margin: float = 1.5, min_held: int = 50) -> tuple[Support, dict]:
+    """The open-set test's examples and thresholds (:class:`~gtsjax._classify.Support`).
+
+    Per non-background class: up to ``size`` of its training examples, drawn at random (so the
+    examples keep the class's density; a farthest-point choice would keep its outliers first, and a
+    leg near an odd example would pass), in the class's own scale: each input divided by the class's
+    standard deviation in it, floored at a tenth of that input's spread over all classes (an input
+    that is nearly constant within a class would otherwise make any difference in it "unlike"). The
+    threshold is ``margin`` times the ``quantile`` of the squared distances from the class's
+    held-out examples to their nearest support example (from the training examples left out of the
+    support, or failing that the support itself leaving each one out, when fewer than ``min_held``
+    are held out). Returns the support and, per class, the threshold, how many examples it rests on
+    and how many held-out examples of the class and of the background it rejects."""
+    d = ex.vectors.shape[1]
+    pooled = np.std(ex.vectors, axis=0)
+    per = []
+    report = {}
+    for k in range(n_classes):
+        tr = np.flatnonzero((ex.cls == k) & ~is_held)
+        if k == 0 or tr.size == 0:
+            per.append(None)
+            continue
+        x = ex.vectors[tr]
+        mean = x.mean(axis=0)
+        scale = np.maximum(x.std(axis=0), np.maximum(0.1 * pooled, 1e-6))
+        pick = tr if tr.size <= size else np.sort(rng.choice(tr, size, replace=False))
+        sup = (ex.vectors[pick] - mean) / scale
+        held = np.flatnonzero((ex.cls == k) & is_held)
+        source = "held-out"
+        if held.size >= min_held:
+            d2 = _nearest_d2_np((ex.vectors[held] - mean) / scale, sup)
+        else:
+            rest = np.setdiff1d(tr, pick)
+            source = "training (not in the support)"
+            if rest.size >= min_held:
+                d2 = _nearest_d2_np((ex.vectors[rest] - mean) / scale, sup)
+            else:  # leave one out among the support itself
+                source = "training (leave one out)"
+                full = np.sum(sup * sup, 1)[:, None] + np.sum(sup * sup, 1)[None, :] - 2 * sup @ sup.T
+                np.fill_diagonal(full, np.inf)
+                d2 = np.maximum(full.min(axis=1), 0.0) if len(sup) > 1 else np.zeros(1)
+        thr = float(margin * np.quantile(d2, quantile))
+        per.append((sup, mean, scale, thr))
+        bg_held = np.flatnonzero((ex.cls == 0) & is_held)
+        bg_d2 = _nearest_d2_np((ex.vectors[bg_held] - mean) / scale, sup)
+        report[k] = {"threshold_d2": round(thr, 3), "support": int(len(sup)), "threshold_from": f"{d2.size} {source}",
+                     "class_rejected": float(np.mean(d2 > thr)),
+                     "background_rejected": float(np.mean(bg_d2 > thr)) if bg_held.size else None}
+    p_max = max([len(v[0]) for v in per if v is not None], default=1)
+    xs = np.zeros((n_classes, p_max, d))
+    mask = np.zeros((n_classes, p_max), bool)
+    means = np.zeros((n_classes, d))
+    inv = np.ones((n_classes, d))
+    thr = np.full(n_classes, np.inf)
+    for k, v in enumerate(per):
+        if v is None:
+            continue
+        sup, mean, scale, t = v
+        xs[k, : len(sup)], mask[k, : len(sup)], means[k], inv[k], thr[k] = sup, True, mean, 1.0 / scale, t
+    f32 = jnp.float32
+    return Support(jnp.asarray(xs, f32), jnp.asarray(mask), jnp.asarray(means, f32), jnp.asarray(inv, f32),
+                   jnp.asarray(thr, f32)), report
+
+
+def motion_limits(logs: Sequence[ScanLog], classes: tuple[str, ...], *, quantile: float = 0.995, margin: float = 1.25,
+                  min_run: int = 5, min_steps: int = 50) -> dict[str, dict]:
+    """Each labelled class's maximum speed (m/s) and turn rate (rad/s) from its labelled motion,
+    where there is some: the ``quantile`` of its speeds and turn rates between consecutive scans, times
+    ``margin``, over runs of at least ``min_run`` consecutive steps in which it moved. A training
+    grid's robot is carried from pose to pose between scans: those jumps are single steps between
+    scans where it stood still, never a run, so they do not count as motion; nor does a step of a run
+    three times faster than the run's median (the jump to where a walk starts). A class with fewer than
+    ``min_steps`` such steps gets no entry (the tracker's default applies)."""
+    speeds: dict[str, list] = {}
+    turns: dict[str, list] = {}
+    for log in logs:
+        if log.n_scans < 2:
+            continue
+        dt = np.diff(log.stamps)
+        for m, name in enumerate(log.truth_classes):
+            p = log.truth_poses[:, m]
+            ok = ~np.isnan(p[:-1, 0]) & ~np.isnan(p[1:, 0]) & (dt > 0)
+            step = np.hypot(*(p[1:, :2] - p[:-1, :2]).T)
+            turn = np.abs(wrap(p[1:, 2] - p[:-1, 2]))
+            moving = ok & ((step > 1e-4) | (turn > 1e-4))
+            # Runs of consecutive moving steps, at least min_run long.
+            edges = np.diff(np.concatenate([[0], moving.astype(int), [0]]))
+            starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+            for a, b in zip(starts, ends, strict=True):
+                if b - a >= min_run:
+                    # A jump into or out of a run (put down, then walking) is not motion either: steps
+                    # over three times the run's median speed are left out.
+                    v = step[a:b] / dt[a:b]
+                    smooth = v <= 3.0 * max(np.median(v), 1e-3)
+                    speeds.setdefault(str(name), []).append(v[smooth])
+                    turns.setdefault(str(name), []).append((turn[a:b] / dt[a:b])[smooth])
+    out = {}
+    for name in classes:
+        if name not in speeds:
+            continue
+        v, w = np.concatenate(speeds[name]), np.concatenate(turns[name])
+        if v.size >= min_steps:
+            out[name] = {"max_speed": round(float(margin * np.quantile(v, quantile)), 3),
+                         "max_turn_rate": round(float(margin * np.quantile(w, quantile)), 3), "steps": int(v.size)}
+    return out
+
+
+@jax.jit
+def _decide(clf, env, vectors, shape, rng, occluded):
+    dec = classify(clf, vectors, jnp.ones(vectors.shape[0], bool), envelope_pass(env, shape, rng, occluded))
+    return jnp.where(dec.ok, dec.cls, 0), dec.unlike, dec.off_envelope
+
+
+def decide(model: Model, ex: "Examples", chunk: int = 4096):
+    """Stage d as the step decides it, on examples: each one's class (0 where dropped), and whether
+    it was dropped as unlike its class's examples, or outside its best class's envelope."""
+    outs = [[], [], []]
+    for s in range(0, len(ex.cls), chunk):
+        f32 = jnp.float32
+        part = slice(s, s + chunk)
+        res = _decide(model.classifier, model.envelope, jnp.asarray(ex.vectors[part], f32),
+                      jnp.asarray(ex.shape[part], f32), jnp.asarray(ex.rng[part], f32),
+                      jnp.asarray(ex.occluded[part]))
+        for o, r in zip(outs, res, strict=True):
+            o.append(np.asarray(r))
+    if not outs[0]:
+        return np.zeros(0, np.int64), np.zeros(0, bool), np.zeros(0, bool)
+    return tuple(np.concatenate(o) for o in outs)
+
+
+def background_examples(logs: Sequence[ScanLog], names: Sequence[str], cfg: "TrainConfig", n_beams: int,
+                        columns: tuple[int, ...], group_offset: int) -> tuple["Examples", list[dict]]:
+    """Every candidate that the binary filters keep in a background log (recorded with no robot in view)
+    is a background example; one-second blocks of scans are the held-out groups, as for labelled logs."""
+    exs, info = [], []
+    for log, name in zip(logs, names, strict=True):
+        fe = run_front_end(log, cfg.frontend, n_beams)
+        t_idx, k_idx = np.nonzero(fe["keep"])
+        period = np.median(np.diff(log.stamps)) if log.n_scans > 1 else 0.1
+        block = max(1, int(round(1.0 / max(period, 1e-3))))
+        n = t_idx.size
+        exs.append(Examples(
+            vectors=fe["vector"][t_idx, k_idx][:, list(columns)],
+            cls=np.zeros(n, np.int64),
+            target=np.full((n, 3), np.nan),
+            group=group_offset + t_idx // block,
+            origin=fe["origin"][t_idx, k_idx],
+            heading=fe["heading"][t_idx, k_idx],
+            shape=fe["shape"][t_idx, k_idx],
+            rng=fe["rng"][t_idx, k_idx],
+            occluded=fe["occluded"][t_idx, k_idx],
+        ))
+        group_offset = int(exs[-1].group.max(initial=group_offset)) + 1
+        info.append({"log": str(name), "scans": int(log.n_scans), "candidates": int(n)})
+    if not exs:
+        z = np.zeros(0)
+        return Examples(np.zeros((0, len(columns))), z.astype(np.int64), np.zeros((0, 3)), z.astype(np.int64),
+                        np.zeros((0, 2)), z, np.zeros((0, 3)), z, z.astype(bool)), info
+    return _concat(exs), info
+
+
+
 def train(logs: Sequence[ScanLog], site: Site, cfg: TrainConfig = TrainConfig(), *,
-          progress: Callable[[dict], None] | None = None, names: Sequence[str] | None = None) -> tuple[Model, dict]:
-    """Train a model from labelled logs of one site. Returns the model (float32 predictors, bounded
-    cost) and a report: examples per class, GP fits, held-out accuracy and pose errors."""
+          progress: Callable[[dict], None] | None = None, names: Sequence[str] | None = None,
+          background: Sequence[ScanLog] = (), background_names: Sequence[str] | None = None) -> tuple[Model, dict]:
+    """Train a model from labelled logs of one site, and optional background logs (recorded anywhere,
+    with no robot in view: every candidate in them is a background example; their beams are checked
+    against the labelled logs' scanner and cropped to its field of view). Returns the model (float32
+    predictors, bounded cost) and a report: examples per class, GP fits, shape envelopes, open-set
+    thresholds, motion limits, held-out accuracy and pose errors, and warnings."""
     names = list(names) if names is not None else [f"log {i}" for i in range(len(logs))]
+    bg_names = list(background_names) if background_names is not None else [
+        f"background log {i}" for i in range(len(background))]
     if not logs:
         raise InputError("train", "no logs given")
     for log, name in zip(logs, names, strict=True):
@@ -288,15 +553,17 @@ def train(logs: Sequence[ScanLog], site: Site, cfg: TrainConfig = TrainConfig(),
             n_beams = max(n_beams, get_model(first.sensor_model).n_beams)
         except InputError:
             pass
+    geometry = dict(angle_min=first.angle_min, angle_increment=first.angle_increment, n_beams=n_beams,
+                    range_min=first.range_min, range_max=first.range_max)
+    background = [fit_geometry(log, **geometry, where=name, crop=True, sensor_model=first.sensor_model)
+                  for log, name in zip(background, bg_names, strict=True)]
     classes, landmarks, mobiles = class_list(logs, site)
     if not mobiles:
         raise InputError(names[0], "no labelled object classes in the logs")
+    warnings: list[str] = []
 
     fe_cfg = cfg.frontend
-    per_log = []
-    for log in logs:
-        fe = run_front_end(log, fe_cfg, n_beams)
-        per_log.append(fe)
+    per_log = [run_front_end(log, fe_cfg, n_beams) for log in logs]
     # GP inputs that never vary (the intensity profile of a scanner without intensity) are left out.
     columns = informative_columns(np.concatenate([fe["vector"][fe["keep"]] for fe in per_log]))
     for fe in per_log:
@@ -314,10 +581,12 @@ def train(logs: Sequence[ScanLog], site: Site, cfg: TrainConfig = TrainConfig(),
         offset = int(ex.group.max(initial=offset)) + 1
         ex1.append(ex)
     ex_all = _concat(ex1)
-    groups = np.unique(ex_all.group)
-    held = set(rng.choice(groups, max(1, int(round(cfg.holdout * groups.size))), replace=False).tolist())
     fits = []
     pose: list[PoseRegressor | None] = [None] * len(classes)
+    # Background logs' scans are split into held-out blocks with the labelled ones.
+    bg_ex, bg_info = background_examples(background, bg_names, cfg, n_beams, columns, offset)
+    groups = np.unique(np.concatenate([ex_all.group, bg_ex.group]))
+    held = set(rng.choice(groups, max(1, int(round(cfg.holdout * groups.size))), replace=False).tolist())
     for name in landmarks:
         k = classes.index(name)
         idx = _sample(rng, np.flatnonzero((ex_all.cls == k) & ~np.isin(ex_all.group, list(held))),
@@ -341,24 +610,51 @@ def train(logs: Sequence[ScanLog], site: Site, cfg: TrainConfig = TrainConfig(),
         ex_all = _second_pass(logs, per_log, cls1, pose, site, classes, landmarks,
                               dataclasses.replace(cfg, bounds_margin=None))
     degraded, n_scans = ex_all.degraded, ex_all.n_scans
+    labelled_counts = {c: int(np.sum(ex_all.cls == k)) for k, c in enumerate(classes)}
+
+    # Shape envelopes (stage c) and open-set supports (stage d) from the labelled logs' classes.
+    is_held_lab = np.isin(ex_all.group, list(held))
+    envelope, env_report = fit_envelope(ex_all.take(np.flatnonzero(~is_held_lab)), len(classes), first.angle_increment)
+    # The background logs join the background class; a candidate in them that looks like a landmark
+    # class's own examples (a post in view while recording) is left out: it would teach the classifier
+    # that the landmark is background.
+    support, sup_report = fit_support(_concat([ex_all, bg_ex]), np.isin(np.concatenate([ex_all.group, bg_ex.group]),
+                                                                        list(held)), len(classes), rng,
+                                      size=cfg.support_size)
+    lookalike = np.zeros(len(bg_ex.cls), bool)
+    if len(bg_ex.cls):
+        d2 = np.asarray(nearest_d2(support, jnp.asarray(bg_ex.vectors, jnp.float32)))
+        for name in landmarks:
+            k = classes.index(name)
+            lookalike |= d2[:, k] <= float(support.threshold[k])
+    for item, n_look in zip(bg_info, np.bincount(np.searchsorted(np.cumsum([i["candidates"] for i in bg_info]),
+                                                                np.flatnonzero(lookalike), side="right"),
+                                                minlength=len(bg_info)), strict=True):
+        item["landmark_lookalikes_left_out"] = int(n_look)
+    ex_all = _concat([ex_all, bg_ex.take(np.flatnonzero(~lookalike))])
     is_held = np.isin(ex_all.group, list(held))
 
-    # Classifier: balanced, capped examples; one GP per class on 1/0 targets (eq. 14).
+    # Classifier: balanced, capped examples; one GP per class on 1/0 targets (eq. 14). The background,
+    # as varied as the world, may get more examples than the other classes (max_background).
     counts = {c: int(np.sum(ex_all.cls == k)) for k, c in enumerate(classes)}
+    caps = [cfg.max_background or cfg.max_per_class] + [cfg.max_per_class] * (len(classes) - 1)
     train_idx = np.concatenate([
-        _sample(rng, np.flatnonzero((ex_all.cls == k) & ~is_held), cfg.max_per_class) for k in range(len(classes))])
+        _sample(rng, np.flatnonzero((ex_all.cls == k) & ~is_held), caps[k]) for k in range(len(classes))])
     missing = [c for k, c in enumerate(classes) if not np.any(ex_all.cls[train_idx] == k)]
     if missing:
-        raise InputError("training data", f"no training examples of class(es) {', '.join(missing)}")
+        warnings.append(f"no training examples of class(es) {', '.join(missing)}: "
+                        + ("only the open-set test and the shape envelopes reject clutter; record the field with "
+                           "people walking and no robot, and pass it with --background"
+                           if missing == [BACKGROUND] else "it is never detected"))
     x_cls = ex_all.vectors[train_idx]
     clf_gps = []
     for k, name in enumerate(classes):
         key, sub = jax.random.split(key)
         gp, info = _fit32(x_cls, (ex_all.cls[train_idx] == k).astype(np.float64), sub, cfg, progress, f"class.{name}",
-                          cfg.n_inducing_class)
+                          cfg.n_inducing_class, cfg.max_class_fit)
         clf_gps.append(gp)
         fits.append(info)
-    classifier = Classifier(tuple(clf_gps), jnp.full(len(classes), cfg.threshold, jnp.float32))
+    classifier = Classifier(tuple(clf_gps), jnp.full(len(classes), cfg.threshold, jnp.float32), support)
 
     # Pose regressors of the mobile classes: x̃, ỹ, sin θ̃, cos θ̃ (eq. 15, 17).
     calibration = {}
@@ -383,13 +679,30 @@ def train(logs: Sequence[ScanLog], site: Site, cfg: TrainConfig = TrainConfig(),
         calibration[name] = {"examples": int(cal.size), "held_out": bool(cal is not idx),
                              "var_scale": [round(float(v), 4) for v in np.asarray(pose[k].var_scale)]}
 
+    # Motion limits of the tracked classes: from labelled motion, else the user's or the defaults.
+    learnt = motion_limits(logs, classes)
+    motion = {}
+    speed, turn = [], []
+    for c in classes:
+        if c in cfg.max_speed or c in cfg.max_turn_rate or c in learnt or c in mobiles:
+            src = learnt.get(c, {})
+            v = cfg.max_speed.get(c, src.get("max_speed", DEFAULT_MAX_SPEED))
+            w = cfg.max_turn_rate.get(c, src.get("max_turn_rate", DEFAULT_MAX_TURN_RATE))
+            how = "set" if c in cfg.max_speed else "labelled motion" if "max_speed" in src else "default"
+            how_w = "set" if c in cfg.max_turn_rate else "labelled motion" if "max_turn_rate" in src else "default"
+            motion[c] = {"max_speed": v, "max_speed_from": how, "max_turn_rate": w, "max_turn_rate_from": how_w,
+                         "labelled_steps": src.get("steps", 0)}
+        speed.append(motion.get(c, {}).get("max_speed", DEFAULT_MAX_SPEED))
+        turn.append(motion.get(c, {}).get("max_turn_rate", DEFAULT_MAX_TURN_RATE))
+
     rate = _rate(logs)
     tracked = [c in mobiles for c in classes]
     model = Model(
         frontend=fe_cfg,
         classifier=classifier,
+        envelope=envelope,
         pose=tuple(pose),
-        tracker=TrackerParams.default(tracked, rate_hz=rate),
+        tracker=TrackerParams.default(tracked, rate_hz=rate, max_speed=speed, max_turn_rate=turn),
         landmark_mask=jnp.asarray([c in landmarks for c in classes]),
         map_gate=jnp.asarray(cfg.map_gate, jnp.float32),
         map_min_spread=jnp.asarray(cfg.map_min_spread, jnp.float32),
@@ -400,17 +713,30 @@ def train(logs: Sequence[ScanLog], site: Site, cfg: TrainConfig = TrainConfig(),
         sensor_model=first.sensor_model or "unknown",
         n_beams=n_beams,
         gp_columns=columns,
+        angle_min=float(first.angle_min),
+        angle_increment=float(first.angle_increment),
+        range_min=float(first.range_min),
+        range_max=float(first.range_max),
     )
     report = {
         "classes": list(classes),
         "examples": counts,
+        "examples_labelled_logs": labelled_counts,
         "examples_used": {c: int(np.sum(ex_all.cls[train_idx] == k)) for k, c in enumerate(classes)},
+        "background_logs": bg_info,
         "fits": fits,
         "variance_calibration": calibration,
+        "envelopes": {classes[k]: v for k, v in env_report.items()},
+        "open_set": {classes[k]: v for k, v in sup_report.items()},
+        "motion_limits": motion,
         "scans": n_scans,
         "degraded_scans": degraded,
+        "warnings": warnings,
         "heldout": evaluate_examples(model, ex_all.take(np.flatnonzero(is_held))),
     }
+    if len(bg_ex.cls):
+        report["heldout_background_logs"] = evaluate_examples(
+            model, bg_ex.take(np.flatnonzero(np.isin(bg_ex.group, list(held)))))
     return model, report
 
 
@@ -452,29 +778,20 @@ def _concat(exs: list[Examples]) -> Examples:
     return Examples(*(np.concatenate([getattr(e, f.name) for e in exs]) for f in dataclasses.fields(Examples)))
 
 
-def predict_classes(model: Model, vectors: np.ndarray, chunk: int = 4096) -> np.ndarray:
-    """Class of each vector as the step decides it (argmax, then background below the threshold)."""
-    out = []
-    for s in range(0, len(vectors), chunk):
-        v = jnp.asarray(vectors[s : s + chunk], jnp.float32)
-        scores = np.asarray(class_scores(model.classifier, v))
-        cls = scores.argmax(-1)
-        best = scores[np.arange(len(cls)), cls]
-        cls = np.where(best >= np.asarray(model.classifier.threshold)[cls], cls, 0)
-        out.append(cls)
-    return np.concatenate(out) if out else np.zeros(0, np.int64)
-
-
 def evaluate_examples(model: Model, ex: Examples) -> dict:
-    """Held-out classification accuracy (overall and per class) and pose errors of the mobile classes."""
+    """Held-out classification as the step decides it (envelopes, scores, thresholds, open set):
+    accuracy overall and per class, what each class's examples were taken for, the share dropped as
+    unlike their class's examples or outside its envelope, and the pose errors of the mobile classes."""
     if len(ex.cls) == 0:
         return {"n": 0}
-    pred = predict_classes(model, ex.vectors)
+    pred, unlike, off = decide(model, ex)
     out = {"n": int(len(ex.cls)), "accuracy": float(np.mean(pred == ex.cls)), "per_class": {}, "pose": {}}
     for k, name in enumerate(model.classes):
         sel = ex.cls == k
         if sel.any():
-            out["per_class"][name] = {"n": int(sel.sum()), "recall": float(np.mean(pred[sel] == k))}
+            taken = {c: float(np.mean(pred[sel] == j)) for j, c in enumerate(model.classes) if np.any(pred[sel] == j)}
+            out["per_class"][name] = {"n": int(sel.sum()), "recall": float(np.mean(pred[sel] == k)), "taken_for": taken,
+                                      "unlike": float(np.mean(unlike[sel])), "off_envelope": float(np.mean(off[sel]))}
         reg = model.pose[k]
         if reg is None or reg.sin is None or not sel.any():
             continue

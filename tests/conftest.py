@@ -20,3 +20,26 @@ def shared_dir() -> Path:
     if not SHARED.is_dir():
         pytest.skip(f"shared data folder not found at {SHARED}")
     return SHARED
+
+
+@pytest.fixture(scope="session")
+def tiny(tmp_path_factory):
+    """A small model trained on a subsample of the SPL training grid and a log with legs, shared by the
+    test modules (trained once per session)."""
+    import dataclasses
+
+    from gtsjax.io import save_site
+    from gtsjax.io.modelfile import save_model
+    from gtsjax.sim import simulate
+    from gtsjax.training import TrainConfig, train
+
+    config = dataclasses.replace(TrainConfig(), max_per_class=60, max_pose_examples=80, n_inducing=32, restarts=1)
+    d = tmp_path_factory.mktemp("tiny")
+    train_log, site = simulate("spl-train", seed=11, n_scans=500)
+    legs, _ = simulate("spl-legs", seed=12, n_scans=150)
+    model, report = train([train_log, legs], site, config)
+    path = d / "model.npz"
+    save_model(model, path, summary=report)
+    save_site(site, d / "site.json")
+    return {"dir": d, "model": model, "path": path, "site": site, "report": report, "train_log": train_log,
+            "config": config}

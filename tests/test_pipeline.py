@@ -16,24 +16,8 @@ from gtsjax._pipeline import init_state, process_log, step
 from gtsjax.cli import main
 from gtsjax.io import save_log, save_site, to_scans
 from gtsjax.io.gtd import HEADER
-from gtsjax.io.modelfile import load_model, read_header, save_model
+from gtsjax.io.modelfile import load_model, read_header
 from gtsjax.sim import simulate
-from gtsjax.training import TrainConfig, train
-
-TINY = dataclasses.replace(TrainConfig(), max_per_class=60, max_pose_examples=80, n_inducing=32, restarts=1)
-
-
-@pytest.fixture(scope="session")
-def tiny(tmp_path_factory):
-    """A small model trained on a subsample of the SPL training grid and a log with legs."""
-    d = tmp_path_factory.mktemp("tiny")
-    train_log, site = simulate("spl-train", seed=11, n_scans=500)
-    legs, _ = simulate("spl-legs", seed=12, n_scans=150)
-    model, report = train([train_log, legs], site, TINY)
-    path = d / "model.npz"
-    save_model(model, path, summary=report)
-    save_site(site, d / "site.json")
-    return {"dir": d, "model": model, "path": path, "site": site, "report": report}
 
 
 def test_training_report_is_complete(tiny):

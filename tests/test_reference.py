@@ -93,3 +93,23 @@ def test_reference_follows_the_model(spl):
     first_g = int(np.argmax(np.asarray(out.track_mask).any(axis=1)))
     first_r = next(i for i, o in enumerate(ref) if len(o.track_id))
     assert first_g == first_r >= 5
+
+
+def test_reference_rejects_what_the_model_rejects(tiny):
+    """With a model that has shape envelopes and open-set examples (the tiny one trained in the tests)
+    and a person walking among the robots: per scan the same candidates are rejected (the counts of
+    detections agree) and the same tracks come out."""
+    log, site = simulate("spl-legs", seed=41, n_scans=200)
+    model = tiny["model"].with_site(site)
+    assert bool(np.any(np.asarray(model.envelope.whole))) and np.isfinite(np.asarray(model.classifier.support.threshold)).any()
+    scans = to_scans(log, model.n_beams)
+    _, out = process_log(model, scans)
+    ref = ReferencePipeline(model).run(scans_to_numpy(scans))
+    assert int(np.sum(out.unlike)) + int(np.sum(out.off_envelope)) > 0  # the rejections are exercised
+    tracked = np.asarray(model.tracker.tracked)
+    n_det = (np.asarray(out.det_mask) & tracked[np.asarray(out.det_class)]).sum(axis=1)
+    np.testing.assert_array_equal(n_det, [o.n_detections for o in ref])
+    agree = compare_tracks(out, ref)
+    assert agree["track_scans_gtsjax"] > 0
+    assert agree["scans_same_ids"] == log.n_scans
+    assert agree["track_ids_gtsjax"] == agree["track_ids_reference"]

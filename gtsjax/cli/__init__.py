@@ -18,6 +18,27 @@ from . import simulate as _simulate  # noqa: E402,F401
 from . import train as _train  # noqa: E402,F401
 from ._app import app
 
+# Options that take several values in a row (``--background A B C``), as argparse's ``nargs="+"``: Click's
+# options take one value each, so the values after the first are given their own option.
+_MULTI = ("--background",)
+
+
+def _spread(argv: list[str]) -> list[str]:
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        out.append(argv[i])
+        if argv[i] in _MULTI and i + 1 < len(argv):
+            opt = argv[i]
+            out.append(argv[i + 1])
+            i += 2
+            while i < len(argv) and not argv[i].startswith("-"):
+                out += [opt, argv[i]]
+                i += 1
+            continue
+        i += 1
+    return out
+
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``gtsjax`` console script. A user's mistake (:class:`InputError`) is one
@@ -27,7 +48,7 @@ def main(argv: list[str] | None = None) -> int:
     # Stamps and GP fitting need float64; the real-time core is float32 by explicit dtypes.
     jax.config.update("jax_enable_x64", True)
     try:
-        app(args=argv, prog_name="gtsjax")
+        app(args=_spread(sys.argv[1:] if argv is None else list(argv)), prog_name="gtsjax")
     except InputError as err:
         print(f"gtsjax: {err}", file=sys.stderr)
         return 2

@@ -1,18 +1,23 @@
-"""``gtsjax train LOG.npz ... --site SITE.json --out MODEL``: learn the classifier and pose regressors
-from labelled logs, with progress per GP fit and a summary table."""
+"""``gtsjax train LOG.npz ... --site SITE.json [--background LOG ...] --out MODEL``: learn the classifier,
+its open-set test, the shape envelopes, the pose regressors and the motion limits from labelled logs
+(and background logs: any log ``convert`` reads, recorded with no robot in view), with progress per
+GP fit and summary tables."""
 
 import dataclasses
 import json
+import os
 from pathlib import Path
 
 import typer
 from rich.console import Console
 from rich.table import Table
 
+from ..errors import InputError
 from ..io import load_log, load_site
 from ..io.modelfile import save_model
 from ..training import TrainConfig, train
 from ._app import app
+from .convert import load_input
 
 
 @app.command("train")
@@ -35,25 +40,81 @@ def train_cmd(
     restarts: int = typer.Option(TrainConfig.restarts, help="Optimiser starts per GP fit."),
     seed: int = typer.Option(0, help="Seed for sampling, the held-out split and restarts."),
     report: Path | None = typer.Option(None, "--report", help="Also write the training report as JSON."),
+    background: list[Path] = typer.Option(
+        [], "--background",
+        help="Background log(s), any format convert reads, recorded with no robot in view (the empty field, people "
+             "walking, chairs): every candidate in them is a background example. Same angular step as the labelled "
+             "logs; a wider field of view is cropped. Several may follow one --background."),
+    background_topic: str | None = typer.Option(None, "--background-topic",
+                                                help="LaserScan topic of background ROS bags with several."),
+    max_background: int | None = typer.Option(None, help="Classifier examples of the background class (default: "
+                                                         "--max-per-class)."),
+    max_speed: list[str] = typer.Option([], "--max-speed", metavar="CLASS=M_PER_S",
+                                        help="A class's maximum speed (default: from its labelled motion, else "
+                                             "0.6 m/s)."),
+    max_turn_rate: list[str] = typer.Option([], "--max-turn-rate", metavar="CLASS=RAD_PER_S",
+                                            help="A class's maximum turn rate (default: from its labelled motion, "
+                                                 "else 3 rad/s)."),
 ):
     """Train a model from labelled logs (training and held-out evaluation)."""
     console = Console(stderr=True)
     site_obj = load_site(site)
-    loaded = [load_log(p) for p in logs]
+    _check_out(out)
     cfg = dataclasses.replace(TrainConfig(), max_per_class=max_per_class, max_pose_examples=max_pose,
                               max_pose_fit=max_pose_fit,
                               max_landmark_examples=max_landmark, n_inducing=inducing, n_inducing_class=inducing_class,
-                              restarts=restarts, seed=seed)
+                              restarts=restarts, seed=seed, max_background=max_background,
+                              max_speed=_per_class(max_speed, "--max-speed"),
+                              max_turn_rate=_per_class(max_turn_rate, "--max-turn-rate"))
+    loaded = [load_log(p) for p in logs]
+    bg = [load_input(p, background_topic if _is_bag(p) else None, console) for p in background]
 
     def progress(info):
         console.print(f"  fitted GP {info['gp']:<22} n={info['n']:<5} LML={info['lml']:10.1f}  {info['seconds']:6.1f} s")
 
-    console.print(f"training on {sum(log.n_scans for log in loaded)} scans from {len(loaded)} log(s)")
-    model, rep = train(loaded, site_obj, cfg, progress=progress, names=[str(p) for p in logs])
+    console.print(f"training on {sum(log.n_scans for log in loaded)} scans from {len(loaded)} log(s)"
+                  + (f" and {sum(b.n_scans for b in bg)} background scans from {len(bg)} log(s)" if bg else ""))
+    model, rep = train(loaded, site_obj, cfg, progress=progress, names=[str(p) for p in logs],
+                       background=bg, background_names=[str(p) for p in background])
     save_model(model, out, summary=rep)
     _summary(Console(), rep, out)
+    for w in rep.get("warnings", []):
+        console.print(f"warning: {w}", soft_wrap=True)
     if report is not None:
         report.write_text(json.dumps(rep, indent=2) + "\n")
+
+
+def _is_bag(p: Path) -> bool:
+    from ..io.importers import detect_format
+
+    return detect_format(p) in ("ros1", "ros2")
+
+
+def _check_out(out: Path) -> None:
+    """The model's path is checked before the minutes of fitting: a folder is created, a folder in
+    the way or an unwritable place is one line."""
+    if out.is_dir():
+        raise InputError(out, "is a directory; --out takes the model file to write")
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise InputError(out.parent, f"cannot create the folder ({err.strerror})") from None
+    if not os.access(out.parent, os.W_OK):
+        raise InputError(out.parent, "not writable")
+
+
+def _per_class(items: list[str], option: str) -> dict[str, float]:
+    out = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        try:
+            v = float(value)
+        except ValueError:
+            v = float("nan")
+        if not sep or not name or not (v > 0) or v == float("inf"):
+            raise InputError(option, f"expected CLASS=VALUE with a positive value, got {item!r}")
+        out[name] = v
+    return out
 
 
 def _summary(console: Console, rep: dict, out: Path) -> None:
@@ -84,4 +145,40 @@ def _summary(console: Console, rep: dict, out: Path) -> None:
     for name, c in rep.get("variance_calibration", {}).items():
         console.print(f"pose variances of {name} scaled by {', '.join(f'{v:.3g}' for v in c['var_scale'])} "
                       f"(x̃, ỹ, θ̃; calibrated on {c['examples']} {'held-out' if c['held_out'] else 'training'} examples)")
+    _openset_tables(console, rep)
     console.print(f"{rep['degraded_scans']} of {rep['scans']} scans without a map transformation; model written to {out}")
+
+
+def _openset_tables(console: Console, rep: dict) -> None:
+    """What the model rejects: shape envelopes, open-set thresholds and motion limits per class, and
+    what the held-out background (of the labelled and of the background logs) was taken for."""
+    t = Table(title="what each class may look like (shape envelopes, open-set test) and do (motion limits)")
+    for col in ("class", "width [m]", "depth [m]", "points at 1 m", "open set: d² ≤", "its held-out rejected",
+                "held-out background rejected", "max speed [m/s]", "max turn [rad/s]"):
+        t.add_column(col, justify="right")
+    for c in rep["classes"][1:]:
+        env = rep.get("envelopes", {}).get(c, {})
+        op = rep.get("open_set", {}).get(c, {})
+        mo = rep.get("motion_limits", {}).get(c)
+
+        def rng(v):
+            return "–" if v is None else f"{v[0]:g}–{v[1]:g}"
+
+        bg_rej = op.get("background_rejected")
+        t.add_row(c, rng(env.get("width_m")), rng(env.get("depth_m")), rng(env.get("points_at_1m")),
+                  f"{op['threshold_d2']:.3g}" if op else "–",
+                  f"{100 * op['class_rejected']:.1f} %" if op else "–",
+                  "–" if bg_rej is None else f"{100 * bg_rej:.1f} %",
+                  "–" if mo is None else f"{mo['max_speed']:.2f} ({mo['max_speed_from']})",
+                  "–" if mo is None else f"{mo['max_turn_rate']:.2f} ({mo['max_turn_rate_from']})")
+    console.print(t)
+    for item in rep.get("background_logs", []):
+        console.print(f"background log {item['log']}: {item['scans']} scans, {item['candidates']} candidates"
+                      + (f" ({item['landmark_lookalikes_left_out']} left out as look-alikes of a landmark class)"
+                         if item.get("landmark_lookalikes_left_out") else ""), soft_wrap=True)
+    for key, what in (("heldout", "held-out background of the labelled logs"),
+                      ("heldout_background_logs", "held-out background logs")):
+        bg = rep.get(key, {}).get("per_class", {}).get("background")
+        if bg:
+            taken = ", ".join(f"{c} {100 * v:.2f} %" for c, v in bg["taken_for"].items() if c != "background")
+            console.print(f"{what}: {bg['n']} candidates, taken for {taken or 'nothing else'}")

@@ -18,7 +18,8 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from .._classify import Classifier
+from .._classify import Classifier, Support
+from .._filters import Envelope
 from .._frontend import FrontEndConfig
 from .._gp import GP, Hyperparameters, SparseGP
 from .._pose import PoseRegressor
@@ -27,10 +28,10 @@ from ..errors import InputError
 from ..model import Model, SiteArrays
 
 FORMAT = "gtsjax-model"
-VERSION = 2  # 2: tracker gates position and heading separately (heading_gate, heading_inflation)
+VERSION = 3  # 3: scanner geometry, open-set supports, shape envelopes, per-class motion limits
 _HEADER_KEY = "gtsjax_model"
-_TYPES = {c.__name__: c for c in (Model, FrontEndConfig, Classifier, PoseRegressor, TrackerParams, SparseGP, GP,
-                                  Hyperparameters, SiteArrays)}
+_TYPES = {c.__name__: c for c in (Model, FrontEndConfig, Classifier, Support, Envelope, PoseRegressor, TrackerParams,
+                                  SparseGP, GP, Hyperparameters, SiteArrays)}
 
 
 def _encode(node, leaves: dict[str, np.ndarray]):

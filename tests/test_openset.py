@@ -1,0 +1,185 @@
+"""Issue 13's rejection of what the model was not trained on: the open-set test against brute-force
+nearest examples, the shape envelopes against plain loops, motion limits from labelled motion, training
+without background and with background logs."""
+
+import dataclasses
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from gtsjax import InputError
+from gtsjax._classify import Support, classify, nearest_d2
+from gtsjax._filters import Envelope, envelope_pass
+from gtsjax.io.logs import ScanLog
+from gtsjax.training import Examples, fit_envelope, motion_limits, train
+
+F32 = jnp.float32
+
+
+def brute_nearest(x, sup_raw, mean, scale):
+    """Nearest-example squared distance by two loops, in the class's scale."""
+    best = np.inf
+    for s in sup_raw:
+        best = min(best, float(np.sum(((x - mean) / scale - s) ** 2)))
+    return best
+
+
+def test_nearest_d2_is_the_nearest_example_in_the_class_scale():
+    rng = np.random.default_rng(0)
+    n_classes, p, d = 3, 7, 5
+    xs = rng.normal(size=(n_classes, p, d))
+    mask = rng.random((n_classes, p)) < 0.7
+    mask[0] = False  # background: no examples
+    mean, scale = rng.normal(size=(n_classes, d)), rng.uniform(0.2, 2.0, (n_classes, d))
+    sup = Support(jnp.asarray(np.where(mask[..., None], xs, 0), F32), jnp.asarray(mask), jnp.asarray(mean, F32),
+                  jnp.asarray(1 / scale, F32), jnp.full(n_classes, 4.0, F32))
+    cands = rng.normal(size=(11, d)) * 2
+    got = np.asarray(nearest_d2(sup, jnp.asarray(cands, F32)))
+    for i, x in enumerate(cands):
+        for k in range(n_classes):
+            want = brute_nearest(x, xs[k][mask[k]], mean[k], scale[k])
+            if np.isinf(want):
+                assert np.isinf(got[i, k])
+            else:
+                np.testing.assert_allclose(got[i, k], want, rtol=1e-4, atol=1e-4)
+
+
+def test_a_candidate_far_from_its_class_examples_is_background(tiny):
+    """With the trained model's own GPs and supports: a candidate the scores call a robot but that a
+    brute-force search finds farther from every robot example than the threshold is background
+    (``unlike``); the robot examples of the support themselves are robots."""
+    model = tiny["model"]
+    clf = model.classifier
+    r = model.class_index("robot")
+    sup = clf.support
+    m = np.asarray(sup.mask[r])
+    raw = np.asarray(sup.x[r])[m] / np.asarray(sup.inv_scale[r]) + np.asarray(sup.mean[r])  # back to inputs
+    thr = float(sup.threshold[r])
+    assert np.isfinite(thr) and m.sum() > 10
+    rng = np.random.default_rng(1)
+    scale = 1 / np.asarray(sup.inv_scale[r], np.float64)
+    # Walk examples away from their class along random directions until the scores still say robot but
+    # the brute force says unlike; and keep some that stay close.
+    far, near = [], []
+    for x in raw[:40].astype(np.float64):
+        for step in (0.3, 0.6, 1.0, 1.5, 2.5, 4.0):
+            y = x + step * scale * rng.normal(size=x.shape)
+            d2 = min(float(np.sum(((y - s) / scale) ** 2)) for s in raw)
+            if abs(d2 - thr) > 0.01 * thr:  # clear of the threshold by more than float32 rounding
+                (far if d2 > thr else near).append(y)
+    x = jnp.asarray(np.asarray(far + near), F32)
+    dec = classify(clf, x, jnp.ones(x.shape[0], bool))
+    scores = np.asarray(dec.scores)
+    called_robot = (scores.argmax(1) == r) & (scores.max(1) >= np.asarray(clf.threshold)[r])
+    n_far = len(far)
+    assert called_robot[:n_far].sum() >= 5, "the test needs robot-scored candidates far from the examples"
+    ok, unlike = np.asarray(dec.ok), np.asarray(dec.unlike)
+    robot = np.asarray(dec.cls) == r
+    assert not (ok & robot)[:n_far].any()  # far: never a robot, whatever the score
+    np.testing.assert_array_equal(unlike[:n_far] & robot[:n_far], called_robot[:n_far])
+    assert called_robot[n_far:].sum() >= 5
+    assert not (unlike & robot)[n_far:].any()  # near: the open-set test passes them
+    np.testing.assert_array_equal((ok & robot)[n_far:], called_robot[n_far:])
+
+
+def test_envelope_pass_matches_a_loop():
+    rng = np.random.default_rng(2)
+    n_classes, n_bins = 3, 4
+    lo = rng.uniform(0, 1, (n_classes, n_bins, 3))
+    hi = lo + rng.uniform(0.2, 1.5, (n_classes, n_bins, 3))
+    lo[0], hi[0] = -np.inf, np.inf
+    whole = np.array([False, True, False])
+    env = Envelope(jnp.asarray(0.7, F32), jnp.asarray(lo, F32), jnp.asarray(hi, F32), jnp.asarray(whole))
+    q = rng.uniform(0, 2, (50, 3))
+    r = rng.uniform(0, 4, 50)
+    occ = rng.random(50) < 0.3
+    got = np.asarray(envelope_pass(env, jnp.asarray(q, F32), jnp.asarray(r, F32), jnp.asarray(occ)))
+    for i in range(50):
+        b = min(int(r[i] // 0.7), n_bins - 1)
+        for k in range(n_classes):
+            want = all(lo[k, b, j] <= q[i, j] <= hi[k, b, j] for j in range(3)) and not (whole[k] and occ[i])
+            assert got[i, k] == want
+
+
+def test_envelope_rules_the_classes_out_of_the_argmax():
+    """A candidate outside its best class's envelope takes the best class whose envelope it is in
+    (background always qualifies), and is counted as off its envelope."""
+    from gtsjax._gp import Hyperparameters, SparseGP
+
+    def const_gp(value):  # a GP whose mean is the constant ``value``
+        z = jnp.zeros((1, 2), F32)
+        hp = Hyperparameters(jnp.zeros(2, F32), jnp.asarray(0.0, F32), jnp.asarray(0.0, F32))
+        one = jnp.ones((1, 1), F32)
+        return SparseGP(z, jnp.zeros(1, bool), hp, jnp.zeros(1, F32), one, one, jnp.asarray(value, F32),
+                        jnp.zeros(2, F32), jnp.ones(2, F32), jnp.asarray(1.0, F32))
+
+    from gtsjax._classify import Classifier
+
+    clf = Classifier((const_gp(0.1), const_gp(0.5), const_gp(0.9)), jnp.full(3, 0.35, F32), Support.none(3, 2))
+    x = jnp.zeros((3, 2), F32)
+    env = jnp.asarray([[True, True, True], [True, True, False], [True, False, False]])
+    dec = classify(clf, x, jnp.ones(3, bool), env)
+    np.testing.assert_array_equal(np.asarray(dec.cls), [2, 1, 0])
+    np.testing.assert_array_equal(np.asarray(dec.ok), [True, True, False])
+    np.testing.assert_array_equal(np.asarray(dec.off_envelope), [False, True, True])
+
+
+def examples(cls, shape, rng_, occluded=None):
+    n = len(cls)
+    occluded = np.zeros(n, bool) if occluded is None else np.asarray(occluded)
+    return Examples(np.zeros((n, 2)), np.asarray(cls), np.full((n, 3), np.nan), np.zeros(n, int), np.zeros((n, 2)),
+                    np.zeros(n), np.asarray(shape, float), np.asarray(rng_, float), occluded)
+
+
+def test_fit_envelope_holds_the_class_and_extends_to_unseen_ranges():
+    rng = np.random.default_rng(3)
+    n = 400
+    r = rng.uniform(1.0, 3.0, n)
+    shape = np.column_stack([rng.uniform(0.15, 0.3, n), rng.uniform(0.02, 0.2, n), rng.uniform(40, 80, n)])
+    occluded = np.arange(n) < 4  # 1 %: the class is seen whole
+    ex = examples(np.full(n, 1), shape, r, occluded)
+    env, rep = fit_envelope(ex, 2, np.radians(0.35), n_bins=6)
+    assert rep[1]["whole_required"]
+    no = jnp.zeros(n, bool)
+    inside = np.asarray(envelope_pass(env, jnp.asarray(shape, F32), jnp.asarray(r, F32), no))
+    assert inside[:, 1].mean() > 0.97 and inside[:, 0].all()
+    occ = np.asarray(envelope_pass(env, jnp.asarray(shape, F32), jnp.asarray(r, F32), jnp.ones(n, bool)))
+    assert not occ[:, 1].any() and occ[:, 0].all()  # occluded: never the class, always background
+    # A leg-sized candidate (10 cm) and a table top (0.7 m) are outside the class at every range,
+    # including ranges the class was never seen at (0.3 m, 6 m).
+    for rr in (0.3, 2.0, 6.0):
+        q = jnp.asarray([[0.10, 0.05, 60.0], [0.7, 0.05, 200.0], [0.22, 0.1, 60.0]], F32)
+        got = np.asarray(envelope_pass(env, q, jnp.full(3, rr, F32), jnp.zeros(3, bool)))
+        np.testing.assert_array_equal(got[:, 1], [False, False, True])
+    assert rep[1]["width_m"][0] < 0.15 < 0.3 < rep[1]["width_m"][1]
+
+
+def log_with_motion(period=0.1):
+    """A labelled robot held still for 3 scans at each of 20 grid poses (it jumps between them), then
+    walking 100 scans at 0.3 m/s while turning at 0.5 rad/s."""
+    grid = np.repeat(np.column_stack([np.arange(20) * 0.5, np.zeros(20), np.zeros(20)]), 3, axis=0)
+    t = np.arange(100) * period
+    walk = np.column_stack([10 + 0.3 * t, np.zeros(100), 0.5 * t])
+    poses = np.concatenate([grid, walk])[:, None, :]
+    n = len(poses)
+    return ScanLog(ranges=np.ones((n, 5), np.float32), stamps=np.arange(n) * period, angle_min=0.0,
+                   angle_increment=0.01, truth_classes=np.array(["robot"]), truth_poses=poses)
+
+
+def test_motion_limits_from_labelled_motion_not_from_grid_jumps():
+    lim = motion_limits([log_with_motion()], ("background", "robot"))
+    # 0.3 m/s and 0.5 rad/s with the margin (1.25); the grid's 5 m/s jumps are not motion.
+    assert lim["robot"]["max_speed"] == pytest.approx(1.25 * 0.3, rel=1e-3)
+    assert lim["robot"]["max_turn_rate"] == pytest.approx(1.25 * 0.5, rel=1e-3)
+    grid_only = dataclasses.replace(log_with_motion(), truth_poses=log_with_motion().truth_poses[:60],
+                                    ranges=np.ones((60, 5), np.float32), stamps=np.arange(60) * 0.1)
+    assert "robot" not in motion_limits([grid_only], ("background", "robot"))
+
+
+def test_background_log_with_another_step_is_refused(tiny):
+    log, site = tiny["train_log"], tiny["site"]
+    sick = ScanLog(ranges=np.full((20, 181), 3.0, np.float32), stamps=np.arange(20) * 0.2,
+                   angle_min=-np.pi / 2, angle_increment=np.radians(1.0))
+    with pytest.raises(InputError, match=r"sick\.log.*angular step"):
+        train([log], site, tiny["config"], background=[sick], background_names=["sick.log"])
