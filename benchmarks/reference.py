@@ -191,11 +191,14 @@ class _Tracker:
         return bool(math.hypot(v[0], v[1]) <= self.max_speed[t.cls] + 2.0 * sigma_v
                     and abs(omega) <= self.max_turn_rate[t.cls] + 2.0 * sigma_w)
 
-    def step(self, z: np.ndarray, R: np.ndarray, cls: np.ndarray, dt: float, other: np.ndarray | None = None) -> None:
+    def step(self, z: np.ndarray, R: np.ndarray, cls: np.ndarray, dt: float, other: np.ndarray | None = None,
+             partial: np.ndarray | None = None) -> None:
         """Predict, gate, assign, update, and start, confirm and end tracks, for detections ``z`` [n, 3]
         with covariances ``R`` [n, 3, 3] and classes ``cls`` [n] (all of tracked classes); ``other``
-        [n_o, 2]: positions of the scan's other candidates (not detections of a tracked class)."""
+        [n_o, 2]: positions of the scan's other candidates (not detections of a tracked class);
+        ``partial`` [n]: occluded views of a class seen whole, which only a confirmed track may take."""
         other = np.zeros((0, 2)) if other is None else np.asarray(other, np.float64).reshape(-1, 2)
+        partial = np.zeros(len(z), bool) if partial is None else np.asarray(partial, bool)
         F, Q = self.motion_model(dt)
         live = [i for i, t in enumerate(self.slots) if t is not None]
         for i in live:
@@ -212,6 +215,8 @@ class _Tracker:
             t = self.slots[i]
             x, P = t.kf.x[:3, 0], t.kf.P[:3, :3]
             for j in np.flatnonzero(cls == t.cls):
+                if partial[j] and not t.confirmed:
+                    continue
                 nu = z[j] - x
                 nu[2] = wrap(nu[2])
                 S = P + R[j]
@@ -233,7 +238,7 @@ class _Tracker:
                 continue
             for j in np.flatnonzero(cls == t.cls):
                 d = math.hypot(z[j, 0] - t.kf.x[0, 0], z[j, 1] - t.kf.x[1, 0])
-                if j not in det_of.values() and d < self.birth_exclusion:
+                if j not in det_of.values() and d < self.birth_exclusion and (t.confirmed or not partial[j]):
                     near[j, i] = d
         while n and np.isfinite(near).any():
             j, i = np.unravel_index(np.argmin(near), near.shape)
@@ -301,7 +306,7 @@ class _Tracker:
         used = set(det_of.values())
         may_start = []
         for j in range(n):
-            if j in used:
+            if j in used or partial[j]:
                 continue
             near = any(t is not None and t.cls == cls[j]
                        and math.hypot(z[j, 0] - t.kf.x[0, 0], z[j, 1] - t.kf.x[1, 0]) < self.birth_exclusion
@@ -462,13 +467,13 @@ class ReferencePipeline:
         return x, origins, np.array(headings), np.array(shape).reshape(-1, 3), np.array(occluded, bool)
 
     # ---- stages d–e
-    def in_envelope(self, shape, rng, occluded):
+    def in_envelope(self, shape, rng):
         """Stage c's shape envelopes: which classes each candidate may be (a loop over candidates)."""
-        bin_width, lo, hi, whole = self.env
+        bin_width, lo, hi, _ = self.env
         out = np.zeros((len(shape), lo.shape[0]), bool)
-        for i, (q, r, occ) in enumerate(zip(shape, rng, occluded, strict=True)):
+        for i, (q, r) in enumerate(zip(shape, rng, strict=True)):
             b = min(max(int(math.floor(r / bin_width)), 0), lo.shape[1] - 1)
-            out[i] = np.all((q >= lo[:, b]) & (q <= hi[:, b]), axis=1) & ~(whole & occ)
+            out[i] = np.all((q >= lo[:, b]) & (q <= hi[:, b]), axis=1)
         return out
 
     def classify(self, x, allowed):
@@ -559,7 +564,8 @@ class ReferencePipeline:
         valid = np.asarray(valid, bool)
         angles = float(angle_min) + np.arange(ranges.shape[0]) * float(angle_increment)
         x, origin, heading, shape, occluded = self.candidates(ranges, intensities, valid, angles)
-        cls, ok, scores = self.classify(x, self.in_envelope(shape, np.hypot(origin[:, 0], origin[:, 1]), occluded))
+        cls, ok, scores = self.classify(x, self.in_envelope(shape, np.hypot(origin[:, 0], origin[:, 1])))
+        partial = occluded & self.env[3][cls]  # occluded views of a class seen whole
         rel, var, ok = self.regress(x, cls, ok, scores)
         # ORS -> S (eq. 16 with the ORS in place of O)
         c, s = np.cos(heading), np.sin(heading)
@@ -594,7 +600,7 @@ class ReferencePipeline:
         is_other = np.ones(len(x), bool)
         is_other[det_idx] = False
         other_xy = self.mu_o + (pose_s[is_other, :2] - self.mu_s) @ self.A.T
-        self.tracker.step(z, cov_o[inside], kc[inside], float(dt), other_xy)
+        self.tracker.step(z, cov_o[inside], kc[inside], float(dt), other_xy, partial[trk][inside])
         b = self.bounds
         tracks = [t for t in self.tracker.slots
                   if t is not None and t.confirmed and t.misses < self.tracker.m_report

@@ -91,13 +91,17 @@ def shape_quantities(width: Float[Array, "*c"], depth: Float[Array, "*c"], n_poi
     return jnp.stack([width, depth, n_points.astype(width.dtype) * rng], axis=-1)
 
 
-def envelope_pass(env: Envelope, q: Float[Array, "cands 3"], rng: Float[Array, " cands"],
-                  occluded: Bool[Array, " cands"]) -> Bool[Array, "cands classes"]:
-    """Which classes' envelopes each candidate lies in (``q`` from :func:`shape_quantities`, ``rng``
-    its range, ``occluded`` from segmentation). One gather of the candidate's range bin, then
-    elementwise comparisons."""
+def envelope_pass(env: Envelope, q: Float[Array, "cands 3"], rng: Float[Array, " cands"]) -> Bool[Array, "cands classes"]:
+    """Which classes' shape envelopes each candidate lies in (``q`` from :func:`shape_quantities`,
+    ``rng`` its range). One gather of the candidate's range bin, then elementwise comparisons."""
     b = jnp.clip(jnp.floor(rng / env.bin_width).astype(jnp.int32), 0, env.n_bins - 1)
     lo = jnp.swapaxes(env.lo[:, b], 0, 1)  # [cands, classes, 3]
     hi = jnp.swapaxes(env.hi[:, b], 0, 1)
     qq = q[:, None, :]
-    return jnp.all((qq >= lo) & (qq <= hi), axis=-1) & ~(env.whole[None, :] & occluded[:, None])
+    return jnp.all((qq >= lo) & (qq <= hi), axis=-1)
+
+
+def partial_view(env: Envelope, cls: Int[Array, " cands"], occluded: Bool[Array, " cands"]) -> Bool[Array, " cands"]:
+    """Candidates occluded at an end (``Candidates.occluded``) whose class is seen whole: the tracker
+    lets them update a confirmed track only, never start or confirm one."""
+    return occluded & env.whole[cls]

@@ -19,7 +19,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from ._classify import classify, gp_inputs
-from ._filters import envelope_pass, shape_quantities
+from ._filters import envelope_pass, partial_view, shape_quantities
 from ._frontend import front_end_unjitted
 from ._maptransform import Transform, poses_to_field, update_transform
 from ._pose import regress, to_sensor_frame
@@ -44,6 +44,7 @@ class Perception(eqx.Module):
     cls: Int[Array, " cands"]
     ok: Bool[Array, " cands"]  # kept by the filters and classified as an object (not background)
     kept: Bool[Array, " cands"]  # kept by the binary filters (stage c), whatever the classifier said
+    partial: Bool[Array, " cands"]  # occluded view of a class seen whole (``_filters.partial_view``)
     scores: Float[Array, "cands classes"]
     pose_s: Float[Array, "cands 3"]
     cov_s: Float[Array, "cands 3 3"]
@@ -107,8 +108,7 @@ def perceive(model: Model, scan: Scan, *, bucket: bool | None = None) -> Percept
     f = fe.features
     x = gp_inputs(f.vector, f.origin, f.height, model.gp_columns)
     rng = jnp.sqrt(jnp.sum(f.origin**2, axis=-1))
-    in_env = envelope_pass(model.envelope, shape_quantities(f.width, f.height, f.n_points, rng), rng,
-                           fe.candidates.occluded)
+    in_env = envelope_pass(model.envelope, shape_quantities(f.width, f.height, f.n_points, rng), rng)
     dec = classify(model.classifier, x, fe.keep, in_env)
     cls, ok, scores = dec.cls, dec.ok, dec.scores
     rel, var, posed = regress(model.pose, x, cls, ok, scores, model.max_objects, landmark_cap(model), bucket)
@@ -116,7 +116,8 @@ def perceive(model: Model, scan: Scan, *, bucket: bool | None = None) -> Percept
     d = fe.diagnostics
     unposed = jnp.sum(ok & ~posed, dtype=jnp.int32)
     count = lambda m: jnp.sum(m, dtype=jnp.int32)
-    return Perception(cls, ok & posed, fe.keep, scores, pose_s, cov_s, d.n_segments, d.n_kept, d.overflow_count,
+    partial = partial_view(model.envelope, cls, fe.candidates.occluded)
+    return Perception(cls, ok & posed, fe.keep, partial, scores, pose_s, cov_s, d.n_segments, d.n_kept, d.overflow_count,
                       d.too_long_count, unposed, count(dec.unlike), count(dec.off_envelope))
 
 
@@ -168,7 +169,7 @@ def update(model: Model, state: PipelineState, p: Perception, scan: Scan) -> tup
     pose_o, cov_o = poses_to_field(tf, p.pose_s, p.cov_s)
     cov_o = cov_o + jnp.diag(model.meas_var_floor)[None]
     tracked = p.ok & model.tracker.tracked[p.cls] & _inside(site, pose_o)
-    det = Detections(pose_o, cov_o, p.cls, tracked, p.kept & ~tracked)
+    det = Detections(pose_o, cov_o, p.cls, tracked, p.kept & ~tracked, p.partial)
     tracker, _ = track_step(state.tracker, det, dt, model.tracker)
     ts = tracker
     out = Output(

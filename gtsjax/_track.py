@@ -202,13 +202,16 @@ class Detections(eqx.Module):
     is instead a candidate that is not a detection of a tracked class (background, rejected by the
     classifier, a landmark, another class, outside the bounds), whose position in O is in ``pose``: it
     counts against the confirmation of a tentative track it lies near (see the module docstring).
-    ``None``: no such candidates."""
+    ``None``: no such candidates. Where ``partial``, the detection is of a class that is seen whole
+    (``Envelope.whole``) but is occluded at an end: it may update a confirmed track, never start or
+    confirm one (``None``: none is partial)."""
 
     pose: Float[Array, "dets 3"]
     cov: Float[Array, "dets 3 3"]
     class_id: Int[Array, " dets"]
     mask: Bool[Array, " dets"]
     other: Bool[Array, " dets"] | None = None
+    partial: Bool[Array, " dets"] | None = None
 
 
 def motion_model(dt: Float[Array, ""], params: TrackerParams) -> tuple[Float[Array, "6 6"], Float[Array, "6 6"]]:
@@ -392,8 +395,12 @@ def track_step(
         det.pose, det.cov
     )  # [K, M]
     tracked_det = det.mask & params.tracked[det.class_id]
+    # A partial detection (an occluded view of a class seen whole) only follows a confirmed track.
+    whole = jnp.ones(det.mask.shape, bool) if det.partial is None else ~det.partial
+    may_update = whole[:, None] | state.confirmed[None, :]  # [K, M]
     gated = (
         tracked_det[:, None]
+        & may_update
         & state.live[None, :]
         & (det.class_id[:, None] == state.class_id[None, :])
         & (d2 <= params.gate[det.class_id][:, None])
@@ -405,7 +412,7 @@ def track_step(
     used = jnp.zeros(det.mask.shape, bool).at[det_of_track].max(has)
     dist = jnp.linalg.norm(det.pose[:, None, :2] - state.mean[None, :, :2], axis=-1)  # [K, M]
     close = (
-        tracked_det[:, None] & ~used[:, None]
+        tracked_det[:, None] & ~used[:, None] & may_update
         & state.live[None, :] & ~has[None, :]
         & (det.class_id[:, None] == state.class_id[None, :])
         & (dist < params.birth_exclusion)
@@ -454,7 +461,7 @@ def track_step(
     used = used.at[det2].max(has2)  # the recaptured ones too
     dist = jnp.linalg.norm(det.pose[:, None, :2] - mean[None, :, :2], axis=-1)
     near_live = jnp.any(live[None, :] & (det.class_id[:, None] == state.class_id[None, :]) & (dist < params.birth_exclusion), 1)
-    born_ok = tracked_det & ~used & ~near_live
+    born_ok = tracked_det & ~used & ~near_live & whole
     # Nor may two detections of a class closer than that start two tracks in one scan (a robot seen
     # in two pieces): the first of them in slot order starts it.
     dd = jnp.linalg.norm(det.pose[:, None, :2] - det.pose[None, :, :2], axis=-1)  # [K, K]

@@ -40,6 +40,9 @@ class LiveStats:
     rows: int = 0
     degraded: int = 0
     late: int = 0  # frames whose processing took longer than one scan period
+    unlike: int = 0  # candidates dropped as unlike every training example of their class
+    off_envelope: int = 0  # candidates outside their best class's shape envelope
+    track_ids: dict = dataclasses.field(default_factory=dict)  # class name -> ids of reported tracks
     latencies_ms: deque = dataclasses.field(default_factory=lambda: deque(maxlen=2000))
 
     def latency(self) -> tuple[float, float]:
@@ -71,12 +74,14 @@ PACKED = ("track_id", "class", "x", "y", "theta", "var_x", "var_y", "var_theta",
 def pack_tracks(o: Output):
     """The GTD rows' fields of one output as a single ``[M + 1, 9]`` float32 array (columns
     :data:`PACKED`; track ids and classes are exact in float32 below 2^24), so that one transfer
-    brings a scan's rows to the host. The last row holds the scan's status: degraded, objects."""
+    brings a scan's rows to the host. The last row holds the scan's status: degraded, objects,
+    candidates unlike their class's examples, candidates outside their best class's envelope."""
     f32 = jnp.float32
     tracks = jnp.concatenate([
         o.track_id[:, None].astype(f32), o.track_class[:, None].astype(f32), o.track_pose.astype(f32),
         o.track_var.astype(f32), o.track_mask[:, None].astype(f32)], axis=1)
-    status = jnp.zeros((1, len(PACKED)), f32).at[0, 0].set(o.degraded.astype(f32)).at[0, 1].set(o.n_objects.astype(f32))
+    status = jnp.zeros((1, len(PACKED)), f32).at[0, :4].set(jnp.stack([
+        o.degraded.astype(f32), o.n_objects.astype(f32), o.unlike.astype(f32), o.off_envelope.astype(f32)]))
     return jnp.concatenate([tracks, status], axis=0)
 
 
@@ -205,6 +210,10 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
                 stats.frames += 1
                 stats.rows += len(rows)
                 stats.degraded += int(degraded)
+                stats.unlike += int(packed[-1, 2])
+                stats.off_envelope += int(packed[-1, 3])
+                for row in rows:
+                    stats.track_ids.setdefault(row.cls, set()).add(row.track_id)
                 stats.late += int(lat > period_ms)
                 if on_scan is not None:
                     on_scan(stats, o, lf.stamp)
@@ -220,4 +229,7 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
 def summary_json(stats: LiveStats, link_stats) -> str:
     med, p99 = stats.latency()
     return json.dumps({"frames": stats.frames, "rows": stats.rows, "latency_ms_median": med, "latency_ms_p99": p99,
-                       "late": stats.late, "degraded": stats.degraded, **dataclasses.asdict(link_stats)})
+                       "late": stats.late, "degraded": stats.degraded, "unlike": stats.unlike,
+                       "off_envelope": stats.off_envelope,
+                       "tracks": {c: len(ids) for c, ids in sorted(stats.track_ids.items())},
+                       **dataclasses.asdict(link_stats)})

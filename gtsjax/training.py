@@ -64,14 +64,17 @@ class TrainConfig:
     # the landmark classes' position GPs learn a simple shape: they get fewer. The pose GPs' variance
     # (O(M^2) per candidate) uses the first n_inducing_var.
     n_inducing: int = 6144
-    n_inducing_class: int = 512
+    n_inducing_class: int = 1024
     n_inducing_var: int = 64
     restarts: int = 3  # optimiser starts per GP fit
-    # Classifier: the background class may get more examples than the others (None: max_per_class),
-    # as varied as real clutter is; with more than max_class_fit examples, the hyperparameters are fitted
-    # on a subsample of that many and the GPs conditioned on all (None: on all, up to 3 000).
+    # Classifier: with background logs, the background class gets more examples than the others (None:
+    # four times max_per_class), as varied as real clutter is; the mobile classes get max_mobile (None:
+    # max_per_class): as many views of the robot as of clutter keep a robot's score up where clutter
+    # looks like it. With more than max_class_fit examples in all, the hyperparameters are fitted on a
+    # subsample of that many and the GPs conditioned on all of them.
     max_background: int | None = None
-    max_class_fit: int | None = None
+    max_mobile: int | None = None
+    max_class_fit: int | None = 1500
     support_size: int = 512  # open-set test: training examples kept per class
     # Motion limits per class (m/s, rad/s) that override what labelled motion, or the default, gives.
     max_speed: dict[str, float] = dataclasses.field(default_factory=dict)
@@ -268,6 +271,23 @@ def informative_columns(vectors: np.ndarray) -> tuple[int, ...]:
 
 def _sample(rng, idx, cap):
     return idx if idx.size <= cap else np.sort(rng.choice(idx, cap, replace=False))
+
+
+def _share(rng, pools: list[np.ndarray], cap: int) -> np.ndarray:
+    """Up to ``cap`` indices drawn from ``pools`` as evenly as they allow (a pool smaller than its
+    share gives all it has, and the rest is shared among the others)."""
+    sizes = np.array([p.size for p in pools])
+    take = np.zeros(len(pools), int)
+    left, open_ = cap, sizes > 0
+    while left > 0 and open_.any():
+        share = max(1, left // int(open_.sum()))
+        for i in np.flatnonzero(open_):
+            t = min(share, sizes[i] - take[i], left)
+            take[i] += t
+            left -= t
+            open_[i] = take[i] < sizes[i]
+    return np.sort(np.concatenate([_sample(rng, p, int(t)) for p, t in zip(pools, take, strict=True)]
+                                  + [np.zeros(0, int)]))
 
 
 def _fit32(x, y, key, cfg, progress, label, n_inducing: int, max_fit: int | None = None):
@@ -471,8 +491,8 @@ def motion_limits(logs: Sequence[ScanLog], classes: tuple[str, ...], *, quantile
 
 
 @jax.jit
-def _decide(clf, env, vectors, shape, rng, occluded):
-    dec = classify(clf, vectors, jnp.ones(vectors.shape[0], bool), envelope_pass(env, shape, rng, occluded))
+def _decide(clf, env, vectors, shape, rng):
+    dec = classify(clf, vectors, jnp.ones(vectors.shape[0], bool), envelope_pass(env, shape, rng))
     return jnp.where(dec.ok, dec.cls, 0), dec.unlike, dec.off_envelope
 
 
@@ -484,8 +504,7 @@ def decide(model: Model, ex: "Examples", chunk: int = 4096):
         f32 = jnp.float32
         part = slice(s, s + chunk)
         res = _decide(model.classifier, model.envelope, jnp.asarray(ex.vectors[part], f32),
-                      jnp.asarray(ex.shape[part], f32), jnp.asarray(ex.rng[part], f32),
-                      jnp.asarray(ex.occluded[part]))
+                      jnp.asarray(ex.shape[part], f32), jnp.asarray(ex.rng[part], f32))
         for o, r in zip(outs, res, strict=True):
             o.append(np.asarray(r))
     if not outs[0]:
@@ -525,6 +544,27 @@ def background_examples(logs: Sequence[ScanLog], names: Sequence[str], cfg: "Tra
 
 
 
+def _n_beams(log: ScanLog) -> int:
+    """The step's beam count for a model trained on ``log``: its own, or its scanner model's if more."""
+    n = log.n_beams
+    if log.sensor_model is not None:
+        try:
+            n = max(n, get_model(log.sensor_model).n_beams)
+        except InputError:
+            pass
+    return n
+
+
+def fit_background(first: ScanLog, background: Sequence[ScanLog], names: Sequence[str]) -> list[ScanLog]:
+    """Background logs checked against the labelled logs' scanner (``first``): the same angular step
+    within 1 %, cropped to its field of view and range window (:func:`~gtsjax.io.logs.fit_geometry`);
+    another step is one :class:`InputError` naming the log."""
+    geometry = dict(angle_min=first.angle_min, angle_increment=first.angle_increment, n_beams=_n_beams(first),
+                    range_min=first.range_min, range_max=first.range_max)
+    return [fit_geometry(log, **geometry, where=name, crop=True, sensor_model=first.sensor_model)
+            for log, name in zip(background, names, strict=True)]
+
+
 def train(logs: Sequence[ScanLog], site: Site, cfg: TrainConfig = TrainConfig(), *,
           progress: Callable[[dict], None] | None = None, names: Sequence[str] | None = None,
           background: Sequence[ScanLog] = (), background_names: Sequence[str] | None = None) -> tuple[Model, dict]:
@@ -547,16 +587,8 @@ def train(logs: Sequence[ScanLog], site: Site, cfg: TrainConfig = TrainConfig(),
                 log.angle_min, first.angle_min, abs_tol=1e-9) or not math.isclose(
                 log.angle_increment, first.angle_increment, abs_tol=1e-12):
             raise InputError(name, f"scan geometry differs from {names[0]} (beams, angles or sensor model)")
-    n_beams = first.n_beams
-    if first.sensor_model is not None:
-        try:
-            n_beams = max(n_beams, get_model(first.sensor_model).n_beams)
-        except InputError:
-            pass
-    geometry = dict(angle_min=first.angle_min, angle_increment=first.angle_increment, n_beams=n_beams,
-                    range_min=first.range_min, range_max=first.range_max)
-    background = [fit_geometry(log, **geometry, where=name, crop=True, sensor_model=first.sensor_model)
-                  for log, name in zip(background, bg_names, strict=True)]
+    n_beams = _n_beams(first)
+    background = fit_background(first, background, bg_names)
     classes, landmarks, mobiles = class_list(logs, site)
     if not mobiles:
         raise InputError(names[0], "no labelled object classes in the logs")
@@ -637,9 +669,17 @@ def train(logs: Sequence[ScanLog], site: Site, cfg: TrainConfig = TrainConfig(),
     # Classifier: balanced, capped examples; one GP per class on 1/0 targets (eq. 14). The background,
     # as varied as the world, may get more examples than the other classes (max_background).
     counts = {c: int(np.sum(ex_all.cls == k)) for k, c in enumerate(classes)}
-    caps = [cfg.max_background or cfg.max_per_class] + [cfg.max_per_class] * (len(classes) - 1)
-    train_idx = np.concatenate([
-        _sample(rng, np.flatnonzero((ex_all.cls == k) & ~is_held), caps[k]) for k in range(len(classes))])
+    n_bg = cfg.max_per_class if not background else (cfg.max_background or 4 * cfg.max_per_class)
+    # The background examples are shared out evenly between their sources (the labelled logs' own
+    # background, then each background log; what one source cannot fill goes to the others), so that
+    # a long log of one office does not crowd out the field's own clutter.
+    source = np.concatenate([np.full(len(ex_all.cls) - int(np.sum(~lookalike)), -1),
+                             np.repeat(np.arange(len(bg_info)), [i["candidates"] for i in bg_info])[~lookalike]])
+    pools = [np.flatnonzero((ex_all.cls == 0) & ~is_held & (source == s)) for s in range(-1, len(bg_info))]
+    bg_idx = _share(rng, pools, n_bg)
+    caps = [cfg.max_mobile if c in mobiles and cfg.max_mobile else cfg.max_per_class for c in classes]
+    train_idx = np.concatenate([bg_idx] + [
+        _sample(rng, np.flatnonzero((ex_all.cls == k) & ~is_held), caps[k]) for k in range(1, len(classes))])
     missing = [c for k, c in enumerate(classes) if not np.any(ex_all.cls[train_idx] == k)]
     if missing:
         warnings.append(f"no training examples of class(es) {', '.join(missing)}: "

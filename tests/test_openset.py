@@ -10,7 +10,7 @@ import pytest
 
 from gtsjax import InputError
 from gtsjax._classify import Support, classify, nearest_d2
-from gtsjax._filters import Envelope, envelope_pass
+from gtsjax._filters import Envelope, envelope_pass, partial_view
 from gtsjax.io.logs import ScanLog
 from gtsjax.training import Examples, fit_envelope, motion_limits, train
 
@@ -89,16 +89,14 @@ def test_envelope_pass_matches_a_loop():
     lo = rng.uniform(0, 1, (n_classes, n_bins, 3))
     hi = lo + rng.uniform(0.2, 1.5, (n_classes, n_bins, 3))
     lo[0], hi[0] = -np.inf, np.inf
-    whole = np.array([False, True, False])
-    env = Envelope(jnp.asarray(0.7, F32), jnp.asarray(lo, F32), jnp.asarray(hi, F32), jnp.asarray(whole))
+    env = Envelope(jnp.asarray(0.7, F32), jnp.asarray(lo, F32), jnp.asarray(hi, F32), jnp.zeros(3, bool))
     q = rng.uniform(0, 2, (50, 3))
     r = rng.uniform(0, 4, 50)
-    occ = rng.random(50) < 0.3
-    got = np.asarray(envelope_pass(env, jnp.asarray(q, F32), jnp.asarray(r, F32), jnp.asarray(occ)))
+    got = np.asarray(envelope_pass(env, jnp.asarray(q, F32), jnp.asarray(r, F32)))
     for i in range(50):
         b = min(int(r[i] // 0.7), n_bins - 1)
         for k in range(n_classes):
-            want = all(lo[k, b, j] <= q[i, j] <= hi[k, b, j] for j in range(3)) and not (whole[k] and occ[i])
+            want = all(lo[k, b, j] <= q[i, j] <= hi[k, b, j] for j in range(3))
             assert got[i, k] == want
 
 
@@ -141,16 +139,16 @@ def test_fit_envelope_holds_the_class_and_extends_to_unseen_ranges():
     ex = examples(np.full(n, 1), shape, r, occluded)
     env, rep = fit_envelope(ex, 2, np.radians(0.35), n_bins=6)
     assert rep[1]["whole_required"]
-    no = jnp.zeros(n, bool)
-    inside = np.asarray(envelope_pass(env, jnp.asarray(shape, F32), jnp.asarray(r, F32), no))
+    inside = np.asarray(envelope_pass(env, jnp.asarray(shape, F32), jnp.asarray(r, F32)))
     assert inside[:, 1].mean() > 0.97 and inside[:, 0].all()
-    occ = np.asarray(envelope_pass(env, jnp.asarray(shape, F32), jnp.asarray(r, F32), jnp.ones(n, bool)))
-    assert not occ[:, 1].any() and occ[:, 0].all()  # occluded: never the class, always background
+    cls = jnp.asarray([0, 1, 1], jnp.int32)
+    np.testing.assert_array_equal(np.asarray(partial_view(env, cls, jnp.asarray([True, True, False]))),
+                                  [False, True, False])  # an occluded robot is a partial view
     # A leg-sized candidate (10 cm) and a table top (0.7 m) are outside the class at every range,
     # including ranges the class was never seen at (0.3 m, 6 m).
     for rr in (0.3, 2.0, 6.0):
         q = jnp.asarray([[0.10, 0.05, 60.0], [0.7, 0.05, 200.0], [0.22, 0.1, 60.0]], F32)
-        got = np.asarray(envelope_pass(env, q, jnp.full(3, rr, F32), jnp.zeros(3, bool)))
+        got = np.asarray(envelope_pass(env, q, jnp.full(3, rr, F32)))
         np.testing.assert_array_equal(got[:, 1], [False, False, True])
     assert rep[1]["width_m"][0] < 0.15 < 0.3 < rep[1]["width_m"][1]
 
@@ -183,3 +181,75 @@ def test_background_log_with_another_step_is_refused(tiny):
                    angle_min=-np.pi / 2, angle_increment=np.radians(1.0))
     with pytest.raises(InputError, match=r"sick\.log.*angular step"):
         train([log], site, tiny["config"], background=[sick], background_names=["sick.log"])
+
+
+def test_training_on_a_clean_hall_without_background_succeeds_and_tracks(tiny):
+    """A hall with the robot, thin posts and long walls only: no background examples at all. Training
+    warns and succeeds; the model finds the posts and tracks the robot walking in the same hall."""
+    from gtsjax._pipeline import process_log
+    from gtsjax.io import to_scans
+    from gtsjax.sim import simulate
+
+    log, site = simulate("hall-train", seed=5, n_scans=600)
+    # Only the robot and the posts: every return from beyond the field (the walls) removed.
+    sx, sy, sth = log.extra["truth_sensor_pose"][0]
+    a = sth + log.angles()[None, :]
+    hx, hy = sx + log.ranges * np.cos(a), sy + log.ranges * np.sin(a)
+    x0, y0, x1, y1 = site.bounds
+    far = (hx < x0 - 0.6) | (hx > x1 + 0.6) | (hy < y0 - 0.6) | (hy > y1 + 0.6)
+    log = dataclasses.replace(log, ranges=np.where(far, 0.0, log.ranges).astype(np.float32))
+    model, report = train([log], site, tiny["config"])
+    assert any("background" in w for w in report["warnings"])
+    assert report["examples_used"]["background"] == 0
+    walk, site2 = simulate("hall-trajectory", seed=6, n_scans=150)
+    m = model.with_site(site2)
+    _, out = process_log(m, to_scans(walk, m.n_beams))
+    assert np.mean(np.asarray(out.degraded)) < 0.2
+    truth = walk.truth_poses[:, 0, :2]
+    rows = np.asarray(out.track_mask)
+    t, j = np.nonzero(rows)
+    assert len(np.unique(t)) > 0.7 * walk.n_scans
+    err = np.linalg.norm(np.asarray(out.track_pose)[t, j, :2] - truth[t], axis=1)
+    assert np.median(err) < 0.05
+
+
+def without_robot(log):
+    """The log with every return within 0.35 m of a labelled robot removed: a background log."""
+    sx, sy, sth = log.extra["truth_sensor_pose"][0]
+    a = sth + log.angles()[None, :]
+    hx, hy = sx + log.ranges * np.cos(a), sy + log.ranges * np.sin(a)
+    p = log.truth_poses[:, 0]
+    near = np.hypot(hx - np.nan_to_num(p[:, :1], nan=1e9), hy - np.nan_to_num(p[:, 1:2], nan=1e9)) < 0.35
+    return dataclasses.replace(log, ranges=np.where(near, 0.0, log.ranges).astype(np.float32), truth_classes=None,
+                               truth_poses=None, extra={})
+
+
+def test_train_cli_takes_several_background_logs_and_refuses_another_step(tmp_path, capsys):
+    import json
+
+    from gtsjax.cli import main
+    from gtsjax.io import save_log, save_site
+    from gtsjax.sim import simulate
+
+    lab, site = simulate("spl-train", seed=11, n_scans=300)
+    save_log(lab, tmp_path / "lab.npz")
+    save_site(site, tmp_path / "site.json")
+    for i, seed in enumerate((3, 4)):
+        save_log(without_robot(simulate("spl-legs", seed=seed, n_scans=80)[0]), tmp_path / f"bg{i}.npz")
+    small = ["--max-per-class", "60", "--max-pose", "80", "--inducing", "32", "--restarts", "1"]
+    code = main(["train", str(tmp_path / "lab.npz"), "--site", str(tmp_path / "site.json"), "--background",
+                 str(tmp_path / "bg0.npz"), str(tmp_path / "bg1.npz"), "--out", str(tmp_path / "m.npz"),
+                 "--report", str(tmp_path / "r.json"), *small])
+    assert code == 0
+    rep = json.loads((tmp_path / "r.json").read_text())
+    assert [b["log"] for b in rep["background_logs"]] == [str(tmp_path / "bg0.npz"), str(tmp_path / "bg1.npz")]
+    assert all(b["candidates"] > 0 for b in rep["background_logs"])
+    capsys.readouterr()
+    sick = ScanLog(ranges=np.full((20, 181), 3.0, np.float32), stamps=np.arange(20) * 0.2,
+                   angle_min=-np.pi / 2, angle_increment=np.radians(1.0))
+    save_log(sick, tmp_path / "sick.npz")
+    code = main(["train", str(tmp_path / "lab.npz"), "--site", str(tmp_path / "site.json"), "--background",
+                 str(tmp_path / "sick.npz"), "--out", str(tmp_path / "m2.npz"), *small])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and not (tmp_path / "m2.npz").exists()
+    assert len(err) == 1 and "sick.npz" in err[0] and "angular step" in err[0], err

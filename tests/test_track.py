@@ -471,3 +471,34 @@ def test_turn_rate_is_clipped_per_class():
     ids = {c: int(states[-1].track_id[np.flatnonzero(np.asarray(states[-1].live & (states[-1].class_id == c)))[0]])
            for c in (1, 2)}
     assert not any(h[ids[1]][0] for h in hist[3:]) and all(h[ids[2]][0] for h in hist[2:])
+
+
+def test_partial_views_follow_a_confirmed_track_but_never_start_one():
+    """Occluded views of a class seen whole (``partial``): alone they start nothing; after whole views
+    have confirmed a track, they keep it updated (a robot passing behind another). The reference
+    tracker agrees scan by scan."""
+    pytest.importorskip("filterpy")
+    from benchmarks.reference import _Tracker
+
+    def run(partial_flags):
+        ref = _Tracker(CONFIRM3, 4)
+        state = TrackerState.empty(4)
+        rng = np.random.default_rng(7)
+        out = []
+        for i, part in enumerate(partial_flags):
+            z = np.array([[1.0 + 0.02 * i + rng.normal(0, 0.005), 2.0 + rng.normal(0, 0.005), 0.1]])
+            d, (zz, R, c, o) = scan(z)
+            d = Detections(d.pose, d.cov, d.class_id, d.mask, d.other, jnp.asarray(np.arange(6) == 0) & part)
+            state, _ = step(state, d, jnp.asarray(0.1, F32), CONFIRM3)
+            ref.step(zz, R, c, 0.1, o, np.array([part]))
+            live = np.flatnonzero(np.asarray(state.live))
+            g = {int(state.track_id[s]): (bool(state.confirmed[s]), int(state.misses[s])) for s in live}
+            r = {t.track_id: (t.confirmed, t.misses) for t in ref.slots if t is not None}
+            assert g == r, (i, g, r)
+            out.append(g)
+        return out
+
+    assert all(h == {} for h in run([True] * 10))  # partial views alone: no track at all
+    hist = run([False] * 4 + [True] * 10)
+    assert hist[3] == {0: (True, 0)}  # confirmed by whole views
+    assert all(h == {0: (True, 0)} for h in hist[4:])  # and followed through the partial ones

@@ -31,7 +31,8 @@ def replay_log(log, model, out: Path, *, chunk: int = 256, sensor_out: Path | No
 
     state = init_state(model)
     block = chunk * 16
-    totals = {"scans": 0, "rows": 0, "degraded": 0, "overflow": 0, "too_long": 0}
+    totals = {"scans": 0, "rows": 0, "degraded": 0, "overflow": 0, "too_long": 0, "unlike": 0, "off_envelope": 0,
+              "track_ids": {}}
     sensor_rows = []
     with GTDWriter(out) as writer:
         for start in range(0, log.n_scans, block):
@@ -48,6 +49,8 @@ def replay_log(log, model, out: Path, *, chunk: int = 256, sensor_out: Path | No
                                         out_arrays.track_pose[i], out_arrays.track_var[i], out_arrays.track_mask[i],
                                         model.classes)
                 writer.write(rows)
+                for row in rows:
+                    totals["track_ids"].setdefault(row.cls, set()).add(row.track_id)
             if sensor_out is not None:
                 tf = out_arrays.transform
                 theta = np.arctan2(tf.A[:, 1, 0], tf.A[:, 0, 0])
@@ -60,6 +63,8 @@ def replay_log(log, model, out: Path, *, chunk: int = 256, sensor_out: Path | No
             totals["degraded"] += int(np.sum(out_arrays.degraded))
             totals["overflow"] += int(np.sum(out_arrays.overflow))
             totals["too_long"] += int(np.sum(out_arrays.too_long))
+            totals["unlike"] += int(np.sum(out_arrays.unlike))
+            totals["off_envelope"] += int(np.sum(out_arrays.off_envelope))
         totals["rows"] = writer.rows
     if sensor_out is not None:
         with open(sensor_out, "w", newline="") as f:
@@ -67,6 +72,15 @@ def replay_log(log, model, out: Path, *, chunk: int = 256, sensor_out: Path | No
             w.writerow(("stamp", "x", "y", "theta", "degraded", "n_landmarks"))
             w.writerows(sensor_rows)
     return totals
+
+
+def track_summary(model, track_ids: dict, unlike: int, off_envelope: int) -> str:
+    """One line for ``replay`` and ``run``: the tracks reported per tracked class, and the candidates
+    rejected for not looking like any training example of their class (so a user sees why)."""
+    tracked = [c for c, t in zip(model.classes, np.asarray(model.tracker.tracked), strict=True) if t]
+    per = ", ".join(f"{c} {len(track_ids.get(c, ()))}" for c in tracked)
+    return (f"tracks reported: {per}; candidates rejected as unlike any training example of their class: {unlike}, "
+            f"outside their class's shape envelope: {off_envelope}")
 
 
 def load_for_run(model_path: Path, site_path: Path, *, sensor_model: str | None):
@@ -112,3 +126,4 @@ def replay_cmd(
                   f"compilation included): {totals['rows']} track rows written to {out}; "
                   f"{totals['degraded']} scans without a new map transformation, "
                   f"{totals['overflow']} segments over the candidate limit, {totals['too_long']} over-long segments")
+    console.print(track_summary(m, totals["track_ids"], totals["unlike"], totals["off_envelope"]), soft_wrap=True)

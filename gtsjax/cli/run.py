@@ -108,6 +108,11 @@ def run_cmd(
         f"{stats.frames} frames, {stats.rows} rows -> {out}; latency median {med:.2f} ms, p99 {p99:.2f} ms; "
         f"link: {link_stats.bad_frames} bad frames, {link_stats.dropped} dropped, {link_stats.reconnects} reconnects"
         + (f"; raw scans -> {record}" if record else ""))
+    from ..io.modelfile import load_model
+    from .replay import track_summary
+
+    Console(stderr=True).print(track_summary(load_model(model), stats.track_ids, stats.unlike, stats.off_envelope),
+                               soft_wrap=True)
 
 
 @app.command("emulate")

@@ -15,7 +15,7 @@ from rich.table import Table
 from ..errors import InputError
 from ..io import load_log, load_site
 from ..io.modelfile import save_model
-from ..training import TrainConfig, train
+from ..training import TrainConfig, fit_background, train
 from ._app import app
 from .convert import load_input
 
@@ -68,6 +68,8 @@ def train_cmd(
                               max_turn_rate=_per_class(max_turn_rate, "--max-turn-rate"))
     loaded = [load_log(p) for p in logs]
     bg = [load_input(p, background_topic if _is_bag(p) else None, console) for p in background]
+    if loaded and loaded[0].labelled:  # every input checked before the minutes of fitting
+        bg = fit_background(loaded[0], bg, [str(p) for p in background])
 
     def progress(info):
         console.print(f"  fitted GP {info['gp']:<22} n={info['n']:<5} LML={info['lml']:10.1f}  {info['seconds']:6.1f} s")
