@@ -258,7 +258,11 @@ class _Tracker:
                 r_theta = R[j][2, 2]
                 head_ok = (zj[2] - t.kf.x[2, 0]) ** 2 <= self.heading_gate * (t.kf.P[2, 2] + r_theta)
                 w_max = self.max_turn_rate[t.cls]
-                if head_ok:
+                if partial[j]:  # a cut outline: the position only, the heading neither used nor rejected
+                    t.kf.update(zj[:2, None], R=R[j][:2, :2], H=self.H[:2])
+                    omega = t.kf.x[5, 0]
+                    t.kf.x[5] = min(max(omega, -w_max), w_max)
+                elif head_ok:
                     t.kf.update(zj, R=R[j])
                     omega = t.kf.x[5, 0]
                     t.kf.x[5] = min(max(omega, -w_max), w_max)

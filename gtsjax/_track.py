@@ -427,20 +427,23 @@ def track_step(
 
     z, R = det.pose[det_of_track], det.cov[det_of_track]
     head_ok = jax.vmap(heading_consistent, in_axes=(0, 0, 0, 0, None))(state.mean, state.cov, z, R, params.heading_gate)
-    upd_mean, upd_cov = jax.vmap(kalman_update)(state.mean, state.cov, z, R, head_ok)
+    # A partial view's heading comes from a cut outline: it updates the position only, and neither
+    # supports nor rejects the track's heading.
+    seen = has if det.partial is None else has & ~det.partial[det_of_track]
+    upd_mean, upd_cov = jax.vmap(kalman_update)(state.mean, state.cov, z, R, head_ok & seen)
     # A rejected heading discards a turn rate learnt from headings (see the module docstring). One
     # already discarded (its variance back at omega_var0 or above) is left as it is, with its
     # correlation to the heading: over consecutive rejections the heading's variance then grows with
     # the square of the time, as a turn at up to that rate would move it, not linearly, and a robot
     # that really turns is taken back within a few scans instead of being coasted past.
-    forget = (~head_ok & (state.cov[:, 5, 5] < params.omega_var0))[:, None]
+    forget = (seen & ~head_ok & (state.cov[:, 5, 5] < params.omega_var0))[:, None]
     upd_cov = upd_cov.at[:, 5, :].set(jnp.where(forget, 0.0, upd_cov[:, 5, :]))
     upd_cov = upd_cov.at[:, :, 5].set(jnp.where(forget, 0.0, upd_cov[:, :, 5]))
     upd_cov = upd_cov.at[:, 5, 5].set(jnp.where(forget[:, 0], params.omega_var0, upd_cov[:, 5, 5]))
     omega_raw = jnp.where(forget[:, 0], 0.0, upd_mean[:, 5])  # the turn rate before clipping, for plausible()
     turn_max = params.max_turn_rate[state.class_id]
     upd_mean = upd_mean.at[:, 5].set(jnp.clip(omega_raw, -turn_max, turn_max))
-    upd_mean, upd_cov, rivals = rival_heading(state, upd_mean, upd_cov, z[:, 2], R[:, 2, 2], has, head_ok, dt, params)
+    upd_mean, upd_cov, rivals = rival_heading(state, upd_mean, upd_cov, z[:, 2], R[:, 2, 2], seen, head_ok, dt, params)
     mean = jnp.where(has[:, None], upd_mean, state.mean)
     cov = jnp.where(has[:, None, None], upd_cov, state.cov)
     hits = state.hits + has.astype(jnp.int32)

@@ -16,6 +16,15 @@ pass.
 Examples per class are balanced and capped (``max_per_class``): landmarks, in view in every scan,
 would otherwise swamp the robots. The held-out split (``holdout``) is by blocks of one second of
 scans, so that near-identical consecutive scans do not sit on both sides of it.
+
+**What the model must reject** (issue 13). Background logs (recorded anywhere with no robot in view,
+any format ``convert`` reads) add background examples: every candidate the binary filters keep in
+them, except look-alikes of a landmark class (a post in view while recording). With them the
+classifier sees many more background examples, shared evenly between their sources, and more of
+each mobile class. From the labelled examples come each class's shape envelope
+(:func:`fit_envelope`), its open-set examples and threshold (:func:`fit_support`, the threshold from
+held-out examples) and each tracked class's motion limits (:func:`motion_limits`). A class with no
+examples at all (a clean field has no background) is a warning in the report, not an error.
 """
 
 import dataclasses
@@ -64,14 +73,15 @@ class TrainConfig:
     # the landmark classes' position GPs learn a simple shape: they get fewer. The pose GPs' variance
     # (O(M^2) per candidate) uses the first n_inducing_var.
     n_inducing: int = 6144
-    n_inducing_class: int = 1024
+    n_inducing_class: int = 2048
     n_inducing_var: int = 64
     restarts: int = 3  # optimiser starts per GP fit
-    # Classifier: with background logs, the background class gets more examples than the others (None:
-    # four times max_per_class), as varied as real clutter is; the mobile classes get max_mobile (None:
-    # max_per_class): as many views of the robot as of clutter keep a robot's score up where clutter
-    # looks like it. With more than max_class_fit examples in all, the hyperparameters are fitted on a
-    # subsample of that many and the GPs conditioned on all of them.
+    # Classifier: with background logs, the background class gets max_background examples (None: twelve
+    # times max_per_class), as varied as real clutter is, and each mobile class max_mobile (None: four
+    # times max_per_class): as many views of the robot as of clutter of its size keep a robot's score up
+    # where clutter looks like it. Without background logs, both are max_per_class. With more than
+    # max_class_fit examples in all, the hyperparameters are fitted on a subsample of that many and
+    # the GPs conditioned on all of them.
     max_background: int | None = None
     max_mobile: int | None = None
     max_class_fit: int | None = 1500
@@ -669,7 +679,8 @@ def train(logs: Sequence[ScanLog], site: Site, cfg: TrainConfig = TrainConfig(),
     # Classifier: balanced, capped examples; one GP per class on 1/0 targets (eq. 14). The background,
     # as varied as the world, may get more examples than the other classes (max_background).
     counts = {c: int(np.sum(ex_all.cls == k)) for k, c in enumerate(classes)}
-    n_bg = cfg.max_per_class if not background else (cfg.max_background or 4 * cfg.max_per_class)
+    n_bg = cfg.max_per_class if not background else (cfg.max_background or 12 * cfg.max_per_class)
+    n_mobile = cfg.max_per_class if not background else (cfg.max_mobile or 4 * cfg.max_per_class)
     # The background examples are shared out evenly between their sources (the labelled logs' own
     # background, then each background log; what one source cannot fill goes to the others), so that
     # a long log of one office does not crowd out the field's own clutter.
@@ -677,7 +688,7 @@ def train(logs: Sequence[ScanLog], site: Site, cfg: TrainConfig = TrainConfig(),
                              np.repeat(np.arange(len(bg_info)), [i["candidates"] for i in bg_info])[~lookalike]])
     pools = [np.flatnonzero((ex_all.cls == 0) & ~is_held & (source == s)) for s in range(-1, len(bg_info))]
     bg_idx = _share(rng, pools, n_bg)
-    caps = [cfg.max_mobile if c in mobiles and cfg.max_mobile else cfg.max_per_class for c in classes]
+    caps = [n_mobile if c in mobiles else cfg.max_per_class for c in classes]
     train_idx = np.concatenate([bg_idx] + [
         _sample(rng, np.flatnonzero((ex_all.cls == k) & ~is_held), caps[k]) for k in range(1, len(classes))])
     missing = [c for k, c in enumerate(classes) if not np.any(ex_all.cls[train_idx] == k)]

@@ -486,7 +486,8 @@ def test_partial_views_follow_a_confirmed_track_but_never_start_one():
         rng = np.random.default_rng(7)
         out = []
         for i, part in enumerate(partial_flags):
-            z = np.array([[1.0 + 0.02 * i + rng.normal(0, 0.005), 2.0 + rng.normal(0, 0.005), 0.1]])
+            # a partial view's heading (from a cut outline) is off by 90°: it must not move the track's
+            z = np.array([[1.0 + 0.02 * i + rng.normal(0, 0.005), 2.0 + rng.normal(0, 0.005), 0.1 + 1.57 * part]])
             d, (zz, R, c, o) = scan(z)
             d = Detections(d.pose, d.cov, d.class_id, d.mask, d.other, jnp.asarray(np.arange(6) == 0) & part)
             state, _ = step(state, d, jnp.asarray(0.1, F32), CONFIRM3)
@@ -496,6 +497,8 @@ def test_partial_views_follow_a_confirmed_track_but_never_start_one():
             r = {t.track_id: (t.confirmed, t.misses) for t in ref.slots if t is not None}
             assert g == r, (i, g, r)
             out.append(g)
+            if len(live):
+                np.testing.assert_allclose(float(state.mean[live[0], 2]), 0.1, atol=0.05)
         return out
 
     assert all(h == {} for h in run([True] * 10))  # partial views alone: no track at all
