@@ -19,7 +19,7 @@ import jax.numpy as jnp
 
 from gtsjax._classify import classify, gp_inputs
 from gtsjax._features import characterise_all
-from gtsjax._filters import binary_filter
+from gtsjax._filters import binary_filter, envelope_pass, shape_quantities
 from gtsjax._frontend import front_end_log, front_end_unjitted
 from gtsjax._maptransform import poses_to_field, update_transform
 from gtsjax._pipeline import init_state, landmark_cap, make_step, perceive, process_log
@@ -53,8 +53,11 @@ def stage_functions(model):
         return binary_filter(cands.live, cands.too_long, feats.n_points, feats.width, width_min=fe.width_min,
                              width_max=fe.width_max, min_points=fe.min_points)
 
-    def cls(feats, keep):
-        return classify(model.classifier, gp_inputs(feats.vector, feats.origin, feats.height, model.gp_columns), keep)
+    def cls(feats, keep):  # with the shape envelopes and the open-set test, as perceive() does
+        rng = jnp.sqrt(jnp.sum(feats.origin**2, axis=-1))
+        in_env = envelope_pass(model.envelope, shape_quantities(feats.width, feats.height, feats.n_points, rng), rng)
+        return classify(model.classifier, gp_inputs(feats.vector, feats.origin, feats.height, model.gp_columns), keep,
+                        in_env)
 
     def pose(feats, scores, c, ok):
         rel, var, _ = regress(model.pose, gp_inputs(feats.vector, feats.origin, feats.height, model.gp_columns), c, ok, scores,
@@ -100,7 +103,8 @@ def record_inputs(model, scans, n: int):
         cands = st["a_segmentation"](scan)
         feats = st["b_characterisation"](cands)
         keep = st["c_filters"](cands, feats)
-        scores, c, ok = st["d_classifier"](feats, keep)
+        dec = st["d_classifier"](feats, keep)
+        scores, c, ok = dec.scores, dec.cls, dec.ok
         p = perc(scan)
         _, det = st["f_map_transformation"](state.transform, p)
         rec.append({"scan": scan, "cands": cands, "feats": feats, "keep": keep, "cls": c, "scores": scores, "ok": ok,

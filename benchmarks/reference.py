@@ -258,6 +258,12 @@ class _Tracker:
                 r_theta = R[j][2, 2]
                 head_ok = (zj[2] - t.kf.x[2, 0]) ** 2 <= self.heading_gate * (t.kf.P[2, 2] + r_theta)
                 w_max = self.max_turn_rate[t.cls]
+                if head_ok and t.confirmed and not partial[j]:
+                    # a heading that would turn a confirmed track faster than its class can is a misread
+                    x0, P0 = t.kf.x.copy(), t.kf.P.copy()
+                    t.kf.update(zj, R=R[j])
+                    head_ok = abs(t.kf.x[5, 0]) <= w_max + 2.0 * math.sqrt(max(t.kf.P[5, 5], 0.0))
+                    t.kf.x, t.kf.P = x0, P0
                 if partial[j]:  # a cut outline: the position only, the heading neither used nor rejected
                     t.kf.update(zj[:2, None], R=R[j][:2, :2], H=self.H[:2])
                     omega = t.kf.x[5, 0]

@@ -48,6 +48,10 @@ implausible scan restarts the track's confirmation: a tentative track is not con
 one loses its confirmation (it stops being reported; it keeps its id and slot, and dies after
 ``m_tentative`` misses like any tentative track), and its ``hits`` and ``contrary`` counters restart
 at 0, so that it must earn confirmation again with ``n_confirm`` further hits, as a new track does.
+A confirmed track's turn rate is not left to decide that: a heading that would turn it faster than its
+class can is taken for a misread and rejected like one outside the heading gate (after a few missed
+scans the gate is wide and misreads get through it; on the SPL scenarios, unconfirming the robot for
+them instead cost 1 % of recall, 96.3 % instead of 97.4 % with three robots crossing).
 
 **Majority confirmation.** Clutter that the classifier calls "robot" in some scans is called something
 else in the others. The step also receives the scan's ``other`` candidates (kept by the front end's
@@ -372,10 +376,15 @@ def plausible(mean: Float[Array, "tracks 6"], cov: Float[Array, "tracks 6 6"], o
     pos = disc > 0
     root = jnp.where(pos, jnp.sqrt(jnp.where(pos, disc, 1.0)), 0.0)  # double where: finite gradients at a = d, b = 0
     sigma_v = jnp.sqrt(jnp.maximum(0.5 * (a + d) + root, 0.0))
-    sigma_w = jnp.sqrt(jnp.maximum(cov[:, 5, 5], 0.0))
     v_max = params.max_speed[class_id] + _PLAUSIBLE_SIGMAS * sigma_v
-    w_max = params.max_turn_rate[class_id] + _PLAUSIBLE_SIGMAS * sigma_w
-    return (mean[:, 3] ** 2 + mean[:, 4] ** 2 <= v_max**2) & (jnp.abs(omega) <= w_max)
+    return (mean[:, 3] ** 2 + mean[:, 4] ** 2 <= v_max**2) & plausible_turn(omega, cov, class_id, params)
+
+
+def plausible_turn(omega: Float[Array, " tracks"], cov: Float[Array, "tracks 6 6"], class_id: Int[Array, " tracks"],
+                   params: TrackerParams) -> Bool[Array, " tracks"]:
+    """The turn-rate half of :func:`plausible`: ``|ω| ≤ max_turn_rate + 2 σ_ω``."""
+    sigma_w = jnp.sqrt(jnp.maximum(cov[:, 5, 5], 0.0))
+    return jnp.abs(omega) <= params.max_turn_rate[class_id] + _PLAUSIBLE_SIGMAS * sigma_w
 
 
 def reported(state: TrackerState, params: TrackerParams) -> Bool[Array, " tracks"]:
@@ -430,6 +439,12 @@ def track_step(
     # A partial view's heading comes from a cut outline: it updates the position only, and neither
     # supports nor rejects the track's heading.
     seen = has if det.partial is None else has & ~det.partial[det_of_track]
+    # A confirmed track's heading that would turn it faster than its class can (``plausible``'s
+    # turn-rate test on the updated estimate) is a misread, most often after a few scans without a
+    # detection have widened the heading's gate: rejected like one that fails the gate.
+    upd_mean, upd_cov = jax.vmap(kalman_update)(state.mean, state.cov, z, R, head_ok & seen)
+    turn_ok = plausible_turn(upd_mean[:, 5], upd_cov, state.class_id, params)
+    head_ok = head_ok & (turn_ok | ~state.confirmed)
     upd_mean, upd_cov = jax.vmap(kalman_update)(state.mean, state.cov, z, R, head_ok & seen)
     # A rejected heading discards a turn rate learnt from headings (see the module docstring). One
     # already discarded (its variance back at omega_var0 or above) is left as it is, with its

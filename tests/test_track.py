@@ -1,12 +1,14 @@
 """Stage g against a closed-form Kalman filter written in NumPy, and the track life cycle."""
 
+import math
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from gtsjax._track import Detections, TrackerParams, TrackerState, assign, track_step, wrap
+from gtsjax._track import Detections, TrackerParams, TrackerState, assign, heading_consistent, predict, track_step, wrap
 
 F32 = jnp.float32
 
@@ -452,10 +454,10 @@ def test_track_seen_as_background_in_most_scans_is_not_confirmed():
 
 def test_turn_rate_is_clipped_per_class():
     """Two robots of two classes turning in place at 1.5 rad/s, the classes' limits 0.5 and 2 rad/s:
-    the first's turn-rate estimate is clipped at 0.5 rad/s, and once three headings have pinned its
-    turn rate its motion is implausible (unconfirmed from the fourth scan on); the second's follows
-    the turn unclipped and is confirmed from the third scan on."""
-    params = TrackerParams.default([False, True, True], max_turn_rate=[3.0, 0.5, 2.0], n_confirm=3)
+    the first's turn-rate estimate is clipped at 0.5 rad/s, and its motion is implausible before its
+    fifth detection could confirm it, so it is never confirmed; the second's follows the turn
+    unclipped and is confirmed from its fifth scan on."""
+    params = TrackerParams.default([False, True, True], max_turn_rate=[3.0, 0.5, 2.0], n_confirm=5)
     rng = np.random.default_rng(0)
     scans = []
     for i in range(30):
@@ -470,7 +472,7 @@ def test_turn_rate_is_clipped_per_class():
     assert np.all(np.abs(omega[10:, 1] - 1.5) < 0.3) and np.all(np.abs(omega[:, 1]) <= 2.0 + 1e-6)
     ids = {c: int(states[-1].track_id[np.flatnonzero(np.asarray(states[-1].live & (states[-1].class_id == c)))[0]])
            for c in (1, 2)}
-    assert not any(h[ids[1]][0] for h in hist[3:]) and all(h[ids[2]][0] for h in hist[2:])
+    assert not any(h[ids[1]][0] for h in hist) and all(h[ids[2]][0] for h in hist[4:])
 
 
 def test_partial_views_follow_a_confirmed_track_but_never_start_one():
@@ -505,3 +507,24 @@ def test_partial_views_follow_a_confirmed_track_but_never_start_one():
     hist = run([False] * 4 + [True] * 10)
     assert hist[3] == {0: (True, 0)}  # confirmed by whole views
     assert all(h == {0: (True, 0)} for h in hist[4:])  # and followed through the partial ones
+
+
+def test_a_confirmed_track_rejects_a_heading_that_would_turn_it_too_fast():
+    """A robot standing at heading 0 is confirmed, then missed for three scans, which widens its
+    heading's gate; the next detection reads it 30° off. The gate alone would take that heading (checked
+    here), but it would turn the track faster than its class's 0.5 rad/s: it is a misread, rejected
+    (the heading stays near 0, the position is updated, the track stays confirmed). With a limit of
+    3 rad/s the same heading is taken. gtsjax and the reference agree on every scan."""
+    still = [scan([[1.0, 1.0, 0.0]], var=(1e-4, 1e-4, 3e-3)) for _ in range(20)]
+    gap = [scan(np.zeros((0, 3))) for _ in range(3)]
+    misread = [scan([[1.0, 1.0, math.radians(30)]], var=(1e-4, 1e-4, 3e-3))]
+    for limit, taken in ((0.5, False), (3.0, True)):
+        params = TrackerParams.default([False, True], max_turn_rate=limit, n_confirm=3)
+        hist, states = run_both(params, still + gap + misread)
+        before, after = states[-2], states[-1]
+        d, _ = misread[0]
+        predicted = predict(before, jnp.asarray(0.1, F32), params)
+        assert bool(heading_consistent(predicted.mean[0], predicted.cov[0], d.pose[0], d.cov[0], params.heading_gate))
+        assert hist[-1][0][0]  # still confirmed
+        heading = abs(math.degrees(float(after.mean[0, 2])))
+        assert (heading > 10) if taken else (heading < 3), (limit, heading, float(after.mean[0, 5]))
