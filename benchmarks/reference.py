@@ -47,6 +47,24 @@ def _f(a) -> np.ndarray:
     return np.asarray(a, dtype=np.float64)
 
 
+_FITTED: dict[tuple[int, ...], tuple[list, "SklearnGP"]] = {}
+
+
+def sklearn_gp(gp) -> "SklearnGP":
+    """:class:`SklearnGP` of ``gp``, built once per set of arrays: carrying a pose GP over 6 000 examples
+    into scikit-learn costs seconds (two Cholesky factorisations), and a model changed elsewhere
+    (``eqx.tree_at`` on its tracker) keeps the same GP arrays. Keyed by the identity of the arrays,
+    which the entry keeps alive, so a key is never reused by other arrays."""
+    import jax
+
+    leaves = jax.tree_util.tree_leaves(gp)
+    key = tuple(id(x) for x in leaves)
+    hit = _FITTED.get(key)
+    if hit is None:
+        hit = _FITTED[key] = (leaves, SklearnGP(gp))
+    return hit[1]
+
+
 def wrap(a):
     """Angle to (−π, π]."""
     return np.pi - np.mod(np.pi - a, 2 * np.pi)
@@ -372,14 +390,14 @@ class ReferencePipeline:
                   if f.name not in ("max_candidates", "window", "n_dist", "n_intensity")}
         self.fe = scalar
         self.cells_on_bbox = bool(scalar["cells_on_bbox"])
-        self.classifier = [SklearnGP(g) for g in model.classifier.gps]
+        self.classifier = [sklearn_gp(g) for g in model.classifier.gps]
         self.threshold = _f(model.classifier.threshold)
         sup = model.classifier.support  # the open-set test: per class its examples, scale, threshold
         self.support = [(_f(sup.x[k])[np.asarray(sup.mask[k])], _f(sup.mean[k]), _f(sup.inv_scale[k]),
                          float(sup.threshold[k])) for k in range(len(self.classifier))]
         env = model.envelope  # the per-class shape envelopes of stage c
         self.env = (float(env.bin_width), _f(env.lo), _f(env.hi), np.asarray(env.whole, bool))
-        self.pose = [None if r is None else {c: (None if getattr(r, c) is None else SklearnGP(getattr(r, c)))
+        self.pose = [None if r is None else {c: (None if getattr(r, c) is None else sklearn_gp(getattr(r, c)))
                                              for c in ("x", "y", "sin", "cos")} for r in model.pose]
         self.var_scale = [None if r is None or r.var_scale is None else _f(r.var_scale) for r in model.pose]
         self.max_objects = model.max_objects

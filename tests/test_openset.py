@@ -236,7 +236,8 @@ def test_train_cli_takes_several_background_logs_and_refuses_another_step(tmp_pa
     save_site(site, tmp_path / "site.json")
     for i, seed in enumerate((3, 4)):
         save_log(without_robot(simulate("spl-legs", seed=seed, n_scans=80)[0]), tmp_path / f"bg{i}.npz")
-    small = ["--max-per-class", "60", "--max-pose", "80", "--inducing", "32", "--restarts", "1"]
+    small = ["--max-per-class", "60", "--max-background", "120", "--max-mobile", "60", "--max-pose", "80",
+             "--inducing", "32", "--restarts", "1"]
     code = main(["train", str(tmp_path / "lab.npz"), "--site", str(tmp_path / "site.json"), "--background",
                  str(tmp_path / "bg0.npz"), str(tmp_path / "bg1.npz"), "--out", str(tmp_path / "m.npz"),
                  "--report", str(tmp_path / "r.json"), *small])
@@ -244,6 +245,7 @@ def test_train_cli_takes_several_background_logs_and_refuses_another_step(tmp_pa
     rep = json.loads((tmp_path / "r.json").read_text())
     assert [b["log"] for b in rep["background_logs"]] == [str(tmp_path / "bg0.npz"), str(tmp_path / "bg1.npz")]
     assert all(b["candidates"] > 0 for b in rep["background_logs"])
+    assert rep["examples_used"]["background"] == 120 and rep["examples_used"]["robot"] == 60  # the caps as given
     capsys.readouterr()
     sick = ScanLog(ranges=np.full((20, 181), 3.0, np.float32), stamps=np.arange(20) * 0.2,
                    angle_min=-np.pi / 2, angle_increment=np.radians(1.0))

@@ -10,7 +10,7 @@ import pytest
 pytest.importorskip("filterpy")
 pytest.importorskip("sklearn")
 
-from benchmarks.reference import ReferencePipeline, SklearnGP, compare_tracks, scans_to_numpy  # noqa: E402
+from benchmarks.reference import ReferencePipeline, compare_tracks, scans_to_numpy, sklearn_gp  # noqa: E402
 from gtsjax._gp import predict_mean  # noqa: E402
 from gtsjax._pipeline import process_log  # noqa: E402
 from gtsjax.cli.demo import demo_model_path  # noqa: E402
@@ -35,7 +35,7 @@ def test_sklearn_gps_predict_what_the_model_predicts(spl):
     for gp in (*model.classifier.gps, reg.x, reg.y, reg.sin, reg.cos):
         d = gp.x_mean.shape[0]
         x = np.asarray(gp.x_mean, np.float64) + np.asarray(gp.x_scale, np.float64) * rng.normal(0, 0.7, (40, d))
-        ref = SklearnGP(gp)
+        ref = sklearn_gp(gp)
         g64 = gp.astype(jnp.float64)
         mean, var = (np.asarray(a) for a in g64.predict(jnp.asarray(x), include_noise=True))
         scale = float(np.exp(np.asarray(gp.params.log_signal_var, np.float64))) ** 0.5
@@ -68,10 +68,10 @@ def test_reference_gives_the_same_tracks(spl):
     np.testing.assert_allclose(np.asarray(out.transform.A, np.float64), a, atol=3e-4)
 
 
-def test_reference_tracks_several_robots():
+def test_reference_tracks_several_robots(spl):
     """Three robots crossing: births, assignment and life cycle agree when tracks come close."""
     log, site = simulate("spl-crossing", seed=3, n_scans=220)
-    model = load_model(demo_model_path()).with_site(site)
+    model = spl[1].with_site(site)
     scans = to_scans(log, model.n_beams)
     _, out = process_log(model, scans)
     agree = compare_tracks(out, ReferencePipeline(model).run(scans_to_numpy(scans)))

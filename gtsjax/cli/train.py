@@ -48,7 +48,9 @@ def train_cmd(
     background_topic: str | None = typer.Option(None, "--background-topic",
                                                 help="LaserScan topic of background ROS bags with several."),
     max_background: int | None = typer.Option(None, help="Classifier examples of the background class (default: "
-                                                         "--max-per-class)."),
+                                                         "--max-per-class, or twelve times it with --background)."),
+    max_mobile: int | None = typer.Option(None, help="Classifier examples of each tracked class (default: "
+                                                     "--max-per-class, or four times it with --background)."),
     max_speed: list[str] = typer.Option([], "--max-speed", metavar="CLASS=M_PER_S",
                                         help="A class's maximum speed (default: from its labelled motion, else "
                                              "0.6 m/s)."),
@@ -63,7 +65,7 @@ def train_cmd(
     cfg = dataclasses.replace(TrainConfig(), max_per_class=max_per_class, max_pose_examples=max_pose,
                               max_pose_fit=max_pose_fit,
                               max_landmark_examples=max_landmark, n_inducing=inducing, n_inducing_class=inducing_class,
-                              restarts=restarts, seed=seed, max_background=max_background,
+                              restarts=restarts, seed=seed, max_background=max_background, max_mobile=max_mobile,
                               max_speed=_per_class(max_speed, "--max-speed"),
                               max_turn_rate=_per_class(max_turn_rate, "--max-turn-rate"))
     loaded = [load_log(p) for p in logs]
