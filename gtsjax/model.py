@@ -70,6 +70,17 @@ class Model(eqx.Module):
     def class_index(self, name: str) -> int:
         return self.classes.index(name)
 
+    def with_confirmation(self, n_scans: int | None) -> "Model":
+        """The model with tracks confirmed (reported) only after ``n_scans`` scans of detections, more
+        of them of the track's class than of anything else at its spot (``None``: as trained, half a
+        second of scans). Longer confirmation keeps short-lived look-alikes of a robot (a chair seen
+        for a moment) out of the ground truth and delays every real robot's first row as much."""
+        if n_scans is None:
+            return self
+        if n_scans < 1:
+            raise InputError("--confirm-scans", f"must be at least 1, not {n_scans}")
+        return eqx.tree_at(lambda m: m.tracker.n_confirm, self, jnp.asarray(n_scans, jnp.int32))
+
     def with_site(self, site, *, where: str = "site") -> "Model":
         """Attach a :class:`~gtsjax.io.site.Site`. Every landmark class must be one the model knows
         as a landmark class; otherwise it could never be detected."""

@@ -3,7 +3,7 @@ what it reports. By default the shipped model on the shared real logs kept out o
 (``scripts/build_demo_model.py``'s ``HELD_OUT``), on the SPL demo site (the laser on the side line at
 (3, 4) looking into a 6 × 4 m field) and on the same site without bounds (every detection tracked).
 
-    python scripts/check_background.py [--model M.npz] [--shared ../shared] [LOG[@TOPIC] ...]
+    python scripts/check_background.py [--model M.npz] [--confirm-scans N] [--shared ../shared] [LOG[@TOPIC] ...]
 
 Prints a Markdown table per site: scans, candidates kept by the binary filters, candidates taken for a
 mobile class (after the open-set test), candidates dropped as unlike their class's examples or
@@ -52,8 +52,9 @@ def main():
     ap.add_argument("logs", nargs="*", help="logs to replay, LOG or LOG@TOPIC (default: the held-out shared logs)")
     ap.add_argument("--model", type=Path, default=demo_model_path())
     ap.add_argument("--shared", type=Path, default=SHARED)
+    ap.add_argument("--confirm-scans", type=int, default=None, help="as gtsjax replay's (default: the model's)")
     args = ap.parse_args()
-    model = load_model(args.model)
+    model = load_model(args.model).with_confirmation(args.confirm_scans)
     if args.logs:
         entries = []
         for item in args.logs:

@@ -101,6 +101,32 @@ def test_replay_writes_spec_csv(tiny, tmp_path):
     assert sensor.shape == (60, 6)
 
 
+def test_replay_confirm_scans_delays_the_first_row_only(tiny, tmp_path):
+    """``--confirm-scans N``: a track is reported from its N-th scan of detections on, later than with
+    the model's own confirmation, and from then on in the same scans; 0 is a usage error (exit 2)."""
+    log, site = simulate("spl-trajectory", seed=33, n_scans=60)
+    save_log(log, tmp_path / "log.npz")
+    save_site(site, tmp_path / "site.json")
+    first, stamps = {}, {}
+    for n in (None, 12):
+        out = tmp_path / f"gtd-{n}.csv"
+        extra = () if n is None else ("--confirm-scans", str(n))
+        res = run_cli("replay", tmp_path / "log.npz", "--site", tmp_path / "site.json", "--model", tiny["path"],
+                      "--out", out, *extra)
+        assert res.returncode == 0, res.stderr
+        with open(out, newline="") as f:
+            rows = list(csv.reader(f))[1:]
+        assert rows, "the robot is tracked"
+        stamps[n] = [float(r[0]) for r in rows]
+        first[n] = int(np.searchsorted(log.stamps, stamps[n][0]))
+    n_default = int(tiny["model"].tracker.n_confirm)
+    assert first[None] >= n_default - 1 and first[12] >= 11 and first[12] > first[None]
+    assert stamps[12] == [t for t in stamps[None] if t >= stamps[12][0]]
+    res = run_cli("replay", tmp_path / "log.npz", "--site", tmp_path / "site.json", "--model", tiny["path"],
+                  "--out", tmp_path / "x.csv", "--confirm-scans", "0")
+    assert res.returncode == 2 and "confirm-scans" in res.stderr
+
+
 def test_replay_bad_inputs_exit_2_with_one_line(tiny, tmp_path):
     log, site = simulate("spl-eval", seed=1, n_scans=5)
     good_log, good_site = tmp_path / "log.npz", tmp_path / "site.json"

@@ -510,16 +510,24 @@ def test_partial_views_follow_a_confirmed_track_but_never_start_one():
 
 
 def test_a_confirmed_track_rejects_a_heading_that_would_turn_it_too_fast():
-    """A robot standing at heading 0 is confirmed, then missed for three scans, which widens its
-    heading's gate; the next detection reads it 30° off. The gate alone would take that heading (checked
-    here), but it would turn the track faster than its class's 0.5 rad/s: it is a misread, rejected
-    (the heading stays near 0, the position is updated, the track stays confirmed). With a limit of
-    3 rad/s the same heading is taken. gtsjax and the reference agree on every scan."""
+    """A robot standing at heading 0 is confirmed, then missed for three scans, which (with a large
+    turn-rate noise, 0.5 rad²/s³) widens its heading's gate; the next detection reads it 30° off. The
+    gate alone would take that heading (checked here), but it would turn the track faster than its
+    class's 0.5 rad/s: it is a misread, rejected (the heading stays near 0, the position is updated,
+    the track stays confirmed). With a limit of 3 rad/s the same heading is taken. gtsjax and the
+    reference agree on every scan. With the default turn-rate noise the gap leaves the gate narrow
+    enough to reject that heading by itself."""
     still = [scan([[1.0, 1.0, 0.0]], var=(1e-4, 1e-4, 3e-3)) for _ in range(20)]
     gap = [scan(np.zeros((0, 3))) for _ in range(3)]
     misread = [scan([[1.0, 1.0, math.radians(30)]], var=(1e-4, 1e-4, 3e-3))]
+    params = TrackerParams.default([False, True], n_confirm=3)
+    _, states = run_both(params, still + gap + misread)
+    d, _ = misread[0]
+    predicted = predict(states[-2], jnp.asarray(0.1, F32), params)
+    assert not bool(heading_consistent(predicted.mean[0], predicted.cov[0], d.pose[0], d.cov[0], params.heading_gate))
+    assert abs(math.degrees(float(states[-1].mean[0, 2]))) < 3
     for limit, taken in ((0.5, False), (3.0, True)):
-        params = TrackerParams.default([False, True], max_turn_rate=limit, n_confirm=3)
+        params = TrackerParams.default([False, True], max_turn_rate=limit, n_confirm=3, q_theta=0.5)
         hist, states = run_both(params, still + gap + misread)
         before, after = states[-2], states[-1]
         d, _ = misread[0]

@@ -53,6 +53,9 @@ def evaluate_cmd(
     site: Path | None = typer.Option(None, "--site", help="Site file of the logs."),
     scenario: list[str] = typer.Option(None, "--scenario", help="Simulated scenario(s) instead of logs (NAME or NAME:SEED)."),
     out_dir: Path = typer.Option(Path("eval-out"), "--out-dir", help="Where to write results.md, results.json, PNGs."),
+    confirm_scans: int | None = typer.Option(
+        None, "--confirm-scans", min=1,
+        help="Scans of detections before a track is reported (default: the model's), as replay and run take it."),
 ):
     """Score a model against labelled logs or held-out simulated scenarios."""
     from ..evaluation import evaluate_log, per_point
@@ -66,7 +69,7 @@ def evaluate_cmd(
         raise fail("evaluate", "give labelled logs with --site, or --scenario NAME[:SEED]")
     if logs and site is None:
         raise fail("evaluate", "logs need --site SITE.json")
-    base = load_model(model)
+    base = load_model(model).with_confirmation(confirm_scans)
     jobs = []
     for spec in scenario or []:
         name, _, seed = spec.partition(":")

@@ -100,11 +100,15 @@ def replay_cmd(
     topic: str | None = typer.Option(None, "--topic", help=TOPIC_HELP),
     crop_fov: bool = typer.Option(False, "--crop-fov",
                                   help="Crop a wider field of view to the model's, and its range window."),
+    confirm_scans: int | None = typer.Option(
+        None, "--confirm-scans", min=1,
+        help="Scans of detections before a track is reported (default: the model's, half a second of its training "
+             "logs' scans). More keeps short-lived look-alikes of a robot out and delays every robot's first row."),
 ):
     """Process a logged scan file into ground truth (GTD CSV)."""
     console = Console(stderr=True)
     raw = load_input(log, topic, console)
-    m = load_for_run(model, site, sensor_model=raw.sensor_model)
+    m = load_for_run(model, site, sensor_model=raw.sensor_model).with_confirmation(confirm_scans)
     scan_log = fit_to_model(raw, m, log, crop=crop_fov, hint="" if crop_fov else "; crop it with --crop-fov")
     if detect_format(log) != "npz":  # what was read from another program's log, once it is known to fit
         console.print(f"{log} ({format_name(log)}): {describe(raw)}", soft_wrap=True)

@@ -44,7 +44,8 @@ def live_view(model, link, stats, output, stamp) -> Group:
 
 def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Path | None = None,
                json_lines: bool = False, udp: str | None = None, duration: float | None = None,
-               frames: int | None = None, intensity: bool = True, view: bool = True, console: Console | None = None):
+               frames: int | None = None, intensity: bool = True, view: bool = True, console: Console | None = None,
+               confirm_scans: int | None = None):
     """Open the sensor, run the live loop, show the view; returns (live stats, link stats)."""
     from ..io.modelfile import load_model
     from ..io.serial import Link
@@ -54,7 +55,7 @@ def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Pa
 
     console = console or Console(stderr=True)
     site_obj = load_site(site)
-    model = load_model(model_path).with_site(site_obj, where=str(site))
+    model = load_model(model_path).with_site(site_obj, where=str(site)).with_confirmation(confirm_scans)
     # Compile before the sensor streams, when the model names a known scanner (else after connecting).
     compiled = warm_up(model, MODELS[model.sensor_model]) if model.sensor_model in MODELS else None
     link = Link(port, intensity=intensity)
@@ -99,10 +100,15 @@ def run_cmd(
     intensity: bool = typer.Option(True, "--intensity/--no-intensity",
                                    help="Stream intensities (ME) if the sensor has them (models trained with them need them)."),
     quiet: bool = typer.Option(False, help="No live view."),
+    confirm_scans: int | None = typer.Option(
+        None, "--confirm-scans", min=1,
+        help="Scans of detections before a track is reported (default: the model's, half a second of its training "
+             "logs' scans). More keeps short-lived look-alikes of a robot out and delays every robot's first row."),
 ):
     """Track robots live from a sensor: GTD CSV, optional JSON lines / UDP, optional raw recording."""
     stats, link_stats = track_live(port, model, site, out, record=record, json_lines=json_lines, udp=udp,
-                                   duration=duration, frames=frames, intensity=intensity, view=not quiet)
+                                   duration=duration, frames=frames, intensity=intensity, view=not quiet,
+                                   confirm_scans=confirm_scans)
     med, p99 = stats.latency()
     Console(stderr=True).print(
         f"{stats.frames} frames, {stats.rows} rows -> {out}; latency median {med:.2f} ms, p99 {p99:.2f} ms; "
