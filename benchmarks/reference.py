@@ -210,13 +210,16 @@ class _Tracker:
                     and abs(omega) <= self.max_turn_rate[t.cls] + 2.0 * sigma_w)
 
     def step(self, z: np.ndarray, R: np.ndarray, cls: np.ndarray, dt: float, other: np.ndarray | None = None,
-             partial: np.ndarray | None = None) -> None:
+             partial: np.ndarray | None = None, vague: np.ndarray | None = None) -> None:
         """Predict, gate, assign, update, and start, confirm and end tracks, for detections ``z`` [n, 3]
         with covariances ``R`` [n, 3, 3] and classes ``cls`` [n] (all of tracked classes); ``other``
         [n_o, 2]: positions of the scan's other candidates (not detections of a tracked class);
-        ``partial`` [n]: occluded views of a class seen whole, which only a confirmed track may take."""
+        ``partial`` [n]: occluded views of a class seen whole, which only a confirmed track may take;
+        ``vague`` [n]: headings read with a variance above the class's ``heading_var_max``. Neither
+        kind's heading is used or rejected: the track takes its position only."""
         other = np.zeros((0, 2)) if other is None else np.asarray(other, np.float64).reshape(-1, 2)
         partial = np.zeros(len(z), bool) if partial is None else np.asarray(partial, bool)
+        vague = np.zeros(len(z), bool) if vague is None else np.asarray(vague, bool)
         F, Q = self.motion_model(dt)
         live = [i for i, t in enumerate(self.slots) if t is not None]
         for i in live:
@@ -276,13 +279,14 @@ class _Tracker:
                 r_theta = R[j][2, 2]
                 head_ok = (zj[2] - t.kf.x[2, 0]) ** 2 <= self.heading_gate * (t.kf.P[2, 2] + r_theta)
                 w_max = self.max_turn_rate[t.cls]
-                if head_ok and t.confirmed and not partial[j]:
+                position_only = partial[j] or vague[j]
+                if head_ok and t.confirmed and not position_only:
                     # a heading that would turn a confirmed track faster than its class can is a misread
                     x0, P0 = t.kf.x.copy(), t.kf.P.copy()
                     t.kf.update(zj, R=R[j])
                     head_ok = abs(t.kf.x[5, 0]) <= w_max + 2.0 * math.sqrt(max(t.kf.P[5, 5], 0.0))
                     t.kf.x, t.kf.P = x0, P0
-                if partial[j]:  # a cut outline: the position only, the heading neither used nor rejected
+                if position_only:  # a cut outline or a vague heading: the position only, the heading neither used nor rejected
                     t.kf.update(zj[:2, None], R=R[j][:2, :2], H=self.H[:2])
                     omega = t.kf.x[5, 0]
                     t.kf.x[5] = min(max(omega, -w_max), w_max)
@@ -400,6 +404,8 @@ class ReferencePipeline:
         self.pose = [None if r is None else {c: (None if getattr(r, c) is None else sklearn_gp(getattr(r, c)))
                                              for c in ("x", "y", "sin", "cos")} for r in model.pose]
         self.var_scale = [None if r is None or r.var_scale is None else _f(r.var_scale) for r in model.pose]
+        self.heading_var_max = np.array([np.inf if r is None or r.heading_var_max is None else float(r.heading_var_max)
+                                         for r in model.pose])
         self.max_objects = model.max_objects
         self.max_landmarks = int(model.site.landmark_xy.shape[0]) + self.max_objects  # the site's posts + look-alikes
         self.gp_columns = model.gp_columns
@@ -595,6 +601,7 @@ class ReferencePipeline:
         cls, ok, scores = self.classify(x, self.in_envelope(shape, np.hypot(origin[:, 0], origin[:, 1])))
         partial = occluded & self.env[3][cls]  # occluded views of a class seen whole
         rel, var, ok = self.regress(x, cls, ok, scores)
+        vague = var[:, 2] > self.heading_var_max[cls]  # headings read with a variance good reads rarely have
         # ORS -> S (eq. 16 with the ORS in place of O)
         c, s = np.cos(heading), np.sin(heading)
         pose_s = np.stack([origin[:, 0] + c * rel[:, 0] - s * rel[:, 1],
@@ -628,7 +635,7 @@ class ReferencePipeline:
         is_other = np.ones(len(x), bool)
         is_other[det_idx] = False
         other_xy = self.mu_o + (pose_s[is_other, :2] - self.mu_s) @ self.A.T
-        self.tracker.step(z, cov_o[inside], kc[inside], float(dt), other_xy, partial[trk][inside])
+        self.tracker.step(z, cov_o[inside], kc[inside], float(dt), other_xy, partial[trk][inside], vague[trk][inside])
         b = self.bounds
         tracks = [t for t in self.tracker.slots
                   if t is not None and t.confirmed and t.misses < self.tracker.m_report

@@ -22,7 +22,7 @@ from ._classify import classify, gp_inputs
 from ._filters import envelope_pass, partial_view, shape_quantities
 from ._frontend import front_end_unjitted
 from ._maptransform import Transform, poses_to_field, update_transform
-from ._pose import regress, to_sensor_frame
+from ._pose import regress, to_sensor_frame, vague_headings
 from ._scan import Scan
 from ._track import Detections, TrackerState, reported, track_step
 from .model import Model
@@ -45,6 +45,7 @@ class Perception(eqx.Module):
     ok: Bool[Array, " cands"]  # kept by the filters and classified as an object (not background)
     kept: Bool[Array, " cands"]  # kept by the binary filters (stage c), whatever the classifier said
     partial: Bool[Array, " cands"]  # occluded view of a class seen whole (``_filters.partial_view``)
+    vague: Bool[Array, " cands"]  # heading variance above its class's ``heading_var_max`` (``_pose``)
     scores: Float[Array, "cands classes"]
     pose_s: Float[Array, "cands 3"]
     cov_s: Float[Array, "cands 3 3"]
@@ -117,8 +118,9 @@ def perceive(model: Model, scan: Scan, *, bucket: bool | None = None) -> Percept
     unposed = jnp.sum(ok & ~posed, dtype=jnp.int32)
     count = lambda m: jnp.sum(m, dtype=jnp.int32)
     partial = partial_view(model.envelope, cls, fe.candidates.occluded)
-    return Perception(cls, ok & posed, fe.keep, partial, scores, pose_s, cov_s, d.n_segments, d.n_kept, d.overflow_count,
-                      d.too_long_count, unposed, count(dec.unlike), count(dec.off_envelope))
+    vague = vague_headings(model.pose, cls, var)
+    return Perception(cls, ok & posed, fe.keep, partial, vague, scores, pose_s, cov_s, d.n_segments, d.n_kept,
+                      d.overflow_count, d.too_long_count, unposed, count(dec.unlike), count(dec.off_envelope))
 
 
 def _inside(site, pose: Float[Array, "n 3"]) -> Bool[Array, " n"]:
@@ -169,7 +171,7 @@ def update(model: Model, state: PipelineState, p: Perception, scan: Scan) -> tup
     pose_o, cov_o = poses_to_field(tf, p.pose_s, p.cov_s)
     cov_o = cov_o + jnp.diag(model.meas_var_floor)[None]
     tracked = p.ok & model.tracker.tracked[p.cls] & _inside(site, pose_o)
-    det = Detections(pose_o, cov_o, p.cls, tracked, p.kept & ~tracked, p.partial)
+    det = Detections(pose_o, cov_o, p.cls, tracked, p.kept & ~tracked, p.partial, p.vague)
     tracker, _ = track_step(state.tracker, det, dt, model.tracker)
     ts = tracker
     out = Output(

@@ -15,6 +15,12 @@ position-only. A rejected heading also discards the turn-rate estimate (``ω = 0
 variance): a turn rate learnt from misread headings would otherwise spin the track's heading past
 every right one it rejects. ``ω`` is kept within its class's ``max_turn_rate``.
 
+Gating cannot tell a misread whose own variance is large: it widens the gate it is tested
+against. A detection whose heading variance is above its class's ``heading_var_max`` (learnt at
+training: almost no good read of the class has one so large, ``_pose.calibrate``) is *vague*: it
+updates the track's position only, and its heading neither supports nor rejects the track's. Unlike
+a partial view (below) it may start and confirm a track.
+
 Gating alone cannot undo a wrong start: a track born on a misread heading rejects every right one.
 So each track also keeps a *rival* heading, the running mean of the rejected headings that agree
 with one another, and for the track's heading and its rival a support, the number of detections
@@ -211,7 +217,9 @@ class Detections(eqx.Module):
     counts against the confirmation of a tentative track it lies near (see the module docstring).
     ``None``: no such candidates. Where ``partial``, the detection is of a class that is seen whole
     (``Envelope.whole``) but is occluded at an end: it may update a confirmed track, never start or
-    confirm one (``None``: none is partial)."""
+    confirm one (``None``: none is partial). Where ``vague``, the detection's heading variance is above
+    its class's ``heading_var_max`` (``_pose.calibrate``): it updates a track's position only, and its
+    heading neither supports nor rejects the track's (``None``: none is vague)."""
 
     pose: Float[Array, "dets 3"]
     cov: Float[Array, "dets 3 3"]
@@ -219,6 +227,7 @@ class Detections(eqx.Module):
     mask: Bool[Array, " dets"]
     other: Bool[Array, " dets"] | None = None
     partial: Bool[Array, " dets"] | None = None
+    vague: Bool[Array, " dets"] | None = None
 
 
 def motion_model(dt: Float[Array, ""], params: TrackerParams) -> tuple[Float[Array, "6 6"], Float[Array, "6 6"]]:
@@ -442,6 +451,9 @@ def track_step(
     # A partial view's heading comes from a cut outline: it updates the position only, and neither
     # supports nor rejects the track's heading.
     seen = has if det.partial is None else has & ~det.partial[det_of_track]
+    # So does a vague one: a heading read with a variance that good reads of the class almost never
+    # have is more often a misread than not.
+    seen = seen if det.vague is None else seen & ~det.vague[det_of_track]
     # A confirmed track's heading that would turn it faster than its class can (``plausible``'s
     # turn-rate test on the updated estimate) is a misread, most often after a few scans without a
     # detection have widened the heading's gate: rejected like one that fails the gate.

@@ -729,6 +729,8 @@ def train(logs: Sequence[ScanLog], site: Site, cfg: TrainConfig = TrainConfig(),
         pose[k] = calibrate(pose[k], ex_all.vectors[cal], ex_all.target[cal])
         calibration[name] = {"examples": int(cal.size), "held_out": bool(cal is not idx),
                              "var_scale": [round(float(v), 4) for v in np.asarray(pose[k].var_scale)]}
+        if pose[k].heading_var_max is not None:
+            calibration[name]["vague_heading_sigma_deg"] = round(math.degrees(math.sqrt(float(pose[k].heading_var_max))), 2)
 
     # Motion limits of the tracked classes: from labelled motion, else the user's or the defaults.
     learnt = motion_limits(logs, classes)

@@ -509,6 +509,47 @@ def test_partial_views_follow_a_confirmed_track_but_never_start_one():
     assert all(h == {0: (True, 0)} for h in hist[4:])  # and followed through the partial ones
 
 
+def test_vague_headings_move_the_position_only_and_may_start_a_track():
+    """Detections whose heading is vague (its variance above the class's ``heading_var_max``): a robot
+    walking along x at heading 0 is read 12° off, with a σ of 6°, in every other scan. Marked vague,
+    those reads move the track's position as the others do and leave its heading alone; not marked,
+    they pass the heading gate (their variance widens it) and pull it. Vague reads alone still start and
+    confirm a track (unlike partial views). gtsjax and the reference agree on every scan."""
+    pytest.importorskip("filterpy")
+    from benchmarks.reference import _Tracker
+
+    def run(flags, off):
+        ref = _Tracker(CONFIRM3, 4)
+        state = TrackerState.empty(4)
+        rng = np.random.default_rng(3)
+        headings = []
+        for i, vague in enumerate(flags):
+            bad = off[i]
+            z = np.array([[1.0 + 0.02 * i + rng.normal(0, 0.003), 2.0 + rng.normal(0, 0.003),
+                           math.radians(12) if bad else rng.normal(0, 0.02)]])
+            d, (zz, R, c, o) = scan(z, var=(1e-4, 1e-4, math.radians(6) ** 2 if bad else 4e-3))
+            d = Detections(d.pose, d.cov, d.class_id, d.mask, d.other, None, jnp.asarray(np.arange(6) == 0) & vague)
+            state, _ = step(state, d, jnp.asarray(0.1, F32), CONFIRM3)
+            ref.step(zz, R, c, 0.1, o, None, np.array([vague]))
+            live = np.flatnonzero(np.asarray(state.live))
+            g = {int(state.track_id[s]): (bool(state.confirmed[s]), int(state.hits[s])) for s in live}
+            r = {t.track_id: (t.confirmed, t.hits) for t in ref.slots if t is not None}
+            assert g == r, (i, g, r)
+            t = next(t for t in ref.slots if t is not None)
+            np.testing.assert_allclose(np.asarray(state.mean[live[0]]), t.kf.x[:, 0], atol=2e-4)
+            headings.append((math.degrees(float(state.mean[live[0], 2])), float(state.mean[live[0], 0]), z[0, 0]))
+        return headings
+
+    off = [False] * 5 + [i % 2 == 1 for i in range(15)]
+    marked = run([o for o in off], off)
+    unmarked = run([False] * 20, off)
+    assert max(abs(h) for h, _, _ in marked[5:]) < 1.5  # the heading stays at 0 (the good reads' noise)
+    assert max(abs(h) for h, _, _ in unmarked[5:]) > 2 * max(abs(h) for h, _, _ in marked[5:])  # taken, they pull it
+    assert abs(marked[-1][1] - marked[-1][2]) < 0.02  # the position follows the robot through them
+    alone = run([True] * 6, [False] * 6)  # vague reads alone: a track starts and is confirmed
+    assert len(alone) == 6
+
+
 def test_a_confirmed_track_rejects_a_heading_that_would_turn_it_too_fast():
     """A robot standing at heading 0 is confirmed, then missed for three scans, which (with a large
     turn-rate noise, 0.5 rad²/s³) widens its heading's gate; the next detection reads it 30° off. The

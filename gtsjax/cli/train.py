@@ -148,7 +148,9 @@ def _summary(console: Console, rep: dict, out: Path) -> None:
                           f"{100 * p['misread_fraction']:.1f} % misread (> 30°), on {p['n']} candidates")
     for name, c in rep.get("variance_calibration", {}).items():
         console.print(f"pose variances of {name} scaled by {', '.join(f'{v:.3g}' for v in c['var_scale'])} "
-                      f"(x̃, ỹ, θ̃; calibrated on {c['examples']} {'held-out' if c['held_out'] else 'training'} examples)")
+                      f"(x̃, ỹ, θ̃; calibrated on {c['examples']} {'held-out' if c['held_out'] else 'training'} examples)"
+                      + (f"; a heading read with σ above {c['vague_heading_sigma_deg']:.1f}° updates a track's "
+                         "position only" if "vague_heading_sigma_deg" in c else ""))
     _openset_tables(console, rep)
     console.print(f"{rep['degraded_scans']} of {rep['scans']} scans without a map transformation; model written to {out}")
 

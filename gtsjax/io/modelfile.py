@@ -28,7 +28,7 @@ from ..errors import InputError
 from ..model import Model, SiteArrays
 
 FORMAT = "gtsjax-model"
-VERSION = 3  # 3: scanner geometry, open-set supports, shape envelopes, per-class motion limits
+VERSION = 3  # 3: scanner geometry, open-set supports, shape envelopes, per-class motion limits (and, optional, the pose regressors' heading_var_max)
 _HEADER_KEY = "gtsjax_model"
 _TYPES = {c.__name__: c for c in (Model, FrontEndConfig, Classifier, Support, Envelope, PoseRegressor, TrackerParams,
                                   SparseGP, GP, Hyperparameters, SiteArrays)}
