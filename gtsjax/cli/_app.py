@@ -20,3 +20,7 @@ def fail(where: object, problem: str) -> "typer.Exit":
     """Print ``gtsjax: <where>: <problem>`` on stderr; return the exit (status 2) to raise."""
     print(f"gtsjax: {InputError(where, problem)}", file=sys.stderr)
     return typer.Exit(2)
+
+
+CONFIRM_HELP = ("Scans of detections before a track is reported (default: the model's, half a second of its training "
+                "logs' scans). More keeps short-lived look-alikes of a robot out and delays every robot's first row.")

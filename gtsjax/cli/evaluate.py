@@ -9,7 +9,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from ._app import app, fail
+from ._app import CONFIRM_HELP, app, fail
 
 # The ground truth as written (confirmed tracks), and the paper's per-sample figures (each scan's
 # detections before tracking).
@@ -53,9 +53,7 @@ def evaluate_cmd(
     site: Path | None = typer.Option(None, "--site", help="Site file of the logs."),
     scenario: list[str] = typer.Option(None, "--scenario", help="Simulated scenario(s) instead of logs (NAME or NAME:SEED)."),
     out_dir: Path = typer.Option(Path("eval-out"), "--out-dir", help="Where to write results.md, results.json, PNGs."),
-    confirm_scans: int | None = typer.Option(
-        None, "--confirm-scans", min=1,
-        help="Scans of detections before a track is reported (default: the model's), as replay and run take it."),
+    confirm_scans: int | None = typer.Option(None, "--confirm-scans", min=1, help=CONFIRM_HELP),
 ):
     """Score a model against labelled logs or held-out simulated scenarios."""
     from ..evaluation import evaluate_log, per_point

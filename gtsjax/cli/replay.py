@@ -20,7 +20,7 @@ from ..io.gtd import GTDWriter, rows_from_output, wrap_angle
 from ..io.importers import detect_format, format_name
 from ..io.logs import fit_to_model
 from ..io.modelfile import load_model
-from ._app import app
+from ._app import CONFIRM_HELP, app
 from .convert import INPUT_HELP, TOPIC_HELP, describe, load_input, source_of
 
 
@@ -100,10 +100,7 @@ def replay_cmd(
     topic: str | None = typer.Option(None, "--topic", help=TOPIC_HELP),
     crop_fov: bool = typer.Option(False, "--crop-fov",
                                   help="Crop a wider field of view to the model's, and its range window."),
-    confirm_scans: int | None = typer.Option(
-        None, "--confirm-scans", min=1,
-        help="Scans of detections before a track is reported (default: the model's, half a second of its training "
-             "logs' scans). More keeps short-lived look-alikes of a robot out and delays every robot's first row."),
+    confirm_scans: int | None = typer.Option(None, "--confirm-scans", min=1, help=CONFIRM_HELP),
 ):
     """Process a logged scan file into ground truth (GTD CSV)."""
     console = Console(stderr=True)

@@ -10,7 +10,7 @@ from rich.console import Console, Group
 from rich.live import Live
 from rich.table import Table
 
-from ._app import app
+from ._app import CONFIRM_HELP, app
 
 
 def live_view(model, link, stats, output, stamp) -> Group:
@@ -100,10 +100,7 @@ def run_cmd(
     intensity: bool = typer.Option(True, "--intensity/--no-intensity",
                                    help="Stream intensities (ME) if the sensor has them (models trained with them need them)."),
     quiet: bool = typer.Option(False, help="No live view."),
-    confirm_scans: int | None = typer.Option(
-        None, "--confirm-scans", min=1,
-        help="Scans of detections before a track is reported (default: the model's, half a second of its training "
-             "logs' scans). More keeps short-lived look-alikes of a robot out and delays every robot's first row."),
+    confirm_scans: int | None = typer.Option(None, "--confirm-scans", min=1, help=CONFIRM_HELP),
 ):
     """Track robots live from a sensor: GTD CSV, optional JSON lines / UDP, optional raw recording."""
     stats, link_stats = track_live(port, model, site, out, record=record, json_lines=json_lines, udp=udp,
