@@ -214,3 +214,13 @@ def jsonable(obj):
     if isinstance(obj, np.floating | float):
         return float(obj) if np.isfinite(obj) else None
     return obj
+
+
+def closed_step(model):
+    """The pipeline's step as the live loop compiles it: the model closed over (a constant of the
+    program), jitted once; ``f(state, scan) -> (state, output)``."""
+    import jax
+
+    from gtsjax._pipeline import step
+
+    return jax.jit(lambda state, scan: step(model, state, scan))

@@ -95,7 +95,7 @@ def evaluate_targets(res) -> None:
                "for the robot candidates present (at the smallest of 1, 2, 4, 8 slots that holds them) and the "
                f"landmark-cap post candidates, variances on 64 inducing points. The vmap variant ({fmt(v['median'], 'scans/s') if v else 'n/a'}) does not help here: it vmaps "
                "stages a–e over the whole chunk at once, where the size buckets cannot work (under vmap both "
-               "branches run), whereas the front end alone, mapped in sub-chunks of 8 (front_end_log), runs at "
+               "branches run), whereas the front end alone, mapped in sub-chunks of 8 (front_end_batch), runs at "
                f"{fmt(res.profiles['batch']['frontend_batch_scans_per_s'] or float('nan'), 'scans/s')}. What would "
                "close it: fewer pose-GP FLOPs, which so far cost heading accuracy (pose means from 2 048 inducing "
                "points of the 5 905 examples: SPL heading RMSE 5.6 -> 5.9 degrees static, 3.2 -> 5.7 crossing; the "
@@ -167,7 +167,7 @@ def _row_value(m):
 
 
 SUMMARY = [
-    ("step.urg-04lx.end_to_end", "whole step, URG-04LX scan (682 beams), 8 track slots (`make_step`)"),
+    ("step.urg-04lx.end_to_end", "whole step, URG-04LX scan (682 beams), 8 track slots (`closed_step`)"),
     ("step.utm-30lx.end_to_end", "whole step, UTM-30LX scan (1081 beams + intensity), 8 track slots"),
     ("step.urg-04lx.stage.frontend_a_to_c", "front end only (stages a–c), URG-04LX"),
     ("step.utm-30lx.stage.frontend_a_to_c", "front end only (stages a–c), UTM-30LX"),

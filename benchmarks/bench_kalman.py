@@ -18,7 +18,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gtsjax._track import Detections, TrackerState, kalman_update, motion_model, predict, track_step, wrap
+from gtsjax._geometry import wrap
+from gtsjax._track import Detections, TrackerState, kalman_update, motion_model, predict, track_step
 
 from . import _data
 

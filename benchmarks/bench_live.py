@@ -1,5 +1,5 @@
 """Live frame-to-GTD latency: the emulated scanner on a real pseudo-terminal, the real serial link
-(pyserial, reader thread, SCIP stream decoder) and the real live loop (``gtsjax.live.run_live``, as
+(pyserial, reader thread, SCIP stream decoder) and the real live loop (``gtsjax.drivers.live.run_live``, as
 ``gtsjax run`` runs it), measured by the loop itself: from the moment a frame's last byte was read
 (before decoding) to the moment its GTD rows were written and flushed.
 
@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from gtsjax.drivers.live import frame_arrays, run_live, warm_up
 from gtsjax.io.serial import Link
-from gtsjax.live import frame_arrays, run_live, warm_up
 from gtsjax.sensors import URG_04LX, UTM_30LX
 from gtsjax.sim.emulator import SensorEmulator
 

@@ -1,6 +1,6 @@
 """Per-stage and end-to-end step latency for URG-04LX and UTM-30LX scans, and batch replay throughput.
 
-* **End to end**: ``make_step(model)`` (the live loop's call: the model closed over, jitted once),
+* **End to end**: ``closed_step(model)`` (the live loop's call: the model closed over, jitted once),
   one call per scan with the state carried over, scans cycled from a simulated log with robots in
   view (URG-04LX: ``spl-crossing``, three robots, M = 8 track slots; UTM-30LX: ``lab-trajectory``).
 * **Per stage**: each stage of Fig. 1 jitted on its own with the model closed over, fed the inputs
@@ -11,7 +11,7 @@
   cost every jitted call pays on the host. The stages' sum exceeds the end-to-end step by about one
   dispatch floor per extra call.
 * **Batch**: ``process_log`` over a simulated log (``spl-trajectory``) in chunks of 256, both the
-  bit-exact loop and the ``vmap`` variant, and the front end alone in batch (``front_end_log``).
+  bit-exact loop and the ``vmap`` variant, and the front end alone in batch (``front_end_batch``).
 """
 
 import jax
@@ -20,15 +20,17 @@ import jax.numpy as jnp
 from gtsjax._classify import classify, gp_inputs
 from gtsjax._features import characterise_all
 from gtsjax._filters import binary_filter, envelope_pass, shape_quantities
-from gtsjax._frontend import front_end_log, front_end_unjitted
+from gtsjax._frontend import front_end, front_end_batch
 from gtsjax._maptransform import poses_to_field, update_transform
-from gtsjax._pipeline import init_state, landmark_cap, make_step, perceive, process_log
+from gtsjax._pipeline import init_state, landmark_cap, perceive
 from gtsjax._pose import regress, to_sensor_frame
 from gtsjax._segment import segment
 from gtsjax._track import Detections, track_step
+from gtsjax.drivers.replay import process_log
 from gtsjax.io import to_scans
 
 from . import _data
+from ._harness import closed_step
 
 SECTION = "pipeline"
 
@@ -87,14 +89,14 @@ def stage_functions(model):
         "e_pose_regression": jax.jit(pose),
         "f_map_transformation": jax.jit(mapf),
         "g_tracking": jax.jit(track),
-        "frontend_a_to_c": jax.jit(lambda scan: front_end_unjitted(fe, scan)),
+        "frontend_a_to_c": jax.jit(lambda scan: front_end(fe, scan)),
     }
 
 
 def record_inputs(model, scans, n: int):
     """Run the step over the first ``n`` scans and keep what each stage received on each scan."""
     st = stage_functions(model)
-    step = make_step(model)
+    step = closed_step(model)
     perc = jax.jit(lambda scan: perceive(model, scan))
     state = init_state(model)
     rec = []
@@ -122,7 +124,7 @@ def bench_sensor(ctx, key: str, model, scans, n_pool: int, repeats: int, stage_r
         rec, st, step = record_inputs(model, scans, n_pool)
         one = [r["scan"] for r in rec]
     else:
-        step = make_step(model)
+        step = closed_step(model)
         one = jax.block_until_ready([take(scans, i) for i in range(n_pool)])
     beams = int(scans.ranges.shape[-1])
     params = {"beams": beams, "K": model.frontend.max_candidates, "M": model.max_tracks, "sensor": model.sensor_model}
@@ -196,9 +198,10 @@ def bench_batch(ctx, model, n_scans: int, runs: int) -> None:
         res.add_rate(f"batch.urg-04lx.{key}", log.n_scans, samples, section=SECTION,
                      label=f"batch replay, URG-04LX, chunk 256, {'bit-exact loop' if not vec else 'vmap variant'}",
                      chunk=256, vectorise=vec)
-    samples = ctx.time_calls(lambda i: front_end_log(model.frontend, scans), runs, warmup=1)
+    batch = jax.jit(front_end_batch)
+    samples = ctx.time_calls(lambda i: batch(model.frontend, scans), runs, warmup=1)
     res.add_rate("batch.urg-04lx.frontend", log.n_scans, samples, section=SECTION,
-                 label="front end a–c in batch, URG-04LX (front_end_log)")
+                 label="front end a–c in batch, URG-04LX (front_end_batch)")
 
 
 def run(ctx) -> None:

@@ -16,10 +16,11 @@ import pstats
 import jax
 import numpy as np
 
-from gtsjax._pipeline import init_state, make_step
+from gtsjax._pipeline import init_state
 from gtsjax.io import to_scans
 
 from . import _data
+from ._harness import closed_step
 from .reference import ReferencePipeline, compare_tracks, scans_to_numpy
 
 SECTION = "reference"
@@ -74,7 +75,7 @@ def run(ctx) -> None:
     ref = ReferencePipeline(model)
 
     # Same tracks? gtsjax's live-loop step over the log, then the reference over the same scans.
-    step = make_step(model)
+    step = closed_step(model)
     state = init_state(model)
     outs = []
     for s in one:
@@ -103,7 +104,7 @@ def run(ctx) -> None:
 
     st["s"] = init_state(model)
     res.add("reference.urg-04lx.gtsjax_step", "us", ctx.time_calls(g_step, 3 * n, warmup=n), section=SECTION,
-            label="gtsjax step (make_step), same log, per scan", scans=n)
+            label="gtsjax step (closed_step), same log, per scan", scans=n)
     res.ratio("reference_over_gtsjax.median", "reference.urg-04lx.numpy_sklearn_filterpy",
               "reference.urg-04lx.gtsjax_step", meaning="how many times faster gtsjax's step is per scan (median)")
     res.ratio("reference_over_gtsjax.p99", "reference.urg-04lx.numpy_sklearn_filterpy",

@@ -24,13 +24,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from gtsjax._gp import GP, SparseGP
-from gtsjax._pipeline import init_state, make_step, process_log
+from gtsjax._pipeline import init_state
 from gtsjax._scan import Scan
+from gtsjax.drivers.replay import process_log
 from gtsjax.io import to_scans
 from gtsjax.sensors import URG_04LX, UTM_30LX, RangeNoise, SensorModel
 from gtsjax.training import TrainConfig
 
 from . import _data
+from ._harness import closed_step
 
 SECTION = "scaling"
 INDUCING = TrainConfig().n_inducing_class  # the classifier's cap
@@ -76,10 +78,10 @@ def synthetic_scans(sensor, n: int, seed: int = 0) -> list[Scan]:
 
 
 class Stepper:
-    """One configuration's compiled ``make_step``, its state and its scans; each call steps one scan."""
+    """One configuration's compiled ``closed_step``, its state and its scans; each call steps one scan."""
 
     def __init__(self, model, scans: list[Scan]):
-        self.step = make_step(model)
+        self.step = closed_step(model)
         self.state = init_state(model)
         self.scans = scans
         self.i = 0

@@ -8,11 +8,8 @@ Per class, the shape envelopes (:class:`Envelope`, learnt at training) then say 
 candidate may be: its width, depth and point count against range, and whether it is seen whole; the
 classifier takes its argmax among those classes only (``_classify.classify``).
 
-The site's bounds are given in the field frame O, which the front end does not know: the map
-transformation (stage f) maps candidates into O later in the step. So the bounds test is its own
-function of positions in O, :func:`in_bounds`, which the pipeline applies (``keep & in_bounds(...)``)
-once the ORS origins (or the regressed poses) have been mapped into O; :func:`binary_filter` also
-takes the mapped origins and the bounds directly, when the caller already has them.
+The site's bounds are given in the field frame O, which the front end does not know: the pipeline
+tests them (``_geometry.in_bounds``) once stage f has mapped the regressed poses into O.
 """
 
 import equinox as eqx
@@ -29,25 +26,9 @@ def binary_filter(
     width_min: Float[Array, ""],
     width_max: Float[Array, ""],
     min_points: Int[Array, ""],
-    origin_o: Float[Array, "cands 2"] | None = None,
-    bounds: Float[Array, "4"] | None = None,
 ) -> Bool[Array, " cands"]:
-    """Which candidates pass the binary filters (stage c).
-
-    ``origin_o`` (ORS origins mapped into O) and ``bounds`` (``[xmin, ymin, xmax, ymax]`` in O) are
-    optional and used only together; without them no bounds test is made.
-    """
-    keep = live & ~too_long & (n_points >= min_points) & (width >= width_min) & (width <= width_max)
-    if origin_o is not None and bounds is not None:
-        keep = keep & in_bounds(origin_o, bounds)
-    return keep
-
-
-def in_bounds(xy: Float[Array, "*n 2"], bounds: Float[Array, "4"]) -> Bool[Array, "*n"]:
-    """Whether points of O lie inside ``bounds = [xmin, ymin, xmax, ymax]`` (edges included).
-    Non-finite points are outside."""
-    x, y = xy[..., 0], xy[..., 1]
-    return (x >= bounds[0]) & (y >= bounds[1]) & (x <= bounds[2]) & (y <= bounds[3])
+    """Which candidates pass the binary filters (stage c)."""
+    return live & ~too_long & (n_points >= min_points) & (width >= width_min) & (width <= width_max)
 
 
 class Envelope(eqx.Module):

@@ -1,9 +1,9 @@
 """The front end, stages a–c of Fig. 1: segmentation, ORS and characterisation, binary filters.
 
-``front_end(cfg, scan)`` runs one scan (the live loop's call); ``front_end_log(cfg, scans)`` runs a
-stack of scans in vmapped chunks (batch replay). Both are jitted entry points; the configuration's
-shape-fixing integers are static (changing them recompiles), its thresholds are arrays (tuning them
-does not).
+``front_end(cfg, scan)`` runs one scan (inside the pipeline's step); ``front_end_batch(cfg, scans)``
+a stack of scans, mapped in chunks (training's labelling). Both are pure and not jitted: the caller
+owns the jit. The configuration's shape-fixing integers are static (changing them recompiles), its
+thresholds are arrays (tuning them does not).
 """
 
 import equinox as eqx
@@ -13,6 +13,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from ._features import Features, characterise_all
 from ._filters import binary_filter
+from ._precision import exact_products
 from ._scan import Scan
 from ._segment import Candidates, segment
 
@@ -95,14 +96,14 @@ class FrontEndDiagnostics(eqx.Module):
     """Counts of one scan (a stack adds a leading ``scans`` axis)."""
 
     n_segments: Int[Array, "*scans"]  # segments found, including those beyond K
-    overflow_count: Int[Array, "*scans"]  # segments beyond K, dropped
-    too_long_count: Int[Array, "*scans"]  # segments in a slot but longer than L beams, filtered
+    n_overflow: Int[Array, "*scans"]  # segments beyond K, dropped
+    n_too_long: Int[Array, "*scans"]  # segments in a slot but longer than L beams, filtered
     n_kept: Int[Array, "*scans"]  # candidates passing the binary filters
 
 
 class FrontEndOutput(eqx.Module):
     """What stages a–c hand on: the candidate slots, their ORS and vectors, the binary filters' keep
-    mask (the site-bounds test comes later, in O: ``_filters.in_bounds``) and the scan's counts."""
+    mask (the site-bounds test comes later, in O, in the pipeline) and the scan's counts."""
 
     candidates: Candidates
     features: Features
@@ -110,8 +111,9 @@ class FrontEndOutput(eqx.Module):
     diagnostics: FrontEndDiagnostics
 
 
-def front_end_unjitted(cfg: FrontEndConfig, scan: Scan) -> FrontEndOutput:
-    """Stages a–c on one scan, not jitted (to compose inside a larger jitted step)."""
+@exact_products
+def front_end(cfg: FrontEndConfig, scan: Scan) -> FrontEndOutput:
+    """Stages a–c on one scan."""
     cands = segment(
         scan,
         max_candidates=cfg.max_candidates,
@@ -139,17 +141,11 @@ def front_end_unjitted(cfg: FrontEndConfig, scan: Scan) -> FrontEndOutput:
     )
     diag = FrontEndDiagnostics(
         n_segments=cands.n_segments,
-        overflow_count=cands.n_overflow,
-        too_long_count=cands.n_too_long,
+        n_overflow=cands.n_overflow,
+        n_too_long=cands.n_too_long,
         n_kept=jnp.sum(keep, dtype=_I32),
     )
     return FrontEndOutput(cands, feats, keep, diag)
-
-
-@jax.jit
-def front_end(cfg: FrontEndConfig, scan: Scan) -> FrontEndOutput:
-    """Stages a–c on one scan (jitted; compiles once per static config and beam count)."""
-    return front_end_unjitted(cfg, scan)
 
 
 def _drop_windows(out: FrontEndOutput) -> FrontEndOutput:
@@ -176,8 +172,7 @@ def _drop_windows(out: FrontEndOutput) -> FrontEndOutput:
     return FrontEndOutput(cands, feats, out.keep, out.diagnostics)
 
 
-@jax.jit(static_argnames=("chunk", "windows"))
-def front_end_log(cfg: FrontEndConfig, scans: Scan, chunk: int = 8, windows: bool = False) -> FrontEndOutput:
+def front_end_batch(cfg: FrontEndConfig, scans: Scan, chunk: int = 8, windows: bool = False) -> FrontEndOutput:
     """Stages a–c on a stack of scans (leading axis), vmapped over chunks of ``chunk`` scans (small
     chunks keep each chunk's cells × points weights in cache; 8 was fastest on a 2-core CPU).
 
@@ -187,7 +182,7 @@ def front_end_log(cfg: FrontEndConfig, scans: Scan, chunk: int = 8, windows: boo
     """
 
     def one(scan):
-        out = front_end_unjitted(cfg, scan)
+        out = front_end(cfg, scan)
         return out if windows else _drop_windows(out)
 
     return jax.lax.map(one, scans, batch_size=chunk)

@@ -16,6 +16,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
+from ._geometry import affine_heading, field_to_sensor, rot, sensor_pose, sensor_to_field, wrap
+
 _F32 = jnp.float32
 
 
@@ -42,21 +44,20 @@ class Transform(eqx.Module):
 
     def apply(self, p: Float[Array, "*n 2"]) -> Float[Array, "*n 2"]:
         """Points from S to O (eq. 10)."""
-        lead = (1,) * (p.ndim - 1)
-        return self.mu_o.reshape(lead + (2,)) + jnp.einsum("ij,...j->...i", self.A, p - self.mu_s.reshape(lead + (2,)))
+        return sensor_to_field(self.A, self.mu_s, self.mu_o, p)
+
+    def to_sensor(self, p: Float[Array, "*n 2"]) -> Float[Array, "*n 2"]:
+        """Points from O to S (eq. 10 inverted)."""
+        return field_to_sensor(self.A, self.mu_s, self.mu_o, p)
 
     def heading(self) -> Float[Array, ""]:
         """The rotation part of ``A``, ``atan2(A10, A00)``: added to headings measured in S (eq. 10)."""
-        return jnp.arctan2(self.A[1, 0], self.A[0, 0])
+        return affine_heading(self.A)
 
     def sensor_pose(self) -> Float[Array, "3"]:
-        """The sensor's pose in O as this transform sees it: where S's origin lands, and the heading."""
-        return jnp.concatenate([self.apply(jnp.zeros(2, self.A.dtype)), self.heading()[None]])
-
-
-def rot(theta: Float[Array, ""]) -> Float[Array, "2 2"]:
-    c, s = jnp.cos(theta), jnp.sin(theta)
-    return jnp.stack([jnp.stack([c, -s]), jnp.stack([s, c])])
+        """The sensor's pose in O as this transform sees it: where S's origin lands, and the heading.
+        Also for a stack of transforms (NumPy or JAX arrays with a leading axis)."""
+        return sensor_pose(self.A, self.mu_s, self.mu_o)
 
 
 def associate(
@@ -160,7 +161,7 @@ def poses_to_field(
     """
     xy = tf.apply(pose_s[:, :2])
     theta = pose_s[:, 2] + tf.heading()
-    theta = jnp.pi - jnp.mod(jnp.pi - theta, 2 * jnp.pi)
+    theta = wrap(theta)
     A3 = jnp.zeros((3, 3), tf.A.dtype).at[:2, :2].set(tf.A).at[2, 2].set(1.0)
     cov = jnp.einsum("ij,njk,lk->nil", A3, cov_s, A3)
     return jnp.concatenate([xy, theta[:, None]], -1), cov

@@ -1,5 +1,4 @@
-"""The whole of Fig. 1 as one pure function: ``step(model, state, scan) -> (state, output)``, and the
-batch driver ``process_log`` that runs the same computation over a log.
+"""The whole of Fig. 1 as one pure function: ``step(model, state, scan) -> (state, output)``.
 
 The step splits in two:
 
@@ -8,9 +7,8 @@ The step splits in two:
 * ``update`` (stages f–g): map transformation and tracking, which carry state from scan to scan.
   Batch replay runs it under ``lax.scan``.
 
-``step`` is ``update ∘ perceive``. ``process_log`` runs chunks of scans: by default through the same
-compiled loop body as ``step`` (bit-for-bit equal results), or as ``scan(update) ∘ vmap(perceive)``.
-Memory is bounded by the chunk size for logs of any length.
+``step`` is ``update ∘ perceive``; it is not jitted here: the drivers (``gtsjax.drivers``) jit it,
+batch replay as a loop over chunks or as ``scan(update) ∘ vmap(perceive)``.
 """
 
 import equinox as eqx
@@ -20,9 +18,11 @@ from jaxtyping import Array, Bool, Float, Int
 
 from ._classify import classify, gp_inputs
 from ._filters import envelope_pass, partial_view, shape_quantities
-from ._frontend import front_end_unjitted
+from ._frontend import front_end
+from ._geometry import in_bounds
 from ._maptransform import Transform, poses_to_field, update_transform
 from ._pose import regress, to_sensor_frame, vague_headings
+from ._precision import exact_products
 from ._scan import Scan
 from ._track import Detections, TrackerState, reported, track_step
 from .model import Model
@@ -51,8 +51,8 @@ class Perception(eqx.Module):
     cov_s: Float[Array, "cands 3 3"]
     n_segments: Int[Array, ""]
     n_kept: Int[Array, ""]
-    overflow: Int[Array, ""]
-    too_long: Int[Array, ""]
+    n_overflow: Int[Array, ""]
+    n_too_long: Int[Array, ""]
     unposed: Int[Array, ""]  # objects beyond their class's cap (see ``_pose.regress``), dropped
     unlike: Int[Array, ""]  # candidates unlike every training example of their class (open set), dropped
     off_envelope: Int[Array, ""]  # candidates whose best class's shape envelope they lie outside
@@ -67,6 +67,7 @@ class Output(eqx.Module):
     track_var: Float[Array, "tracks 3"]
     track_mask: Bool[Array, " tracks"]
     transform: Transform
+    sensor_pose: Float[Array, "3"]  # the sensor in O as this scan's transform sees it
     landmark_residual: Float[Array, "landmarks 2"]
     landmark_seen: Bool[Array, " landmarks"]
     det_pose: Float[Array, "cands 3"]  # detections of tracked classes in O (diagnostics, evaluation)
@@ -75,8 +76,8 @@ class Output(eqx.Module):
     n_segments: Int[Array, ""]
     n_kept: Int[Array, ""]  # candidates passing the binary filters
     n_objects: Int[Array, ""]  # candidates classified as landmarks or tracked objects
-    overflow: Int[Array, ""]  # segments beyond K, dropped
-    too_long: Int[Array, ""]  # segments longer than L beams, filtered
+    n_overflow: Int[Array, ""]  # segments beyond K, dropped
+    n_too_long: Int[Array, ""]  # segments longer than L beams, filtered
     unposed: Int[Array, ""]  # objects beyond their class's cap (see ``_pose.regress``), dropped
     unlike: Int[Array, ""]  # candidates unlike every training example of their class (open set), dropped
     off_envelope: Int[Array, ""]  # candidates whose best class's shape envelope they lie outside
@@ -98,6 +99,7 @@ def landmark_cap(model: Model) -> int:
     return model.site.landmark_xy.shape[0] + model.max_objects
 
 
+@exact_products
 def perceive(model: Model, scan: Scan, *, bucket: bool | None = None) -> Perception:
     """Stages a–e (segmentation … pose regression) of one scan; no state. ``bucket``: see
     :func:`~gtsjax._pose.regress`; off where ``perceive`` is ``vmap``ped, and by default on a CPU
@@ -105,7 +107,7 @@ def perceive(model: Model, scan: Scan, *, bucket: bool | None = None) -> Percept
     with it, 1.61 ms without)."""
     if bucket is None:
         bucket = jax.default_backend() == "cpu"
-    fe = front_end_unjitted(model.frontend, scan)
+    fe = front_end(model.frontend, scan)
     f = fe.features
     x = gp_inputs(f.vector, f.origin, f.height, model.gp_columns)
     rng = jnp.sqrt(jnp.sum(f.origin**2, axis=-1))
@@ -120,14 +122,12 @@ def perceive(model: Model, scan: Scan, *, bucket: bool | None = None) -> Percept
     partial = partial_view(model.envelope, cls, fe.candidates.occluded)
     vague = vague_headings(model.pose, cls, var)
     return Perception(cls, ok & posed, fe.keep, partial, vague, scores, pose_s, cov_s, d.n_segments, d.n_kept,
-                      d.overflow_count, d.too_long_count, unposed, count(dec.unlike), count(dec.off_envelope))
+                      d.n_overflow, d.n_too_long, unposed, count(dec.unlike), count(dec.off_envelope))
 
 
 def _inside(site, pose: Float[Array, "n 3"]) -> Bool[Array, " n"]:
     """Whether each pose lies inside the site's bounds (all True for a site without bounds)."""
-    x, y = pose[:, 0], pose[:, 1]
-    b = site.bounds
-    return ~site.has_bounds | ((x >= b[0]) & (y >= b[1]) & (x <= b[2]) & (y <= b[3]))
+    return ~site.has_bounds | in_bounds(pose[:, :2], site.bounds)
 
 
 # How far beyond a track's predicted centre its beams must reach for its spot to count as empty:
@@ -141,7 +141,7 @@ def seen_through(scan: Scan, tf: Transform, xy_o: Float[Array, "n 2"]) -> Bool[A
     bearing returns before ``SEE_THROUGH_MARGIN`` past it (a beam with no return saw nothing within
     the sensor's range: on an open field, the usual view past a far robot). A position outside the
     field of view is never seen through."""
-    xy_s = tf.mu_s[None, :] + jnp.linalg.solve(tf.A, (xy_o - tf.mu_o[None, :]).T).T
+    xy_s = tf.to_sensor(xy_o)
     rho = jnp.sqrt(jnp.sum(xy_s**2, axis=-1))
     beam = jnp.round((jnp.arctan2(xy_s[:, 1], xy_s[:, 0]) - scan.angle_min) / scan.angle_increment).astype(jnp.int32)
     idx = beam[:, None] + jnp.arange(-1, 2, dtype=jnp.int32)[None, :]  # [n, 3]
@@ -153,6 +153,7 @@ def seen_through(scan: Scan, tf: Transform, xy_o: Float[Array, "n 2"]) -> Bool[A
     return in_view & ~jnp.any(short, axis=1)
 
 
+@exact_products
 def update(model: Model, state: PipelineState, p: Perception, scan: Scan) -> tuple[PipelineState, Output]:
     """Stages f–g: re-estimate the map transformation from this scan's landmarks, map detections into
     O, and track. The transform estimated from a scan is used for that same scan's detections.
@@ -184,6 +185,7 @@ def update(model: Model, state: PipelineState, p: Perception, scan: Scan) -> tup
         track_mask=reported(ts, model.tracker) & _inside(site, ts.mean[:, :3])
         & ((ts.misses == 0) | ~seen_through(scan, tf, ts.mean[:, :2])),
         transform=tf,
+        sensor_pose=tf.sensor_pose(),
         landmark_residual=residual,
         landmark_seen=seen,
         det_pose=pose_o,
@@ -192,8 +194,8 @@ def update(model: Model, state: PipelineState, p: Perception, scan: Scan) -> tup
         n_segments=p.n_segments,
         n_kept=p.n_kept,
         n_objects=jnp.sum(p.ok, dtype=jnp.int32),
-        overflow=p.overflow,
-        too_long=p.too_long,
+        n_overflow=p.n_overflow,
+        n_too_long=p.n_too_long,
         unposed=p.unposed,
         unlike=p.unlike,
         off_envelope=p.off_envelope,
@@ -202,108 +204,10 @@ def update(model: Model, state: PipelineState, p: Perception, scan: Scan) -> tup
     return PipelineState(tf, tracker, state.n_scans + 1), out
 
 
-def step_unjitted(model: Model, state: PipelineState, scan: Scan) -> tuple[PipelineState, Output]:
-    return update(model, state, perceive(model, scan), scan)
-
-
-def _run_scans(model: Model, state: PipelineState, scans: Scan, n_real: Int[Array, ""]):
-    """``step`` over the first ``n_real`` scans of a stack, in a ``while_loop`` whose trip count is a
-    runtime value. The loop body is one scan's whole step, compiled as a computation of its own, the
-    same whether the stack holds 1 scan (``step``) or a chunk (batch replay): that is what makes the
-    two bit-for-bit equal. Outputs past ``n_real`` are zeros."""
-    one = jax.tree.map(lambda a: a[0], scans)
-    out_shape = jax.eval_shape(lambda st, sc: step_unjitted(model, st, sc)[1], state, one)
-    size = scans.dt.shape[0]
-    buf0 = jax.tree.map(lambda sd: jnp.zeros((size,) + sd.shape, sd.dtype), out_shape)
-
-    def cond(c):
-        return c[0] < n_real
-
-    def body(c):
-        i, st, buf = c
-        sc = jax.tree.map(lambda a: jax.lax.dynamic_index_in_dim(a, i, keepdims=False), scans)
-        st, o = step_unjitted(model, st, sc)
-        buf = jax.tree.map(lambda b, x: jax.lax.dynamic_update_index_in_dim(b, x, i, 0), buf, o)
-        return i + 1, st, buf
-
-    _, state, buf = jax.lax.while_loop(cond, body, (jnp.asarray(0, jnp.int32), state, buf0))
-    return state, buf
-
-
-@jax.jit
 def step(model: Model, state: PipelineState, scan: Scan) -> tuple[PipelineState, Output]:
-    """The whole pipeline for one scan (Fig. 1, stages a–g), jitted once per model shape.
-
-    Run as the one-scan case of batch replay's loop (the barrier keeps the compiler from seeing that
-    the loop runs once and inlining it), so that replay and stepping give identical bits."""
-    n = jax.lax.optimization_barrier(jnp.asarray(1, jnp.int32))
-    state, out = _run_scans(model, state, jax.tree.map(lambda a: a[None], scan), n)
-    return state, jax.tree.map(lambda a: a[0], out)
-
-
-def make_step(model: Model):
-    """``step`` with ``model`` closed over: ``f(state, scan) -> (state, output)``, jitted once.
-
-    The live loop's form. The model becomes a constant of the compiled program, so a call no longer
-    flattens the model's hundred-odd arrays on the host (about a third of a step's time on a 2-core
-    laptop). The computation is ``step``'s; XLA may fold the constants, so results agree with ``step``
-    to float32 rounding rather than bit for bit."""
-    return jax.jit(lambda state, scan: step_unjitted(model, state, scan))
-
-
-def _pad_chunk(scans: Scan, start: int, stop: int, size: int) -> Scan:
-    """Scans ``start:stop`` padded to ``size`` by repeating the last one (so shapes never change)."""
-    part = jax.tree.map(lambda a: a[start:stop], scans)
-    pad = size - (stop - start)
-    if pad == 0:
-        return part
-    return jax.tree.map(lambda a: jnp.concatenate([a, jnp.repeat(a[-1:], pad, axis=0)]), part)
-
-
-@jax.jit(static_argnames="vectorise")
-def process_chunk(model: Model, state: PipelineState, scans: Scan, n_real: Int[Array, ""], vectorise: bool = False
-                  ) -> tuple[PipelineState, Output]:
-    """A chunk of scans (leading axis). Scans at index ``>= n_real`` (padding of the last chunk) leave
-    the state as it was.
-
-    ``vectorise=False``: the chunk runs through the very loop ``step`` compiles (:func:`_run_scans`),
-    so the tracks are bit-for-bit those of calling ``step`` scan by scan. ``vectorise=True``:
-    ``perceive`` (stages a–e) is ``vmap``ped over the chunk and ``update`` (f–g) runs under
-    ``lax.scan``; batched reductions may then round differently (about 1e-7 relative)."""
-    if not vectorise:
-        return _run_scans(model, state, scans, n_real)
-    percepts = jax.vmap(lambda sc: perceive(model, sc, bucket=False))(scans)
-
-    def body(s, inp):
-        p, sc, i = inp
-        new, out = update(model, s, p, sc)
-        keep = i < n_real
-        return jax.tree.map(lambda a, b: jnp.where(keep, a, b), new, s), out
-
-    idx = jnp.arange(scans.dt.shape[0], dtype=jnp.int32)
-    return jax.lax.scan(body, state, (percepts, scans, idx))
-
-
-def process_log(model: Model, scans: Scan, *, chunk: int = 256, state: PipelineState | None = None,
-                callback=None, vectorise: bool = False) -> tuple[PipelineState, Output]:
-    """Run a stack of scans through the pipeline ``chunk`` at a time. Returns the final state and the
-    stacked outputs as NumPy arrays on the host; ``callback(n_done)`` is called after each chunk.
-
-    Device memory is bounded by the chunk size whatever the log's length (the last chunk is padded,
-    and its padding does not touch the state); the outputs accumulate on the host.
-    """
-    import numpy as np
-
-    state = init_state(model) if state is None else state
-    n = scans.ranges.shape[0]
-    chunk = max(1, min(chunk, n))
-    outs = []
-    for start in range(0, n, chunk):
-        stop = min(start + chunk, n)
-        part = _pad_chunk(scans, start, stop, chunk)
-        state, out = process_chunk(model, state, part, jnp.asarray(stop - start, jnp.int32), vectorise=vectorise)
-        real = stop - start
-        outs.append(jax.tree.map(lambda a, real=real: np.asarray(a)[:real], out))
-        if callback is not None:
-            callback(stop)
-    return state, jax.tree.map(lambda *a: np.concatenate(a), *outs)
+    """The whole pipeline for one scan (Fig. 1, stages a–g): pure and not jitted. Each driver owns
+    its jit: the live loop (``drivers.live``, the model closed over, one frame per call), batch replay
+    (``drivers.replay``, chunks of scans in one compiled loop), the benchmarks; a user's own loop
+    wraps it in ``jax.jit``. The model's shape-fixing integers are static, its thresholds arrays, so
+    one compilation serves every model of a shape."""
+    return update(model, state, perceive(model, scan), scan)

@@ -15,6 +15,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from ._buckets import bucketed
+from ._geometry import compose, wrap
 from ._gp import GP, SparseGP, predict_mean
 
 # Heading variance is capped where the sine and cosine predictions carry no information.
@@ -123,7 +124,7 @@ def calibrate(reg: PoseRegressor, vectors, target, *, good_deg: float = 15.0,
                                  jnp.asarray(vectors, jnp.float32))
     rel, var, target = np.asarray(rel, np.float64), np.asarray(var, np.float64), np.asarray(target, np.float64)
     err = rel - target
-    err[:, 2] = np.pi - np.mod(np.pi - err[:, 2], 2 * np.pi)
+    err[:, 2] = wrap(err[:, 2])
     scale = np.ones(3)
     for j in range(3 if reg.sin is not None else 2):
         ok = np.isfinite(err[:, j]) & (var[:, j] > 0)
@@ -212,10 +213,8 @@ def to_sensor_frame(
 ) -> tuple[Float[Array, "cands 3"], Float[Array, "cands 3 3"]]:
     """From each candidate's ORS to S: ``p = o′ + Rot(θ_j)(x̃, ỹ)``, heading ``θ_j + θ̃`` (eq. 16 with
     the ORS in place of O), and the covariance ``Rot diag(vx, vy) Rotᵀ`` ⊕ ``vθ``."""
+    pose = compose(jnp.concatenate([origin, heading[:, None]], -1), rel)
     c, s = jnp.cos(heading), jnp.sin(heading)
-    px = origin[:, 0] + c * rel[:, 0] - s * rel[:, 1]
-    py = origin[:, 1] + s * rel[:, 0] + c * rel[:, 1]
-    pose = jnp.stack([px, py, heading + rel[:, 2]], -1)
     cxx = c**2 * var[:, 0] + s**2 * var[:, 1]
     cyy = s**2 * var[:, 0] + c**2 * var[:, 1]
     cxy = c * s * (var[:, 0] - var[:, 1])

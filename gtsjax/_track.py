@@ -85,6 +85,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
+from ._geometry import wrap
+
 _F32 = jnp.float32
 NX = 6  # x, y, theta, vx, vy, omega
 
@@ -98,11 +100,6 @@ DEFAULT_MAX_TURN_RATE = 3.0
 # used, and the errors of consecutive scans are correlated, not independent trials), while a leg
 # at twice the limit is flagged once σ_v is below half the limit (2 m > m + 2 σ_v), three or four scans.
 _PLAUSIBLE_SIGMAS = 2.0
-
-
-def wrap(a: Float[Array, "*n"]) -> Float[Array, "*n"]:
-    """Angle to (−π, π]."""
-    return jnp.pi - jnp.mod(jnp.pi - a, 2 * jnp.pi)
 
 
 class TrackerParams(eqx.Module):

@@ -38,10 +38,12 @@ import numpy as np
 
 from ._classify import Classifier, Support, classify, gp_inputs, nearest_d2
 from ._filters import Envelope, envelope_pass, shape_quantities
-from ._frontend import FrontEndConfig, front_end_log
+from ._frontend import FrontEndConfig, front_end_batch
+from ._geometry import affine_heading, compose, field_to_sensor, in_bounds, relative, sensor_to_field, wrap
 from ._gp import fit
 from ._maptransform import Transform, update_transform
 from ._pose import PoseRegressor, calibrate, regress_one_class
+from ._precision import exact_products
 from ._track import DEFAULT_MAX_SPEED, DEFAULT_MAX_TURN_RATE, TrackerParams
 from .errors import InputError
 from .io.logs import ScanLog, fit_geometry, to_scans
@@ -123,10 +125,6 @@ class Examples:
         return Examples(*(getattr(self, f.name)[idx] for f in dataclasses.fields(self)))
 
 
-def wrap(a):
-    return np.pi - np.mod(np.pi - a, 2 * np.pi)
-
-
 def class_list(logs: Sequence[ScanLog], site: Site) -> tuple[tuple[str, ...], tuple[str, ...], tuple[str, ...]]:
     """All classes (background first, then landmark classes, then mobile classes), landmarks, mobiles."""
     landmarks = tuple(sorted(set(site.landmark_classes)))
@@ -138,6 +136,9 @@ def class_list(logs: Sequence[ScanLog], site: Site) -> tuple[tuple[str, ...], tu
     return (BACKGROUND, *landmarks, *mobiles), landmarks, mobiles
 
 
+_front_end_batch = jax.jit(front_end_batch, static_argnames=("chunk", "windows"))
+
+
 def run_front_end(log: ScanLog, cfg: FrontEndConfig, n_beams: int, chunk: int = 1024):
     """Stages a–c over a log, chunk by chunk; returns host arrays ``[T, K, …]``: origin, heading,
     keep, ``vector`` (the GP inputs of each candidate, :func:`~gtsjax._classify.gp_inputs`),
@@ -146,7 +147,7 @@ def run_front_end(log: ScanLog, cfg: FrontEndConfig, n_beams: int, chunk: int = 
     outs = {"origin": [], "heading": [], "vector": [], "keep": [], "shape": [], "rng": [], "occluded": []}
     for start in range(0, log.n_scans, chunk):
         scans = to_scans(log.slice(start, start + chunk), n_beams)
-        fe = front_end_log(cfg, scans)
+        fe = _front_end_batch(cfg, scans)
         f = fe.features
         rng = jnp.sqrt(jnp.sum(f.origin**2, axis=-1))
         outs["origin"].append(np.asarray(f.origin, np.float64))
@@ -183,21 +184,14 @@ def estimate_transforms(det_s: np.ndarray, keep: np.ndarray, site: Site, cfg: Tr
             "n": np.asarray(tfs.n_landmarks)}
 
 
-def _to_s(tf, p_o):
-    """Points [T, n, 2] in O to S under per-scan transforms (inverse of eq. 10, solved)."""
-    d = p_o - tf["mu_o"][:, None, :]
-    return np.linalg.solve(tf["A"][:, None], d[..., None])[..., 0] + tf["mu_s"][:, None, :]
+def _per_scan(tf):
+    """A log's transforms ``[T]`` as arguments of ``_geometry``'s S ↔ O maps for points ``[T, n, 2]``."""
+    return tf["A"][:, None], tf["mu_s"][:, None], tf["mu_o"][:, None]
 
 
-def _to_o(tf, p_s):
-    return np.einsum("tij,tnj->tni", tf["A"], p_s - tf["mu_s"][:, None, :]) + tf["mu_o"][:, None, :]
-
-
-def _rel(origin, heading, p_s):
-    """Points in S [T, K, 2] into each candidate's ORS (eq. 9)."""
-    d = p_s - origin
-    c, s = np.cos(heading), np.sin(heading)
-    return np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]], -1)
+def _ors(origin, heading):
+    """Candidates' ORS frames ``[..., 3]`` (eq. 9) from their origins and headings."""
+    return np.concatenate([origin, heading[..., None]], -1)
 
 
 def label_log(log: ScanLog, fe: dict, tf: dict, site: Site, classes: tuple[str, ...], cfg: TrainConfig,
@@ -206,18 +200,19 @@ def label_log(log: ScanLog, fe: dict, tf: dict, site: Site, classes: tuple[str, 
     returns the class of every candidate slot ``[T, K]`` (0 where not an example or background)."""
     T, K = fe["keep"].shape
     origin, heading = fe["origin"], fe["heading"]
-    origin_o = _to_o(tf, origin)  # [T, K, 2]
-    rot_s = np.arctan2(tf["A"][:, 1, 0], tf["A"][:, 0, 0])  # [T]
+    origin_o = sensor_to_field(*_per_scan(tf), origin)  # [T, K, 2]
+    rot_s = affine_heading(tf["A"])  # [T]
+    ors = _ors(origin, heading)
     cls = np.zeros((T, K), np.int64)
     target = np.full((T, K, 3), np.nan)
     best = np.full((T, K), np.inf)
 
     lm_xy = site.landmark_xy
-    lm_s = _to_s(tf, np.broadcast_to(lm_xy, (T,) + lm_xy.shape))  # [T, L, 2]
+    lm_s = field_to_sensor(*_per_scan(tf), np.broadcast_to(lm_xy, (T,) + lm_xy.shape))  # [T, L, 2]
     for j, lm in enumerate(site.landmarks):
         d = np.linalg.norm(origin_o - lm_xy[j], axis=-1)
         hit = (d < cfg.landmark_radius) & (d < best)
-        rel = _rel(origin, heading, np.broadcast_to(lm_s[:, j : j + 1], origin.shape))
+        rel = relative(ors, np.broadcast_to(lm_s[:, j : j + 1], origin.shape))
         cls[hit] = classes.index(lm.cls)
         target[hit, :2] = rel[hit]
         target[hit, 2] = np.nan
@@ -236,8 +231,8 @@ def label_log(log: ScanLog, fe: dict, tf: dict, site: Site, classes: tuple[str, 
         nearest = np.arange(K)[None, :] == np.argmin(d, axis=1)[:, None]
         hit = near & nearest & (d < best)
         ambiguous |= near & ~nearest
-        p_s = _to_s(tf, np.nan_to_num(p[:, None, :2]))  # [T, 1, 2]
-        rel = _rel(origin, heading, np.broadcast_to(p_s, origin.shape))
+        p_s = field_to_sensor(*_per_scan(tf), np.nan_to_num(p[:, None, :2]))  # [T, 1, 2]
+        rel = relative(ors, np.broadcast_to(p_s, origin.shape))
         th = wrap(np.nan_to_num(p[:, 2])[:, None] - rot_s[:, None] - heading)
         cls[hit] = classes.index(str(name))
         target[hit, :2] = rel[hit]
@@ -249,11 +244,7 @@ def label_log(log: ScanLog, fe: dict, tf: dict, site: Site, classes: tuple[str, 
     # bounds (plus a margin), not the walls and furniture around it, which the step drops anyway.
     use = fe["keep"] & ~tf["degraded"][:, None] & ~(ambiguous & (cls == 0))
     if site.bounds is not None and cfg.bounds_margin is not None:
-        x0, y0, x1, y1 = site.bounds
-        mg = cfg.bounds_margin
-        inside = ((origin_o[..., 0] >= x0 - mg) & (origin_o[..., 0] <= x1 + mg)
-                  & (origin_o[..., 1] >= y0 - mg) & (origin_o[..., 1] <= y1 + mg))
-        use &= inside | (cls != 0)
+        use &= in_bounds(origin_o, np.asarray(site.bounds), cfg.bounds_margin) | (cls != 0)
     t_idx, k_idx = np.nonzero(use)
     period = np.median(np.diff(log.stamps)) if log.n_scans > 1 else 0.1
     block = max(1, int(round(1.0 / max(period, 1e-3))))
@@ -575,6 +566,7 @@ def fit_background(first: ScanLog, background: Sequence[ScanLog], names: Sequenc
             for log, name in zip(background, names, strict=True)]
 
 
+@exact_products
 def train(logs: Sequence[ScanLog], site: Site, cfg: TrainConfig = TrainConfig(), *,
           progress: Callable[[dict], None] | None = None, names: Sequence[str] | None = None,
           background: Sequence[ScanLog] = (), background_names: Sequence[str] | None = None) -> tuple[Model, dict]:
@@ -806,9 +798,7 @@ def _second_pass(logs, per_log, cls1, pose, site, classes, landmarks, cfg) -> Ex
             k = classes.index(name)
             rel, _ = regress_one_class(pose[k], jnp.asarray(fe["vector"].reshape(T * K, D), jnp.float32))
             rel = np.asarray(rel, np.float64).reshape(T, K, 3)
-            c, s = np.cos(fe["heading"]), np.sin(fe["heading"])
-            moved = np.stack([fe["origin"][..., 0] + c * rel[..., 0] - s * rel[..., 1],
-                              fe["origin"][..., 1] + s * rel[..., 0] + c * rel[..., 1]], -1)
+            moved = compose(_ors(fe["origin"], fe["heading"]), rel[..., :2])
             det_s = np.where((cls_tk == k)[..., None], moved, det_s)
         tf = estimate_transforms(det_s, fe["keep"], site, cfg)
         degraded += int(tf["degraded"].sum())

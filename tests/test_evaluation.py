@@ -1,4 +1,4 @@
-"""Accuracy metrics (``gtsjax.evaluation``) on outputs whose errors are known by construction, and the
+"""Accuracy metrics (``gtsjax.drivers.evaluation``) on outputs whose errors are known by construction, and the
 ``gtsjax evaluate`` command's tables."""
 
 import json
@@ -6,7 +6,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from gtsjax.evaluation import evaluate_outputs
+from gtsjax.drivers.evaluation import evaluate_outputs
 from gtsjax.io.logs import ScanLog
 
 T, M = 40, 4  # scans, track slots

@@ -11,13 +11,15 @@ import numpy as np
 import pytest
 
 from gtsjax._features import characterise
-from gtsjax._filters import binary_filter, in_bounds
-from gtsjax._frontend import FrontEndConfig, front_end, front_end_log, front_end_unjitted
+from gtsjax._frontend import FrontEndConfig, front_end_batch
+from gtsjax._frontend import front_end as front_end_pure
 from gtsjax._scan import Scan
 from gtsjax.io.logs import ScanLog, to_scans
 from gtsjax.sensors import URG_04LX, UTM_30LX
 
 TOL = dict(rtol=1e-5, atol=1e-5)
+
+front_end = jax.jit(front_end_pure)  # the tests' own jit: the core's front end is pure
 
 
 # ----------------------------------------------------------------------------- NumPy reference
@@ -92,8 +94,8 @@ def check_scan(cfg, scan, out):
     c, f = out.candidates, out.features
     d = out.diagnostics
     assert int(d.n_segments) == len(segs)
-    assert int(d.overflow_count) == max(len(segs) - k_max, 0)
-    assert int(d.too_long_count) == sum(length > win for _, length in segs[:k_max])
+    assert int(d.n_overflow) == max(len(segs) - k_max, 0)
+    assert int(d.n_too_long) == sum(length > win for _, length in segs[:k_max])
     live = np.asarray(c.live)
     assert live.sum() == min(len(segs), k_max) and live[: min(len(segs), k_max)].all()
     keep = np.asarray(out.keep)
@@ -270,7 +272,7 @@ def test_more_than_k_candidates_counted():
     scan = make_scan(URG_04LX, r)
     out = front_end(cfg, scan)
     segs = check_scan(cfg, scan, out)
-    assert len(segs) > 32 and int(out.diagnostics.overflow_count) == len(segs) - 32
+    assert len(segs) > 32 and int(out.diagnostics.n_overflow) == len(segs) - 32
 
 
 def test_wall_longer_than_window_is_flagged_not_truncated():
@@ -283,7 +285,7 @@ def test_wall_longer_than_window_is_flagged_not_truncated():
     segs = check_scan(cfg, scan, out)
     assert segs == [(0, 500), (500, 20), (520, n - 520)]
     np.testing.assert_array_equal(np.asarray(out.candidates.too_long[:3]), [True, False, True])
-    assert int(out.diagnostics.too_long_count) == 2
+    assert int(out.diagnostics.n_too_long) == 2
     np.testing.assert_array_equal(np.asarray(out.keep[:3]), [False, True, False])
 
 
@@ -385,23 +387,23 @@ def test_cell_inside_a_wide_gap_is_zero():
 
 
 def test_compiles_once_for_twenty_scans_and_retuning():
-    counted = jax.jit(eqx.debug.assert_max_traces(front_end_unjitted, max_traces=1))
-    before = front_end._cache_size()
+    counted = jax.jit(eqx.debug.assert_max_traces(front_end_pure, max_traces=1))
     for seed in range(20):
         cfg = FrontEndConfig(break_distance=0.05 + 0.01 * seed, width_max=0.5 + 0.1 * seed, cells_on_bbox=seed % 2 == 0)
         scan = scene(URG_04LX, 100 + seed)
         a = counted(cfg, scan)
         b = front_end(cfg, scan)
         np.testing.assert_array_equal(np.asarray(a.features.vector), np.asarray(b.features.vector))
-    assert front_end._cache_size() - before <= 1
+    assert counted._cache_size() == 1
 
 
 def test_log_level_matches_scan_level():
     cfg = FrontEndConfig()
     scans = [scene(UTM_30LX, s) for s in range(5)]
     stacked = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *scans)
-    out = front_end_log(cfg, stacked, chunk=2, windows=True)  # 5 scans: two full chunks and a remainder
-    compact = front_end_log(cfg, stacked, chunk=2)
+    batch = jax.jit(front_end_batch, static_argnames=("chunk", "windows"))
+    out = batch(cfg, stacked, chunk=2, windows=True)  # 5 scans: two full chunks and a remainder
+    compact = batch(cfg, stacked, chunk=2)
     assert compact.candidates.mask is None and compact.features.points is None
     for t, scan in enumerate(scans):
         one = front_end(cfg, scan)
@@ -420,26 +422,8 @@ def test_gradients_finite_through_empty_slots():
     scan = scene(URG_04LX, 3)
 
     def loss(r):
-        out = front_end_unjitted(cfg, eqx.tree_at(lambda s: s.ranges, scan, r))
+        out = front_end_pure(cfg, eqx.tree_at(lambda s: s.ranges, scan, r))
         return jnp.sum(out.features.vector)
 
     g = jax.grad(loss)(scan.ranges)
     assert np.isfinite(np.asarray(g)).all()
-
-
-def test_bounds_filter():
-    xy = jnp.asarray([[1.0, 1.0], [6.5, 1.0], [0.0, 4.0], [np.nan, 1.0]], jnp.float32)
-    b = jnp.asarray([0.0, 0.0, 6.0, 4.0], jnp.float32)
-    np.testing.assert_array_equal(np.asarray(in_bounds(xy, b)), [True, False, True, False])
-    keep = binary_filter(
-        jnp.ones(4, bool),
-        jnp.zeros(4, bool),
-        jnp.full(4, 5, jnp.int32),
-        jnp.full(4, 0.3, jnp.float32),
-        width_min=jnp.float32(0.03),
-        width_max=jnp.float32(0.8),
-        min_points=jnp.int32(3),
-        origin_o=xy,
-        bounds=b,
-    )
-    np.testing.assert_array_equal(np.asarray(keep), [True, False, True, False])

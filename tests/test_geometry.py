@@ -187,7 +187,7 @@ def demo_model():
 
 
 def test_live_check_refuses_another_step_or_a_wider_field(demo_model):
-    from gtsjax.live import check_sensor
+    from gtsjax.drivers.live import check_sensor
 
     check_sensor(demo_model, URG_04LX, "/dev/ttyACM0")  # the scanner it was trained for
     finer = dataclasses.replace(URG_04LX, ares=2048, amin=88, amax=769, afrt=768)  # same name, 0.176° steps

@@ -6,14 +6,7 @@ import numpy as np
 import pytest
 
 from gtsjax import InputError
-from gtsjax.io.gtd import HEADER, GTDWriter, read_gtd, rows_from_output, tracks_of, wrap_angle, write_tum
-
-
-def test_wrap_angle_half_open_interval():
-    a = np.array([np.pi, -np.pi, 3 * np.pi, 0.1, -0.1 - 2 * np.pi])
-    w = wrap_angle(a)
-    assert np.all(w > -np.pi) and np.all(w <= np.pi)
-    np.testing.assert_allclose(w, [np.pi, np.pi, np.pi, 0.1, -0.1], atol=1e-12)
+from gtsjax.io.gtd import HEADER, GTDWriter, read_gtd, rows_from_output, tracks_of, write_tum
 
 
 def test_csv_rows_only_for_confirmed_tracks_in_id_order(tmp_path):

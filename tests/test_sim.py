@@ -3,6 +3,7 @@
 import json
 import math
 
+import jax
 import numpy as np
 import pytest
 
@@ -200,12 +201,12 @@ def test_hall_is_clean(name):
     cut short by a shadow or by the range window), and no wall piece comes within 0.5 m of the field
     (training's margin for background examples). The front end finds every post in most scans and the
     robot in nearly every scan it is on the field."""
-    from gtsjax._frontend import FrontEndConfig, front_end_log
+    from gtsjax._frontend import FrontEndConfig, front_end_batch
     from gtsjax.io import to_scans
     from gtsjax.sim.scenarios import hall_layout
 
     log, site = simulate(name, seed=5, n_scans=120)
-    fe = front_end_log(FrontEndConfig(), to_scans(log, URG_04LX.n_beams), windows=True)
+    fe = jax.jit(front_end_batch, static_argnames="windows")(FrontEndConfig(), to_scans(log, URG_04LX.n_beams), windows=True)
     keep, origin = np.asarray(fe.keep), np.asarray(fe.features.origin, np.float64)
     xy, mask = np.asarray(fe.candidates.xy, np.float64), np.asarray(fe.candidates.mask)
     sensor = log.extra["truth_sensor_pose"]

@@ -8,7 +8,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from gtsjax._track import Detections, TrackerParams, TrackerState, assign, heading_consistent, predict, track_step, wrap
+from gtsjax._geometry import wrap
+from gtsjax._track import Detections, TrackerParams, TrackerState, assign, heading_consistent, predict, track_step
 
 F32 = jnp.float32
 

@@ -14,6 +14,7 @@ import numpy as np
 import typer
 from rich.console import Console
 
+from .._geometry import wrap
 from ._app import app
 
 DEMO_SCENARIO = "spl-trajectory"
@@ -46,7 +47,7 @@ def demo_cmd(
     from ..sim import simulate
     from ..sim.emulator import SensorEmulator, log_source
     from ..viz import trajectory_figure
-    from .run import track_live
+    from ._live import track_live
 
     console = Console(stderr=True)
     t0 = time.perf_counter()
@@ -79,7 +80,7 @@ def demo_cmd(
         est = np.array([[r.x, r.y, r.theta] for r in rows])
         tru, _ = match_truth(st, np.asarray(served_t), np.asarray(served_i), truth)
         e_pos = np.linalg.norm(est[:, :2] - tru[:, :2], axis=1)
-        e_th = np.angle(np.exp(1j * (est[:, 2] - tru[:, 2])))
+        e_th = wrap(est[:, 2] - tru[:, 2])
         errors = (st - st[0], e_pos, e_th)
         summary = (f"position RMSE {100 * np.sqrt(np.mean(e_pos**2)):.1f} cm, heading RMSE "
                    f"{np.degrees(np.sqrt(np.mean(e_th**2))):.1f}° over {len(rows)} rows")

@@ -56,7 +56,7 @@ def evaluate_cmd(
     confirm_scans: int | None = typer.Option(None, "--confirm-scans", min=1, help=CONFIRM_HELP),
 ):
     """Score a model against labelled logs or held-out simulated scenarios."""
-    from ..evaluation import evaluate_log, per_point
+    from ..drivers.evaluation import evaluate_log, per_point
     from ..io import load_log, load_site
     from ..io.logs import fit_to_model
     from ..io.modelfile import load_model

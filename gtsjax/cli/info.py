@@ -13,7 +13,7 @@ from ..io import load_site
 from ..io.importers import detect_format, format_name
 from ..sensors import MODELS
 from ._app import app
-from .convert import TOPIC_HELP, describe, load_input, source_of
+from ._common import TOPIC_HELP, describe, load_input, source_of
 
 
 @app.command()

@@ -10,9 +10,10 @@ import numpy as np
 import typer
 from rich.console import Console
 
+from .._geometry import wrap
 from ..errors import InputError
 from ..io import load_log, load_site
-from ..io.gtd import TrackRow, read_gtd, tracks_of, wrap_angle
+from ..io.gtd import TrackRow, read_gtd, tracks_of
 from ._app import app
 
 
@@ -62,7 +63,7 @@ def truth_errors(rows: list[TrackRow], log, radius: float, where: object):
             j = int(np.argmin(d))
             if d[j] <= radius:
                 e_pos[t] = d[j]
-                e_th[t] = float(wrap_angle(pose[cand[j], 2] - log.truth_poses[t, m, 2]))
+                e_th[t] = float(wrap(pose[cand[j], 2] - log.truth_poses[t, m, 2]))
         out.append((c, e_pos, e_th))
     return out
 

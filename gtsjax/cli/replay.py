@@ -6,7 +6,6 @@ The log is checked against the scanner geometry the model was trained on before 
 (:func:`~gtsjax.io.logs.fit_to_model`): another angular step is refused, and so is a wider field of
 view unless ``--crop-fov`` cuts it (and the range window) to the model's."""
 
-import csv
 import time
 from pathlib import Path
 
@@ -15,78 +14,11 @@ import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-from ..io import load_site, to_scans
-from ..io.gtd import GTDWriter, rows_from_output, wrap_angle
+from ..drivers.replay import replay_log
 from ..io.importers import detect_format, format_name
 from ..io.logs import fit_to_model
-from ..io.modelfile import load_model
 from ._app import CONFIRM_HELP, app
-from .convert import INPUT_HELP, TOPIC_HELP, describe, load_input, source_of
-
-
-def replay_log(log, model, out: Path, *, chunk: int = 256, sensor_out: Path | None = None, progress=None):
-    """Run ``log`` through ``model`` (site attached) and write the GTD CSV; returns stacked outputs'
-    summary counters. The log is moved to the device a block at a time, so memory stays bounded."""
-    from .._pipeline import init_state, process_log
-
-    state = init_state(model)
-    block = chunk * 16
-    totals = {"scans": 0, "rows": 0, "degraded": 0, "overflow": 0, "too_long": 0, "unlike": 0, "off_envelope": 0,
-              "track_ids": {}}
-    sensor_rows = []
-    with GTDWriter(out) as writer:
-        for start in range(0, log.n_scans, block):
-            part = log.slice(start, start + block)
-            scans = to_scans(part, model.n_beams)
-            if start > 0:  # dt of the block's first scan is from the previous block's last
-                scans = type(scans)(scans.ranges, scans.intensities, scans.valid, scans.angle_min,
-                                    scans.angle_increment,
-                                    scans.dt.at[0].set(np.float32(log.stamps[start] - log.stamps[start - 1])))
-            cb = None if progress is None else (lambda n, s=start: progress(s + n))
-            state, out_arrays = process_log(model, scans, chunk=chunk, state=state, callback=cb)
-            for i in range(part.n_scans):
-                rows = rows_from_output(part.stamps[i], out_arrays.track_id[i], out_arrays.track_class[i],
-                                        out_arrays.track_pose[i], out_arrays.track_var[i], out_arrays.track_mask[i],
-                                        model.classes)
-                writer.write(rows)
-                for row in rows:
-                    totals["track_ids"].setdefault(row.cls, set()).add(row.track_id)
-            if sensor_out is not None:
-                tf = out_arrays.transform
-                theta = np.arctan2(tf.A[:, 1, 0], tf.A[:, 0, 0])
-                origin = tf.mu_o - np.einsum("tij,tj->ti", tf.A, tf.mu_s)
-                for i in range(part.n_scans):
-                    sensor_rows.append((repr(float(part.stamps[i])), f"{origin[i, 0]:.6f}", f"{origin[i, 1]:.6f}",
-                                        f"{float(wrap_angle(theta[i])):.6f}", int(tf.degraded[i]),
-                                        int(tf.n_landmarks[i])))
-            totals["scans"] += part.n_scans
-            totals["degraded"] += int(np.sum(out_arrays.degraded))
-            totals["overflow"] += int(np.sum(out_arrays.overflow))
-            totals["too_long"] += int(np.sum(out_arrays.too_long))
-            totals["unlike"] += int(np.sum(out_arrays.unlike))
-            totals["off_envelope"] += int(np.sum(out_arrays.off_envelope))
-        totals["rows"] = writer.rows
-    if sensor_out is not None:
-        with open(sensor_out, "w", newline="") as f:
-            w = csv.writer(f, lineterminator="\n")
-            w.writerow(("stamp", "x", "y", "theta", "degraded", "n_landmarks"))
-            w.writerows(sensor_rows)
-    return totals
-
-
-def track_summary(model, track_ids: dict, unlike: int, off_envelope: int) -> str:
-    """One line for ``replay`` and ``run``: the tracks reported per tracked class, and the candidates
-    rejected for not looking like any training example of their class (so a user sees why)."""
-    tracked = [c for c, t in zip(model.classes, np.asarray(model.tracker.tracked), strict=True) if t]
-    per = ", ".join(f"{c} {len(track_ids.get(c, ()))}" for c in tracked)
-    return (f"tracks reported: {per}; candidates rejected as unlike any training example of their class: {unlike}, "
-            f"outside their class's shape envelope: {off_envelope}")
-
-
-def load_for_run(model_path: Path, site_path: Path, *, sensor_model: str | None):
-    site = load_site(site_path)
-    model = load_model(model_path, sensor_model=sensor_model)
-    return model.with_site(site, where=str(site_path))
+from ._common import INPUT_HELP, TOPIC_HELP, describe, load_for_run, load_input, source_of, track_summary
 
 
 @app.command("replay")
@@ -126,5 +58,5 @@ def replay_cmd(
     console.print(f"{totals['scans']} scans in {dt:.1f} s ({totals['scans'] / max(dt, 1e-9):.0f} scans/s, "
                   f"compilation included): {totals['rows']} track rows written to {out}; "
                   f"{totals['degraded']} scans without a new map transformation, "
-                  f"{totals['overflow']} segments over the candidate limit, {totals['too_long']} over-long segments")
+                  f"{totals['n_overflow']} segments over the candidate limit, {totals['n_too_long']} over-long segments")
     console.print(track_summary(m, totals["track_ids"], totals["unlike"], totals["off_envelope"]), soft_wrap=True)

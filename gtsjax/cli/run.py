@@ -1,89 +1,14 @@
 """Live commands: ``gtsjax run`` (sensor → ground truth in real time), ``gtsjax emulate`` (a simulated
 sensor on a pseudo-terminal, speaking SCIP 2.0) and ``gtsjax recover`` (a recording after a crash)."""
 
-import time
 from pathlib import Path
 
-import numpy as np
 import typer
-from rich.console import Console, Group
-from rich.live import Live
-from rich.table import Table
+from rich.console import Console
 
 from ._app import CONFIRM_HELP, app
-
-
-def live_view(model, link, stats, output, stamp) -> Group:
-    """The terminal view: confirmed tracks, latency, the sensor pose as the map transformation sees it,
-    frame and fault counters."""
-    t = Table(title="tracks", expand=False)
-    for col in ("id", "class", "x [m]", "y [m]", "θ [°]", "σx [cm]", "σθ [°]"):
-        t.add_column(col, justify="right")
-    if output is not None:
-        m = np.asarray(output.track_mask)
-        for i in np.flatnonzero(m):
-            p, v = np.asarray(output.track_pose[i]), np.asarray(output.track_var[i])
-            t.add_row(str(int(output.track_id[i])), model.classes[int(output.track_class[i])], f"{p[0]:.3f}",
-                      f"{p[1]:.3f}", f"{np.degrees(np.angle(np.exp(1j * p[2]))):.1f}",
-                      f"{100 * np.sqrt(v[0]):.1f}", f"{np.degrees(np.sqrt(v[2])):.1f}")
-    med, p99 = stats.latency()
-    ls = link.stats
-    lines = [f"frames {stats.frames}  rows {stats.rows}  latency median {med:.2f} ms  p99 {p99:.2f} ms  "
-             f"late {stats.late}"]
-    if output is not None:
-        tf = output.transform
-        A, mu_s, mu_o = (np.asarray(a) for a in (tf.A, tf.mu_s, tf.mu_o))
-        org = mu_o - A @ mu_s
-        lines.append(f"sensor in O: x={org[0]:.3f} m  y={org[1]:.3f} m  θ={np.degrees(np.arctan2(A[1, 0], A[0, 0])):.2f}°"
-                     f"  landmarks {int(tf.n_landmarks)}  {'DEGRADED (kept last transform)' if bool(tf.degraded) else ''}")
-    lines.append(f"link: dropped {ls.dropped}  checksum {ls.checksum_errors}  truncated {ls.truncated}  "
-                 f"malformed {ls.malformed}  garbage bytes {ls.garbage_bytes}  timeouts {ls.timeouts}  "
-                 f"reconnects {ls.reconnects}")
-    return Group(t, *lines)
-
-
-def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Path | None = None,
-               json_lines: bool = False, udp: str | None = None, duration: float | None = None,
-               frames: int | None = None, intensity: bool = True, view: bool = True, console: Console | None = None,
-               confirm_scans: int | None = None):
-    """Open the sensor, run the live loop, show the view; returns (live stats, link stats)."""
-    from ..io.modelfile import load_model
-    from ..io.serial import Link
-    from ..io.site import load_site
-    from ..live import Outputs, check_sensor, run_live, warm_up
-    from ..sensors import MODELS
-
-    console = console or Console(stderr=True)
-    site_obj = load_site(site)
-    model = load_model(model_path).with_site(site_obj, where=str(site)).with_confirmation(confirm_scans)
-    # Compile before the sensor streams, when the model names a known scanner (else after connecting).
-    compiled = warm_up(model, MODELS[model.sensor_model]) if model.sensor_model in MODELS else None
-    link = Link(port, intensity=intensity)
-    link.start()
-    last = {"t": 0.0}
-    try:
-        check_sensor(model, link.model, port)  # before anything is printed: a wrong scanner is one line
-        console.print(f"connected to {link.model.name} on {port} ({link.model.n_beams} beams, "
-                      f"{link.model.rate_hz:g} Hz)")
-        if view:
-            with Live(console=console, refresh_per_second=4, transient=False) as live:
-                def on_scan(stats, o, stamp):
-                    now = time.monotonic()
-                    if now - last["t"] > 0.25:
-                        last["t"] = now
-                        live.update(live_view(model, link, stats, o, stamp))
-
-                stats = run_live(link, model, out, record=record, outputs=Outputs(json_lines, udp),
-                                 duration=duration, on_scan=on_scan, with_intensity=intensity,
-                                 compiled=compiled, max_frames=frames)
-            if not console.is_terminal:  # rich ends the last view with a newline only on a terminal
-                console.line()
-        else:
-            stats = run_live(link, model, out, record=record, outputs=Outputs(json_lines, udp), duration=duration,
-                             with_intensity=intensity, compiled=compiled, max_frames=frames)
-    finally:
-        link.stop()
-    return stats, link.stats
+from ._common import track_summary
+from ._live import track_live
 
 
 @app.command("run")
@@ -112,7 +37,6 @@ def run_cmd(
         f"link: {link_stats.bad_frames} bad frames, {link_stats.dropped} dropped, {link_stats.reconnects} reconnects"
         + (f"; raw scans -> {record}" if record else ""))
     from ..io.modelfile import load_model
-    from .replay import track_summary
 
     Console(stderr=True).print(track_summary(load_model(model), stats.track_ids, stats.unlike, stats.off_envelope),
                                soft_wrap=True)

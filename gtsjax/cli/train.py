@@ -17,7 +17,7 @@ from ..io import load_log, load_site
 from ..io.modelfile import save_model
 from ..training import TrainConfig, fit_background, train
 from ._app import app
-from .convert import load_input
+from ._common import load_input
 
 
 @app.command("train")

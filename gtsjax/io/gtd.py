@@ -17,14 +17,10 @@ from pathlib import Path
 
 import numpy as np
 
+from .._geometry import wrap
 from ..errors import InputError
 
 HEADER = ("stamp", "track_id", "class", "x", "y", "theta", "var_x", "var_y", "var_theta")
-
-
-def wrap_angle(a: np.ndarray | float) -> np.ndarray:
-    """Angle to (−π, π]."""
-    return np.pi - np.mod(np.pi - np.asarray(a, dtype=np.float64), 2 * np.pi)
 
 
 @dataclass(frozen=True)
@@ -60,7 +56,7 @@ def rows_from_output(stamp: float, track_id, cls_index, pose, var, mask, class_n
         return []
     track_id, cls_index = np.asarray(track_id)[mask], np.asarray(cls_index)[mask]
     pose, var = np.asarray(pose, np.float64)[mask], np.asarray(var, np.float64)[mask]
-    theta = wrap_angle(pose[:, 2])
+    theta = wrap(pose[:, 2])
     order = np.argsort(track_id, kind="stable")
     return [
         TrackRow(

@@ -22,6 +22,14 @@ DEFAULT_RANGE_MIN = 0.02
 DEFAULT_RANGE_MAX = 30.0
 
 
+def valid_beams(ranges: np.ndarray, range_min: float, range_max: float) -> np.ndarray:
+    """Beams with a return: finite, positive and inside the scanner's ``[range_min, range_max]``. The
+    host's one definition, for logs and live frames alike (the step zeroes every other beam)."""
+    r = np.asarray(ranges)
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(r) & (r > 0) & (r >= range_min) & (r <= range_max)
+
+
 @dataclasses.dataclass
 class ScanLog:
     """A scan log in memory (NumPy arrays, host side). Shapes: ``T`` scans, ``N`` beams, ``M`` labelled objects."""
@@ -54,10 +62,8 @@ class ScanLog:
         return self.angle_min + np.arange(self.n_beams) * self.angle_increment
 
     def valid(self) -> np.ndarray:
-        """Beams with a return: finite, positive and inside ``[range_min, range_max]``."""
-        r = self.ranges
-        with np.errstate(invalid="ignore"):
-            return np.isfinite(r) & (r > 0) & (r >= self.range_min) & (r <= self.range_max)
+        """Beams with a return (:func:`valid_beams`)."""
+        return valid_beams(self.ranges, self.range_min, self.range_max)
 
     def slice(self, start: int, stop: int) -> "ScanLog":
         """Scans ``start:stop`` as a log of their own."""
@@ -322,11 +328,21 @@ def _beams_inside(log: ScanLog, angle_min, angle_increment, n_beams, where, crop
     return slice(first, first + min(count, n_beams))
 
 
-def to_scans(log: ScanLog, n_beams: int | None = None):
+def scan_dt(stamps: np.ndarray, prev_stamp: float | None = None) -> np.ndarray:
+    """Each scan's ``dt``, the time since the scan before it (``prev_stamp`` for the first, which
+    gets 0 without one), as the step takes it: float32, never negative. The one definition, for
+    logs, for a log replayed a block at a time and for the live loop's frames."""
+    stamps = np.asarray(stamps, np.float64)
+    first = stamps[:1] if prev_stamp is None else np.asarray([prev_stamp], np.float64)
+    return np.maximum(np.diff(stamps, prepend=first), 0.0).astype(np.float32)
+
+
+def to_scans(log: ScanLog, n_beams: int | None = None, *, prev_stamp: float | None = None):
     """The log as one stacked :class:`~gtsjax.Scan` (leading axis: scans), float32, padded to ``n_beams``.
 
     ``valid`` marks beams with a return (see :meth:`ScanLog.valid`); ranges and intensities are 0
-    elsewhere and in the padding. ``dt`` is the time since the previous scan (0 for the first).
+    elsewhere and in the padding. ``dt`` is :func:`scan_dt` (``prev_stamp``: the stamp of the scan
+    before the log's first, when the log is a block of a longer one).
     """
     import jax.numpy as jnp
 
@@ -341,7 +357,7 @@ def to_scans(log: ScanLog, n_beams: int | None = None):
         np.zeros_like(ranges) if log.intensities is None else np.where(valid, log.intensities, 0.0).astype(np.float32)
     )
     pad = ((0, 0), (0, n - log.n_beams))
-    dt = np.diff(log.stamps, prepend=log.stamps[:1]).astype(np.float32)
+    dt = scan_dt(log.stamps, prev_stamp)
     t = log.n_scans
     return Scan(
         ranges=jnp.asarray(np.pad(ranges, pad)),

@@ -13,6 +13,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from .._geometry import wrap
 from ..errors import InputError
 from ..io.logs import ScanLog
 from ..io.site import Landmark, Site
@@ -151,8 +152,8 @@ def path_poses(waypoints_fn: Callable[[np.ndarray], np.ndarray], n: int, period:
     heading[0] = motion[0]
     step = max_turn_rate * period
     for i in range(1, n):
-        turn = np.clip(np.pi - np.mod(np.pi - (motion[i] - heading[i - 1]), 2 * np.pi), -step, step)
-        heading[i] = np.pi - np.mod(np.pi - (heading[i - 1] + turn), 2 * np.pi)
+        turn = np.clip(wrap(motion[i] - heading[i - 1]), -step, step)
+        heading[i] = wrap(heading[i - 1] + turn)
     return np.column_stack([p, heading])
 
 

@@ -21,13 +21,10 @@ object's class nearest each object, before tracking, within ``match_radius``; it
 
 import numpy as np
 
-from ._pipeline import process_log
-from .io.logs import ScanLog, fit_to_model, to_scans
-from .model import Model
-
-
-def wrap(a):
-    return np.pi - np.mod(np.pi - a, 2 * np.pi)
+from .._geometry import wrap
+from ..io.logs import ScanLog, fit_to_model, to_scans
+from ..model import Model
+from .replay import process_log
 
 
 def match_scan(truth_xy, truth_ok, track_xy, track_ok, radius):
@@ -116,9 +113,7 @@ def evaluate_outputs(model: Model, log: ScanLog, out, *, match_radius: float = 0
     }
     sensor_truth = log.extra.get("truth_sensor_pose")
     if sensor_truth is not None:
-        tf = out.transform
-        org = tf.mu_o - np.einsum("tij,tj->ti", tf.A, tf.mu_s)
-        th = np.arctan2(tf.A[:, 1, 0], tf.A[:, 0, 0])
+        org, th = out.sensor_pose[:, :2], out.sensor_pose[:, 2]
         e_s = np.linalg.norm(org - sensor_truth[:, :2], axis=1)
         e_sth = np.abs(wrap(th - sensor_truth[:, 2]))
         res["sensor_position_error_m_median"] = float(np.median(e_s))

@@ -1,4 +1,4 @@
-"""The live loop: frames from the sensor link through the same jitted ``step`` as replay, into the
+"""The live loop, a driver: frames from the sensor link through the pipeline's ``step``, into the
 GTD CSV (flushed per scan), optionally JSON lines on stdout or UDP, a raw recording, and a live view.
 
 The loop owns nothing numeric: it pads each :class:`~gtsjax.io.serial.LinkFrame`'s ranges, calls
@@ -25,13 +25,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._pipeline import Output, init_state, step_unjitted
-from ._scan import Scan
-from .errors import InputError
-from .io.gtd import GTDWriter, json_line, rows_from_output
-from .io.logs import ScanLog, fit_to_model
-from .model import Model
-from .sensors import SensorModel
+from .._pipeline import Output, init_state, step
+from .._scan import Scan
+from ..errors import InputError
+from ..io.gtd import GTDWriter, json_line, rows_from_output
+from ..io.logs import ScanLog, fit_to_model, scan_dt, valid_beams
+from ..model import Model
+from ..sensors import SensorModel
 
 
 @dataclasses.dataclass
@@ -58,7 +58,7 @@ def frame_arrays(ranges_m: np.ndarray, intensities: np.ndarray | None, sensor: S
     are padding), as the float32/bool NumPy arrays of a :class:`Scan`."""
     n = ranges_m.shape[0]
     valid = np.zeros(n_beams, bool)
-    valid[:n] = (ranges_m >= sensor.range_min) & (ranges_m <= sensor.range_max) & np.isfinite(ranges_m)
+    valid[:n] = valid_beams(ranges_m, sensor.range_min, sensor.range_max)
     r = np.zeros(n_beams, np.float32)
     r[:n] = np.where(valid[:n], ranges_m, 0.0)
     inten = np.zeros(n_beams, np.float32)
@@ -87,7 +87,9 @@ def pack_tracks(o: Output):
 
 def make_live_step(model: Model, sensor: SensorModel):
     """``f(state, ranges, intensities, valid, dt) -> (state, output, packed)``, jitted once with the
-    model closed over: the step of :func:`~gtsjax._pipeline.make_step` on a frame's padded arrays
+    model closed over (a constant of the compiled program: a call does not flatten the model's
+    hundred-odd arrays on the host, a third of a step's time on a 2-core laptop): the pipeline's
+    ``step`` on a frame's padded arrays
     (:func:`frame_arrays`), with :func:`pack_tracks` of its output."""
     angle_min = jnp.asarray(sensor.angle_min, jnp.float32)
     angle_increment = jnp.asarray(sensor.angle_increment, jnp.float32)
@@ -95,7 +97,7 @@ def make_live_step(model: Model, sensor: SensorModel):
     @jax.jit
     def live_step(state, ranges, intensities, valid, dt):
         scan = Scan(ranges, intensities, valid, angle_min, angle_increment, jnp.asarray(dt, jnp.float32))
-        state, o = step_unjitted(model, state, scan)
+        state, o = step(model, state, scan)
         return state, o, pack_tracks(o)
 
     return live_step
@@ -160,10 +162,10 @@ def warm_up(model: Model, sensor: SensorModel):
     """The live step for ``model`` on ``sensor``'s frames, compiled before the first real frame so
     that the first latency is not a compile; and the initial state."""
     state = init_state(model)
-    step = make_live_step(model, sensor)
+    live_step = make_live_step(model, sensor)
     r, inten, valid = frame_arrays(np.zeros(sensor.n_beams, np.float32), None, sensor, model.n_beams)
-    jax.block_until_ready(step(state, r, inten, valid, np.float32(0.0)))
-    return step, state
+    jax.block_until_ready(live_step(state, r, inten, valid, np.float32(0.0)))
+    return live_step, state
 
 
 def run_live(link, model: Model, out: Path, *, record: Path | None = None, outputs: Outputs | None = None,
@@ -173,11 +175,11 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
     frames processed, ``stop`` set, or Ctrl-C. ``on_scan(stats, output, stamp)`` is called after each
     scan (the live view; ``output`` is the step's full output, still on the device).
     ``compiled``: ``(step, state)`` from :func:`warm_up`, done before the link started streaming."""
-    from .io.record import Recorder
+    from ..io.record import Recorder
 
     sensor = link.model
     check_sensor(model, sensor, str(getattr(link, "port", "sensor")))
-    step, state = compiled if compiled is not None else warm_up(model, sensor)
+    live_step, state = compiled if compiled is not None else warm_up(model, sensor)
     while link.get(timeout=0) is not None:  # frames that queued up while compiling are stale
         pass
     stats = LiveStats()
@@ -193,10 +195,10 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
                 lf = link.get(timeout=0.2)
                 if lf is None:
                     continue
-                dt = 0.0 if prev_stamp is None else max(0.0, lf.stamp - prev_stamp)
+                dt = scan_dt([lf.stamp], prev_stamp)[0]
                 prev_stamp = lf.stamp
                 r, inten, valid = frame_arrays(lf.ranges_m, lf.intensities, sensor, model.n_beams)
-                state, o, packed = step(state, r, inten, valid, np.float32(dt))
+                state, o, packed = live_step(state, r, inten, valid, dt)
                 packed = np.asarray(packed)
                 rows = rows_from_packed(lf.stamp, packed, model.classes)
                 writer.write(rows)

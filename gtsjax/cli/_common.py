@@ -1,0 +1,58 @@
+"""Helpers the commands share: reading any scan input, one-line descriptions, a model with its site,
+the track summary. Command modules import these, never one another."""
+
+from pathlib import Path
+
+import numpy as np
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
+
+from ..io import load_site
+from ..io.importers import detect_format, import_log
+from ..io.modelfile import load_model
+
+INPUT_HELP = ("Scan log: .npz, a ROS 1 bag (.bag), a ROS 2 bag (its directory), a CARMEN log (.log, .log.gz) "
+              "or a BreezySLAM URG-04LX text log (.dat).")
+TOPIC_HELP = "LaserScan topic of a ROS bag (default: its only one)."
+
+
+def load_input(path: Path, topic: str | None, console: Console):
+    """Any importable log as a :class:`~gtsjax.io.logs.ScanLog`; a bar while a ROS bag is read
+    (bags are the one input that can be large and slow to decode), on a terminal only, so that a
+    redirected stderr holds nothing but the messages (one line for a bad input)."""
+    if detect_format(path) not in ("ros1", "ros2"):
+        return import_log(path, topic=topic)
+    with Progress(TextColumn(f"reading {path.name}"), BarColumn(), MofNCompleteColumn(), TextColumn("messages"),
+                  console=console, transient=True, disable=not console.is_terminal) as bar:
+        task = bar.add_task("read", total=None)
+        return import_log(path, topic=topic, progress=lambda n, total: bar.update(task, completed=n, total=total))
+
+
+def describe(log) -> str:
+    """One line: scans × beams, duration and rate, field of view, share of returns, intensities."""
+    dur = float(log.stamps[-1] - log.stamps[0])
+    rate = (log.n_scans - 1) / dur if dur > 0 else float("nan")
+    return (f"{log.n_scans} scans × {log.n_beams} beams, {dur:.1f} s ({rate:.1f} Hz), "
+            f"sensor {log.sensor_model or 'unknown'}, fov {np.degrees(log.angle_increment * (log.n_beams - 1)):.1f}°, "
+            f"{100 * log.valid().mean():.0f}% returns, intensities {'yes' if log.intensities is not None else 'no'}")
+
+
+def source_of(log) -> str | None:
+    """The importer's one-line ``source`` note, if the log has one."""
+    src = log.extra.get("source")
+    return None if src is None else str(src)
+
+
+def track_summary(model, track_ids: dict, unlike: int, off_envelope: int) -> str:
+    """One line for ``replay`` and ``run``: the tracks reported per tracked class, and the candidates
+    rejected for not looking like any training example of their class (so a user sees why)."""
+    tracked = [c for c, t in zip(model.classes, np.asarray(model.tracker.tracked), strict=True) if t]
+    per = ", ".join(f"{c} {len(track_ids.get(c, ()))}" for c in tracked)
+    return (f"tracks reported: {per}; candidates rejected as unlike any training example of their class: {unlike}, "
+            f"outside their class's shape envelope: {off_envelope}")
+
+
+def load_for_run(model_path: Path, site_path: Path, *, sensor_model: str | None):
+    site = load_site(site_path)
+    model = load_model(model_path, sensor_model=sensor_model)
+    return model.with_site(site, where=str(site_path))
