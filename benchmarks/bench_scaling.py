@@ -23,9 +23,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gtsjax._gp import GP, SparseGP
 from gtsjax._pipeline import init_state, make_step, process_log
 from gtsjax._scan import Scan
+from gtsjax.gp import GP, SparseGP
 from gtsjax.io import to_scans
 from gtsjax.sensors import URG_04LX, UTM_30LX, RangeNoise, SensorModel
 from gtsjax.training import TrainConfig

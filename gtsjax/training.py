@@ -39,11 +39,11 @@ import numpy as np
 from ._classify import Classifier, Support, classify, gp_inputs, nearest_d2
 from ._filters import Envelope, envelope_pass, shape_quantities
 from ._frontend import FrontEndConfig, front_end_log
-from ._gp import fit
 from ._maptransform import Transform, update_transform
 from ._pose import PoseRegressor, calibrate, regress_one_class
 from ._track import DEFAULT_MAX_SPEED, DEFAULT_MAX_TURN_RATE, TrackerParams
 from .errors import InputError
+from .gp import fit
 from .io.logs import ScanLog, fit_geometry, to_scans
 from .io.site import Site
 from .model import Model
