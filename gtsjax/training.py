@@ -43,7 +43,7 @@ from ._maptransform import Transform, update_transform
 from ._pose import PoseRegressor, calibrate, regress_one_class
 from ._track import DEFAULT_MAX_SPEED, DEFAULT_MAX_TURN_RATE, TrackerParams
 from .errors import InputError
-from .gp import fit
+from .gp import GPArgumentError, fit
 from .io.logs import ScanLog, fit_geometry, to_scans
 from .io.site import Site
 from .model import Model
@@ -305,8 +305,11 @@ def _fit32(x, y, key, cfg, progress, label, n_inducing: int, max_fit: int | None
     # With max_fit the posterior takes every example given (the caller capped them); without, fit's
     # own cap applies to the fit and the posterior alike.
     cap = {} if max_fit is None else {"max_points": x.shape[0], "max_fit_points": max_fit}
-    gp = fit(x, y, key=key, restarts=cfg.restarts, jitter=cfg.noise_floor, **cap)
-    sparse = gp.sparse(n_inducing, cfg.n_inducing_var).astype(jnp.float32)
+    try:
+        gp = fit(x, y, key=key, restarts=cfg.restarts, jitter=cfg.noise_floor, **cap)
+        sparse = gp.sparse(n_inducing, cfg.n_inducing_var).astype(jnp.float32)
+    except GPArgumentError as err:  # the GP library is core code; to the user it is a bad setting
+        raise InputError(err.where, err.problem) from None
     p = gp.params
     info = {"gp": label, "n": int(x.shape[0]), "n_fit": int(min(x.shape[0], max_fit or x.shape[0])),
             "seconds": round(time.perf_counter() - t0, 2),

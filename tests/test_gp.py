@@ -1,14 +1,17 @@
 """GP library (paper section 3b, eqs 3-7) against scikit-learn and against itself (autodiff, padding,
 exact vs sparse). Small N throughout: the machine is shared."""
 
+import dataclasses
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from gtsjax import gp
+from gtsjax import InputError, gp, training
 from gtsjax.gp.kernel import _effective_noise, _lml_forward, _safe_rows
+from gtsjax.training import TrainConfig
 
 sk_gp = pytest.importorskip("sklearn.gaussian_process")
 sk_k = pytest.importorskip("sklearn.gaussian_process.kernels")
@@ -337,8 +340,24 @@ def test_all_restarts_failing_raises_clear_error():
 
 
 def test_fit_rejects_bad_input():
-    with pytest.raises(ValueError, match="need x"):
+    with pytest.raises(gp.GPArgumentError, match="need x"):
         gp.fit(np.zeros((3, 2)), np.zeros(4), key=jax.random.key(0))
+
+
+def test_bad_gp_arguments_reach_the_user_as_one_line_input_errors():
+    """The GP library raises its own error (it is core code); training turns it into the CLI's
+    :class:`InputError` with the same message."""
+    x, y = np.zeros((3, 2)), np.zeros(3)
+    with pytest.raises(gp.GPArgumentError) as err:
+        gp.fit(x, y, key=jax.random.key(0), restarts=0)
+    assert not isinstance(err.value, InputError)
+    assert str(err.value) == "gp.fit: restarts must be >= 1, got 0"
+    with pytest.raises(InputError) as err:
+        training._fit32(x, y, jax.random.key(0), dataclasses.replace(TrainConfig(), restarts=0), None, "c", 8)
+    assert str(err.value) == "gp.fit: restarts must be >= 1, got 0"
+    with pytest.raises(InputError) as err:  # constant targets: no optimisation, then the sparse form
+        training._fit32(x, y, jax.random.key(0), TrainConfig(restarts=1), None, "c", 0)
+    assert str(err.value).startswith("GP.sparse: n_inducing and n_variance must be >= 1, got 0,")
 
 
 def test_sparse_mean_on_many_points_variance_on_the_first_few():

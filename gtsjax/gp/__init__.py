@@ -10,6 +10,7 @@ One concept per module, in the order of use:
 - :mod:`gtsjax.gp.fit`: :func:`fit`, maximising eq 5 (eq 4) over the hyperparameters.
 """
 
+from .errors import GPArgumentError as GPArgumentError
 from .errors import GPFitError as GPFitError
 from .exact import GP as GP
 from .exact import condition as condition

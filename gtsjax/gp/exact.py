@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 from jaxtyping import Array, Bool, Float
 
-from ..errors import InputError
+from .errors import GPArgumentError
 from .kernel import _LOG_2PI, DEFAULT_JITTER, Hyperparameters, _cast, _factor, _standardise, gram
 from .sparse import SparseGP, _build_sparse
 
@@ -84,7 +84,9 @@ class GP(eqx.Module):
         m = int(min(n_inducing, self.n_points))
         mv = m if n_variance is None else int(min(n_variance, m))
         if m < 1 or mv < 1:
-            raise InputError("GP.sparse", f"n_inducing and n_variance must be >= 1, got {n_inducing}, {n_variance}")
+            raise GPArgumentError(
+                "GP.sparse", f"n_inducing and n_variance must be >= 1, got {n_inducing}, {n_variance}"
+            )
         return _build_sparse(self, m, mv)
 
 

@@ -25,8 +25,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Float, PRNGKeyArray
 
-from ..errors import InputError
-from .errors import GPFitError
+from .errors import GPArgumentError, GPFitError
 from .exact import GP, _condition
 from .kernel import DEFAULT_JITTER, Hyperparameters, log_marginal_likelihood
 
@@ -165,15 +164,15 @@ def _screen_then_refine(runs: _Starts, starts, xs, yc, fit_set, screen_points: i
 def _checked(x, y, restarts: int, max_fit_points: int | None) -> tuple[np.ndarray, np.ndarray]:
     """``x`` and ``y`` as float64 arrays, once the arguments are known to be usable."""
     if not jax.config.read("jax_enable_x64"):
-        raise InputError("gp.fit", "GP fitting runs in float64: enable jax_enable_x64")
+        raise GPArgumentError("gp.fit", "GP fitting runs in float64: enable jax_enable_x64")
     x = np.asarray(x, dtype=np.float64)
     y = np.asarray(y, dtype=np.float64)
     if x.ndim != 2 or y.ndim != 1 or x.shape[0] != y.shape[0]:
-        raise InputError("gp.fit", f"need x [N, d] and y [N], got {x.shape} and {y.shape}")
+        raise GPArgumentError("gp.fit", f"need x [N, d] and y [N], got {x.shape} and {y.shape}")
     if restarts < 1:
-        raise InputError("gp.fit", f"restarts must be >= 1, got {restarts}")
+        raise GPArgumentError("gp.fit", f"restarts must be >= 1, got {restarts}")
     if max_fit_points is not None and max_fit_points < 1:
-        raise InputError("gp.fit", f"max_fit_points must be >= 1, got {max_fit_points}")
+        raise GPArgumentError("gp.fit", f"max_fit_points must be >= 1, got {max_fit_points}")
     return x, y
 
 
@@ -183,7 +182,7 @@ def _valid_rows(x, y, mask) -> np.ndarray:
     valid &= np.isfinite(y) & np.all(np.isfinite(x), axis=1)
     rows = np.flatnonzero(valid)
     if rows.size == 0:
-        raise InputError("gp.fit", "no valid (finite, unmasked) training rows")
+        raise GPArgumentError("gp.fit", "no valid (finite, unmasked) training rows")
     return rows
 
 
@@ -281,6 +280,9 @@ def fit(
     Constant targets (including N = 1) carry no information on the hyperparameters and make eq 5
     unbounded; the default start is then kept without optimisation (the GP predicts the constant).
 
+    Arguments it cannot use (shapes, counts, no valid row, no ``jax_enable_x64``) raise
+    :class:`GPArgumentError`.
+
     Requires ``jax_enable_x64``. Host-side entry point (not jittable: it picks rows by value); the
     optimisation and the factorisation inside are jitted.
     """
@@ -294,7 +296,7 @@ def fit(
     n, d = x.shape
     size = n if pad_to is None else int(pad_to)
     if size < n:
-        raise InputError("gp.fit", f"pad_to={pad_to} is smaller than the {n} rows kept")
+        raise GPArgumentError("gp.fit", f"pad_to={pad_to} is smaller than the {n} rows kept")
 
     data = _standardised(x, y)
     padded = _padded(data.x, data.y, size)
