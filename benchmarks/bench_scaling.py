@@ -23,10 +23,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gtsjax._gp import GP, SparseGP
 from gtsjax._pipeline import init_state
 from gtsjax._scan import Scan
 from gtsjax.drivers.replay import process_log
+from gtsjax.gp import GP, SparseGP
 from gtsjax.io import to_scans
 from gtsjax.sensors import URG_04LX, UTM_30LX, RangeNoise, SensorModel
 from gtsjax.training import TrainConfig

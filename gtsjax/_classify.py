@@ -24,7 +24,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from ._gp import GP, SparseGP, predict_mean
+from .gp import GP, SparseGP
 
 BACKGROUND = 0
 
@@ -96,7 +96,7 @@ class Classifier(eqx.Module):
 
 def class_scores(clf: Classifier, vectors: Float[Array, "cands features"]) -> Float[Array, "cands classes"]:
     """``p_{j,k} = f_k(v_j)`` (eq. 13) for every candidate and class: each GP's predictive mean."""
-    return jnp.stack([predict_mean(gp, vectors).astype(vectors.dtype) for gp in clf.gps], axis=-1)
+    return jnp.stack([gp.predict_mean(vectors).astype(vectors.dtype) for gp in clf.gps], axis=-1)
 
 
 class Decision(eqx.Module):

@@ -16,7 +16,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from ._buckets import bucketed
 from ._geometry import compose, wrap
-from ._gp import GP, SparseGP, predict_mean
+from .gp import GP, SparseGP
 
 # Heading variance is capped where the sine and cosine predictions carry no information.
 _MAX_THETA_VAR = float(jnp.pi**2 / 3)
@@ -190,8 +190,8 @@ def regress(
             idx, chosen = _top(sel, scores[:, k], min(max_landmarks, n))
 
             def means(v, reg=reg):
-                mx = predict_mean(reg.x, v).astype(vectors.dtype)
-                my = predict_mean(reg.y, v).astype(vectors.dtype)
+                mx = reg.x.predict_mean(v).astype(vectors.dtype)
+                my = reg.y.predict_mean(v).astype(vectors.dtype)
                 return (jnp.stack([mx, my, jnp.zeros_like(mx)], -1),)
 
             (r,) = run(means, vectors[idx], jnp.sum(chosen), 3)

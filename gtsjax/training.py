@@ -40,12 +40,12 @@ from ._classify import Classifier, Support, classify, gp_inputs, nearest_d2
 from ._filters import Envelope, envelope_pass, shape_quantities
 from ._frontend import FrontEndConfig, front_end_batch
 from ._geometry import affine_heading, compose, field_to_sensor, in_bounds, relative, sensor_to_field, wrap
-from ._gp import fit
 from ._maptransform import Transform, update_transform
 from ._pose import PoseRegressor, calibrate, regress_one_class
 from ._precision import exact_products
 from ._track import DEFAULT_MAX_SPEED, DEFAULT_MAX_TURN_RATE, TrackerParams
 from .errors import InputError
+from .gp import GPArgumentError, fit
 from .io.logs import ScanLog, fit_geometry, to_scans
 from .io.site import Site
 from .model import Model
@@ -296,8 +296,11 @@ def _fit32(x, y, key, cfg, progress, label, n_inducing: int, max_fit: int | None
     # With max_fit the posterior takes every example given (the caller capped them); without, fit's
     # own cap applies to the fit and the posterior alike.
     cap = {} if max_fit is None else {"max_points": x.shape[0], "max_fit_points": max_fit}
-    gp = fit(x, y, key=key, restarts=cfg.restarts, jitter=cfg.noise_floor, **cap)
-    sparse = gp.sparse(n_inducing, cfg.n_inducing_var).astype(jnp.float32)
+    try:
+        gp = fit(x, y, key=key, restarts=cfg.restarts, jitter=cfg.noise_floor, **cap)
+        sparse = gp.sparse(n_inducing, cfg.n_inducing_var).astype(jnp.float32)
+    except GPArgumentError as err:  # the GP library is core code; to the user it is a bad setting
+        raise InputError(err.where, err.problem) from None
     p = gp.params
     info = {"gp": label, "n": int(x.shape[0]), "n_fit": int(min(x.shape[0], max_fit or x.shape[0])),
             "seconds": round(time.perf_counter() - t0, 2),

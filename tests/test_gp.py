@@ -1,13 +1,17 @@
 """GP library (paper section 3b, eqs 3-7) against scikit-learn and against itself (autodiff, padding,
 exact vs sparse). Small N throughout: the machine is shared."""
 
+import dataclasses
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from gtsjax import _gp, gp
+from gtsjax import InputError, gp, training
+from gtsjax.gp.kernel import _effective_noise, _lml_forward, _safe_rows
+from gtsjax.training import TrainConfig
 
 sk_gp = pytest.importorskip("sklearn.gaussian_process")
 sk_k = pytest.importorskip("sklearn.gaussian_process.kernels")
@@ -107,6 +111,12 @@ def test_kernel_lml_and_predictions_match_sklearn(d):
     np.testing.assert_allclose(np.asarray(var_f), s_sk**2 - noise, atol=1e-6)
 
 
+def _lml_autodiff(params, x, y, mask, jitter):
+    """Eq 5 differentiated by JAX through the Cholesky factor: the reference for the closed-form VJP."""
+    x, y = _safe_rows(x, y, mask)
+    return _lml_forward(params, x, y, mask, jnp.asarray(jitter, x.dtype))[0]
+
+
 def test_closed_form_gradient_matches_autodiff():
     rng = np.random.default_rng(3)
     x = jnp.asarray(rng.normal(size=(20, 3)))
@@ -115,7 +125,7 @@ def test_closed_form_gradient_matches_autodiff():
     params = _params(3, seed=1)
     jit_ = jnp.asarray(1e-3)
     g = jax.grad(lambda p, a, b, j: gp.log_marginal_likelihood(p, a, b, mask, jitter=j), argnums=(0, 1, 2, 3))
-    g_ref = jax.grad(_gp._lml_autodiff, argnums=(0, 1, 2, 4))
+    g_ref = jax.grad(_lml_autodiff, argnums=(0, 1, 2, 4))
     for a, b in zip(
         jax.tree.leaves(g(params, x, y, jit_)), jax.tree.leaves(g_ref(params, x, y, mask, jit_)), strict=True
     ):
@@ -145,7 +155,7 @@ def test_fit_optimum_at_least_sklearn(name):
     assert lml_ours >= lml_sk - 1e-3
 
     # sklearn evaluates our optimum to the same value: both really are on the same data and model.
-    noise = float(_gp._effective_noise(ours.params, ours.jitter))
+    noise = float(_effective_noise(ours.params, ours.jitter))
     theta = _sk_kernel(ours.params, noise, fixed=False).theta
     assert abs(float(reg.log_marginal_likelihood(theta)) - lml_ours) < 1e-4 * max(1.0, abs(lml_ours))
 
@@ -330,8 +340,24 @@ def test_all_restarts_failing_raises_clear_error():
 
 
 def test_fit_rejects_bad_input():
-    with pytest.raises(ValueError, match="need x"):
+    with pytest.raises(gp.GPArgumentError, match="need x"):
         gp.fit(np.zeros((3, 2)), np.zeros(4), key=jax.random.key(0))
+
+
+def test_bad_gp_arguments_reach_the_user_as_one_line_input_errors():
+    """The GP library raises its own error (it is core code); training turns it into the CLI's
+    :class:`InputError` with the same message."""
+    x, y = np.zeros((3, 2)), np.zeros(3)
+    with pytest.raises(gp.GPArgumentError) as err:
+        gp.fit(x, y, key=jax.random.key(0), restarts=0)
+    assert not isinstance(err.value, InputError)
+    assert str(err.value) == "gp.fit: restarts must be >= 1, got 0"
+    with pytest.raises(InputError) as err:
+        training._fit32(x, y, jax.random.key(0), dataclasses.replace(TrainConfig(), restarts=0), None, "c", 8)
+    assert str(err.value) == "gp.fit: restarts must be >= 1, got 0"
+    with pytest.raises(InputError) as err:  # constant targets: no optimisation, then the sparse form
+        training._fit32(x, y, jax.random.key(0), TrainConfig(restarts=1), None, "c", 0)
+    assert str(err.value).startswith("GP.sparse: n_inducing and n_variance must be >= 1, got 0,")
 
 
 def test_sparse_mean_on_many_points_variance_on_the_first_few():

@@ -103,7 +103,7 @@ def test_envelope_pass_matches_a_loop():
 def test_envelope_rules_the_classes_out_of_the_argmax():
     """A candidate outside its best class's envelope takes the best class whose envelope it is in
     (background always qualifies), and is counted as off its envelope."""
-    from gtsjax._gp import Hyperparameters, SparseGP
+    from gtsjax.gp import Hyperparameters, SparseGP
 
     def const_gp(value):  # a GP whose mean is the constant ``value``
         z = jnp.zeros((1, 2), F32)

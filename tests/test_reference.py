@@ -11,9 +11,9 @@ pytest.importorskip("filterpy")
 pytest.importorskip("sklearn")
 
 from benchmarks.reference import ReferencePipeline, compare_tracks, scans_to_numpy, sklearn_gp  # noqa: E402
-from gtsjax._gp import predict_mean  # noqa: E402
 from gtsjax.cli.demo import demo_model_path  # noqa: E402
 from gtsjax.drivers.replay import process_log  # noqa: E402
+from gtsjax.gp import predict_mean  # noqa: E402
 from gtsjax.io import to_scans  # noqa: E402
 from gtsjax.io.modelfile import load_model  # noqa: E402
 from gtsjax.sim import simulate  # noqa: E402

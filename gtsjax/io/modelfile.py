@@ -21,10 +21,10 @@ import numpy as np
 from .._classify import Classifier, Support
 from .._filters import Envelope
 from .._frontend import FrontEndConfig
-from .._gp import GP, Hyperparameters, SparseGP
 from .._pose import PoseRegressor
 from .._track import TrackerParams
 from ..errors import InputError
+from ..gp import GP, Hyperparameters, SparseGP
 from ..model import Model, SiteArrays
 
 FORMAT = "gtsjax-model"

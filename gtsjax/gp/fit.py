@@ -1,0 +1,321 @@
+"""Fitting a GP: type-II maximum likelihood (paper section 3b, eq 4: maximise eq 5 over the
+hyperparameters) with Optimistix's BFGS, several starts, and a clamp on the log length scales.
+
+Conventions:
+
+- **Inputs are standardised inside** :func:`fit` (per-feature mean and standard deviation over the
+  valid training rows; a constant feature gets scale 1, so it becomes an all-zero column and never a
+  NaN); **targets are centred**. The returned :class:`~gtsjax.gp.GP` stores both statistics.
+- **Cost**: past ``max_points`` valid rows (default 3000) :func:`fit` keeps a seeded random subsample,
+  which caps the exact predictor at O(N) per test point for the mean and O(N^2) for the variance
+  (:meth:`~gtsjax.gp.GP.sparse` for a smaller cap).
+- **Host side of the library**: :func:`fit` picks rows by value (NumPy, not jittable); the
+  optimisation and the factorisation inside are jitted, in float64.
+"""
+
+import dataclasses
+import math
+from typing import NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import jax.tree_util as jtu
+import numpy as np
+import optimistix as optx
+from jaxtyping import Array, Float, PRNGKeyArray
+
+from .._precision import exact_products
+from .errors import GPArgumentError, GPFitError
+from .exact import GP, _condition
+from .kernel import DEFAULT_JITTER, Hyperparameters, log_marginal_likelihood
+
+# ------------------------------------------------------------------------------ one start (jitted)
+
+
+def _neg_lml_per_point(params, args):
+    x, y, mask, jitter = args
+    n_valid = jnp.maximum(jnp.sum(mask), 1).astype(y.dtype)
+    return -log_marginal_likelihood(params, x, y, mask, jitter=jitter) / n_valid
+
+
+# Upper end of the log length scale (standardised units) that each start is clamped to; scikit-learn's
+# default bound (1e5).
+LOG_LENGTHSCALE_CLAMP = math.log(1e5)
+
+
+def _clamp(params: Hyperparameters) -> Hyperparameters:
+    ls = jnp.minimum(params.log_lengthscale, jnp.asarray(LOG_LENGTHSCALE_CLAMP, params.log_lengthscale.dtype))
+    return Hyperparameters(ls, params.log_signal_var, params.log_noise_var)
+
+
+# How much looser the convergence test on the hyperparameters is than on the objective. optimistix's
+# Cauchy test needs both the objective and every parameter to stop moving; an irrelevant feature's log
+# length scale keeps drifting along a flat direction long after the likelihood has converged (at
+# N = 2000 this more than doubled the number of BFGS steps). With rtol = 1e-6, a log length scale
+# moving by less than about 1e-3 (0.1 % of the length scale) no longer holds the fit open.
+_PARAM_TOL_FACTOR = 1e3
+
+
+def _convergence_norm(tree) -> Float[Array, ""]:
+    scale = 1.0 / _PARAM_TOL_FACTOR if isinstance(tree, Hyperparameters) else 1.0
+    return optx.max_norm(tree) * scale
+
+
+@eqx.filter_jit
+def _optimise(params0, x, y, mask, jitter, rtol, atol, max_steps: int):
+    """Maximise eq 5 (eq 4) from one start: BFGS, then, if a log length scale ended past
+    ``LOG_LENGTHSCALE_CLAMP``, BFGS again from the optimum with the log length scales clamped there;
+    the better successful stage is kept.
+
+    Why two stages: the LML is flat in an irrelevant feature's length scale, BFGS's steps grow along
+    flat directions, and a feature that wants a long but finite scale (a near-linear trend, ``log l ~
+    8``) is thrown to ``log l ~ 300``, where its gradient underflows and it cannot come back. The
+    clamped second start gives it a gradient again (on 20-D data this recovered the 0.1-1 nats by
+    which bounded L-BFGS-B, i.e. scikit-learn, was ahead). The objective is -LML/N so that BFGS's unit
+    first step and the tolerances do not depend on the training-set size."""
+    solver = optx.BFGS(rtol=rtol, atol=atol, norm=_convergence_norm)
+    args = (x, y, mask, jitter)
+    inf = jnp.asarray(jnp.inf, y.dtype)
+
+    def stage(p):
+        sol = optx.minimise(_neg_lml_per_point, solver, _clamp(p), args, max_steps=max_steps, throw=False)
+        ok = sol.result == optx.RESULTS.successful
+        nll = _neg_lml_per_point(sol.value, args)
+        nll = jnp.where(ok & jnp.isfinite(nll), nll, inf)
+        return sol.value, nll, sol.stats["num_steps"]
+
+    p1, f1, n1 = stage(params0)
+    # The second stage only matters when a length scale ran past the clamp (it is a no-op otherwise,
+    # at the cost of a second convergence test's worth of evaluations).
+    past = jnp.any(p1.log_lengthscale > jnp.asarray(LOG_LENGTHSCALE_CLAMP, p1.log_lengthscale.dtype))
+    p2, f2, n2 = jax.lax.cond(past, stage, lambda p: (p, inf, jnp.zeros_like(n1)), p1)
+    second = f2 <= f1
+    value = jtu.tree_map(lambda a, b: jnp.where(second, b, a), p1, p2)
+    nll = jnp.minimum(f1, f2)
+    return value, jnp.isfinite(nll), nll, n1 + n2
+
+
+def _initial_params(key, restart: int, d: int, y_var, dtype) -> Hyperparameters:
+    """Restart 0: length scales sqrt(d) in standardised units (so the summed squared distance is O(1)),
+    sigma_f^2 = var(y), sigma_n^2 = var(y)/10. Later restarts: log-uniform jitter around that."""
+    base_ls = jnp.full((d,), 0.5 * math.log(max(d, 1)), dtype)
+    base_sf = jnp.log(y_var)
+    base_sn = jnp.log(y_var) - jnp.asarray(math.log(10.0), dtype)
+    if restart == 0:
+        return Hyperparameters(base_ls, base_sf, base_sn)
+    k1, k2, k3 = jax.random.split(jax.random.fold_in(key, restart), 3)
+    ls = base_ls + jax.random.uniform(k1, (d,), dtype, -1.5, 1.5)
+    sf = base_sf + jax.random.uniform(k2, (), dtype, -1.0, 1.0)
+    sn = base_sn + jax.random.uniform(k3, (), dtype, -4.0, 1.5)
+    return Hyperparameters(ls, sf, sn)
+
+
+# --------------------------------------------------------------------------- several starts (host)
+
+
+@dataclasses.dataclass
+class _Starts:
+    """Runs :func:`_optimise` from given starts under one set of solver settings, and describes every
+    failed start in ``failures`` (for :class:`GPFitError`)."""
+
+    jitter: Float[Array, ""]
+    rtol: float
+    atol: float
+    max_steps: int
+    failures: list[str] = dataclasses.field(default_factory=list)
+
+    def run(self, starts, x, y, mask, label: str) -> list:
+        """``(objective, restart, params)`` of the successful starts, best first."""
+        done = []
+        for r, p0 in starts:
+            p, ok, nll, steps = _optimise(p0, x, y, mask, self.jitter, self.rtol, self.atol, self.max_steps)
+            nll = float(nll)
+            if bool(ok) and np.isfinite(nll):
+                done.append((nll, r, p))
+            else:
+                self.failures.append(
+                    f"{label} restart {r}: converged={bool(ok)} -LML/N={nll:.6g} after {int(steps)} steps"
+                )
+        done.sort(key=lambda t: (t[0], t[1]))
+        return done
+
+
+def _screen_then_refine(runs: _Starts, starts, xs, yc, fit_set, screen_points: int, key_screen) -> list:
+    """All starts on a seeded subsample of ``screen_points`` of the fit rows ``xs``/``yc``; then, on
+    all of them (``fit_set``), the default start from scratch and the best random start, warm, only
+    if screening found it better than the default. A warm start from a subset's optimum can settle in
+    a basin that is worse on all the data, so the default is never skipped."""
+    pick = np.sort(np.asarray(jax.random.choice(key_screen, xs.shape[0], (screen_points,), replace=False)))
+    ys = yc[pick] - yc[pick].mean()
+    screened = runs.run(starts, jnp.asarray(xs[pick]), jnp.asarray(ys), jnp.ones((screen_points,), bool), "screening")
+    sub_default = next((f for f, r, _ in screened if r == 0), np.inf)
+    better = [(r, p) for f, r, p in screened if r != 0 and f < sub_default]
+    done = runs.run(starts[:1] + better[:1], *fit_set, "refining")
+    for r, p in better[1:] if not done else []:
+        done = runs.run([(r, p)], *fit_set, "refining")
+        if done:
+            break
+    return done
+
+
+# ------------------------------------------------------------------------------------ data (host)
+
+
+def _checked(x, y, restarts: int, max_fit_points: int | None) -> tuple[np.ndarray, np.ndarray]:
+    """``x`` and ``y`` as float64 arrays, once the arguments are known to be usable."""
+    if not jax.config.read("jax_enable_x64"):
+        raise GPArgumentError("gp.fit", "GP fitting runs in float64: enable jax_enable_x64")
+    x = np.asarray(x, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    if x.ndim != 2 or y.ndim != 1 or x.shape[0] != y.shape[0]:
+        raise GPArgumentError("gp.fit", f"need x [N, d] and y [N], got {x.shape} and {y.shape}")
+    if restarts < 1:
+        raise GPArgumentError("gp.fit", f"restarts must be >= 1, got {restarts}")
+    if max_fit_points is not None and max_fit_points < 1:
+        raise GPArgumentError("gp.fit", f"max_fit_points must be >= 1, got {max_fit_points}")
+    return x, y
+
+
+def _valid_rows(x, y, mask) -> np.ndarray:
+    """Indices of the rows that are unmasked and finite; at least one."""
+    valid = np.ones(y.shape, bool) if mask is None else np.asarray(mask, bool).copy()
+    valid &= np.isfinite(y) & np.all(np.isfinite(x), axis=1)
+    rows = np.flatnonzero(valid)
+    if rows.size == 0:
+        raise GPArgumentError("gp.fit", "no valid (finite, unmasked) training rows")
+    return rows
+
+
+class _Standardised(NamedTuple):
+    x: np.ndarray  # standardised inputs
+    y: np.ndarray  # centred targets
+    x_mean: np.ndarray
+    x_scale: np.ndarray
+    y_mean: np.floating
+    y_var: float  # 1 for constant targets
+    constant: bool  # the targets carry no information on the hyperparameters
+
+
+def _standardised(x, y) -> _Standardised:
+    x_mean = x.mean(axis=0)
+    x_std = x.std(axis=0)
+    x_scale = np.where(x_std > 1e-12 * np.maximum(np.abs(x_mean), 1.0), x_std, 1.0)
+    y_mean = y.mean()
+    xs = (x - x_mean) / x_scale
+    yc = y - y_mean
+    y_var = float(yc.var())
+    constant = not y_var > (1e-12 * max(1.0, abs(y_mean))) ** 2
+    y_var = 1.0 if constant else y_var
+    return _Standardised(xs, yc, x_mean, x_scale, y_mean, y_var, constant)
+
+
+def _padded(xs, yc, size: int):
+    """Inputs, targets and mask padded (masked) to ``size`` rows, on the device."""
+    n, d = xs.shape
+    xp = np.zeros((size, d))
+    yp = np.zeros((size,))
+    mp = np.zeros((size,), bool)
+    xp[:n], yp[:n], mp[:n] = xs, yc, True
+    return jnp.asarray(xp), jnp.asarray(yp), jnp.asarray(mp)
+
+
+def _fit_rows(xs, yc, padded, max_fit_points: int | None, key_sub):
+    """The rows the hyperparameters are fitted on: all of them (``padded``), unless ``max_fit_points``
+    is smaller, then a seeded subsample of that many, its targets centred again. Returns them on the
+    host (screening subsamples from these) and on the device."""
+    n = xs.shape[0]
+    if max_fit_points is None or n <= max_fit_points:
+        return xs, yc, padded
+    sub = np.sort(np.asarray(jax.random.choice(jax.random.fold_in(key_sub, 1), n, (max_fit_points,), replace=False)))
+    xs, yc = xs[sub], yc[sub] - yc[sub].mean()
+    return xs, yc, (jnp.asarray(xs), jnp.asarray(yc), jnp.ones((int(max_fit_points),), bool))
+
+
+# ------------------------------------------------------------------------------------------- fit
+
+
+@exact_products
+def fit(
+    x,
+    y,
+    *,
+    key: PRNGKeyArray,
+    restarts: int = 3,
+    max_points: int = 3000,
+    max_fit_points: int | None = None,
+    screen_points: int = 500,
+    mask=None,
+    pad_to: int | None = None,
+    jitter: float = DEFAULT_JITTER,
+    rtol: float = 1e-6,
+    atol: float = 1e-6,
+    max_steps: int = 1000,
+) -> GP:
+    """Fit a GP regressor by maximising eq 5 (eq 4) over log-space hyperparameters; float64.
+
+    - ``x`` [N, d], ``y`` [N]; ``mask`` [N] (optional) marks valid rows; rows with a non-finite value
+      are dropped too.
+    - ``key``: jax PRNG key for the subsamples and the random restarts. Same key, same GP.
+    - ``restarts``: number of starts (the first a fixed default, the rest random around it, drawn
+      from ``key``). Each start runs :class:`optimistix.BFGS` (``throw=False``) and then again from
+      its optimum with the log length scales clamped at log 1e5 (see ``_optimise``). A start whose
+      ``sol.result`` is not successful or whose objective is not finite is skipped; the best
+      remaining one is kept. If all fail, :class:`GPFitError` is raised, naming each failure.
+    - ``max_points``: above this many valid rows, a seeded random subsample of ``max_points`` rows is
+      used (cost cap: fit O(max_points^3); exact prediction O(max_points) per test point for the mean,
+      O(max_points^2) for the variance; :meth:`GP.sparse` for a smaller cap).
+    - ``max_fit_points``: with more rows kept than this, the hyperparameters are fitted on a seeded
+      random subsample of this many, and the GP is then conditioned on all the rows kept: the exact
+      posterior under those hyperparameters. Each likelihood evaluation then costs
+      O(max_fit_points^3) and the conditioning one O(N^3) factorisation, so a GP can predict from
+      several times the examples its fit could afford (the hyperparameters, a few dozen numbers, are
+      well determined by a few thousand examples; the posterior mean gains from every one).
+    - ``screen_points``: with more valid rows than this and ``restarts > 1``, the restarts run on a
+      seeded subsample of ``screen_points`` rows; on all rows, the default start is then refined from
+      scratch, and the best random start (warm, from its subset optimum) only if it beat the default
+      on the subset. More restarts therefore never end below one.
+    - ``pad_to``: pad the training set to this fixed size (masked) so that GPs fitted on different
+      data share shapes (one compilation; stackable). Must be >= the number of rows kept.
+    - ``rtol``/``atol``/``max_steps``: :class:`optimistix.BFGS` tolerances on -LML/N and step cap.
+
+    Constant targets (including N = 1) carry no information on the hyperparameters and make eq 5
+    unbounded; the default start is then kept without optimisation (the GP predicts the constant).
+
+    Arguments it cannot use (shapes, counts, no valid row, no ``jax_enable_x64``) raise
+    :class:`GPArgumentError`.
+
+    Requires ``jax_enable_x64``. Host-side entry point (not jittable: it picks rows by value); the
+    optimisation and the factorisation inside are jitted.
+    """
+    x, y = _checked(x, y, restarts, max_fit_points)
+    rows = _valid_rows(x, y, mask)
+    key_sub, key_init, key_screen = jax.random.split(key, 3)
+    if rows.size > max_points:
+        pick = np.asarray(jax.random.choice(key_sub, rows.size, (max_points,), replace=False))
+        rows = np.sort(rows[pick])
+    x, y = x[rows], y[rows]
+    n, d = x.shape
+    size = n if pad_to is None else int(pad_to)
+    if size < n:
+        raise GPArgumentError("gp.fit", f"pad_to={pad_to} is smaller than the {n} rows kept")
+
+    data = _standardised(x, y)
+    padded = _padded(data.x, data.y, size)
+    jit_ = jnp.asarray(jitter, jnp.float64)
+    y_var = jnp.asarray(data.y_var, jnp.float64)
+    starts = [(r, _initial_params(key_init, r, d, y_var, jnp.float64)) for r in range(restarts)]
+    if data.constant:
+        best = starts[0][1]
+    else:
+        xs, yc, fit_set = _fit_rows(data.x, data.y, padded, max_fit_points, key_sub)
+        runs = _Starts(jit_, rtol, atol, max_steps)
+        if restarts > 1 and xs.shape[0] > screen_points:
+            done = _screen_then_refine(runs, starts, xs, yc, fit_set, screen_points, key_screen)
+        else:
+            done = runs.run(starts, *fit_set, "full")
+        if not done:
+            raise GPFitError("all GP hyperparameter restarts failed: " + "; ".join(runs.failures))
+        best = done[0][2]
+    y_mean, x_mean, x_scale = (jnp.asarray(a) for a in (data.y_mean, data.x_mean, data.x_scale))
+    return _condition(best, *padded, y_mean, x_mean, x_scale, jit_)

@@ -1,0 +1,175 @@
+"""Bounded-cost GP prediction: the DTC (deterministic training conditional) predictor the shipped
+models hold, on M inducing points chosen from an exact GP's training inputs.
+
+**Cost**: :meth:`gtsjax.gp.GP.sparse` picks the M inducing points by greedy pivoted Cholesky in the
+fitted kernel's own metric: O(M) per test point for the mean and O(M^2) for the variance, whatever
+the training-set size. With M = N it reproduces the exact GP.
+"""
+
+from typing import TYPE_CHECKING
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import jax.scipy.linalg as jsl
+from jaxtyping import Array, Bool, Float
+
+from .._precision import exact_products
+from .kernel import Hyperparameters, _cast, _effective_noise, _masked_gram, _standardise, gram, gram_matmul, kernel
+
+if TYPE_CHECKING:
+    from .exact import GP
+
+
+class SparseGP(eqx.Module):
+    """DTC (deterministic training conditional; Quinonero-Candela & Rasmussen 2005) predictor on M
+    inducing inputs ``z``, a subset of the training inputs, with the variance from the first ``Mv``
+    of them.
+
+    With ``Q = K_xz K_zz^-1 K_zx`` replacing ``K_X``, the predictive mean is ``k_z(x*)^T w`` with
+    ``w = (s K_zz + K_zx K_xz)^-1 K_zx y`` and the variance
+    ``k(x*,x*) - k_z^T K_zz^-1 k_z + s k_z^T (s K_zz + K_zx K_xz)^-1 k_z``: O(M) and O(M^2) per test
+    point whatever N. Computed as in SGPR: ``K_zz = L_m L_m^T``, ``A = L_m^-1 K_zx / sqrt(s)``,
+    ``I + A A^T = L_b L_b^T``. Why DTC and not SoR: same mean, but DTC keeps the exact prior variance
+    ``k(x*,x*)`` far from the data, and with Z = X it equals the exact GP.
+
+    Inducing points are chosen by greedy pivoted Cholesky of ``K_X`` under the fitted kernel (each
+    step takes the training point worst explained by those already chosen), i.e. in the ARD metric
+    the GP itself uses; selection stops early (masked slots) when the residual falls below the jitter.
+    When M covers the whole training set, ``z`` is the training set (pivots first) and ``w`` is the
+    exact GP's ``alpha``: the mean is exact.
+
+    Mean and variance are priced differently, O(M) against O(Mv^2) per test point, and the step
+    needs the mean to be good (it is the pose) and the variance only to weigh measurements in the
+    tracker. So the variance is the DTC variance of the first ``Mv <= M`` inducing points (the
+    pivoted-Cholesky order is nested: they are the ``Mv`` points that pivoting alone would pick),
+    a coarser approximation that errs on the large side, while the mean uses all ``M``.
+    """
+
+    z: Float[Array, "inducing features"]
+    z_mask: Bool[Array, " inducing"]
+    params: Hyperparameters
+    weights: Float[Array, " inducing"]
+    proj_m: Float[Array, "var_inducing var_inducing"]  # L_m^-1 of the first Mv points: t1 = L_m^-1 k_z
+    proj_b: Float[Array, "var_inducing var_inducing"]  # L_b^-1 L_m^-1, so that t2 = L_b^-1 t1 is a matmul
+    y_mean: Float[Array, ""]
+    x_mean: Float[Array, " features"]
+    x_scale: Float[Array, " features"]
+    noise: Float[Array, ""]
+
+    @property
+    def n_variance(self) -> int:
+        """``Mv``: how many of the inducing points (the first) the variance uses."""
+        return self.proj_m.shape[0]
+
+    @exact_products
+    def predict(
+        self, xs: Float[Array, "tests features"], *, include_noise: bool = False
+    ) -> tuple[Float[Array, " tests"], Float[Array, " tests"]]:
+        """DTC predictive mean (plus target mean) and variance (clipped at 0)."""
+        return _predict_sparse(self, xs, include_noise)
+
+    @exact_products
+    def predict_mean(self, xs: Float[Array, "tests features"]) -> Float[Array, " tests"]:
+        """The DTC predictive mean alone (eq 7's counterpart), for callers that do not need the
+        variance (the classifier). Not jitted: it runs inside the step's jit."""
+        dt = self.z.dtype
+        xs = _standardise(xs.astype(dt), self.x_mean, self.x_scale)
+        ks = jnp.where(self.z_mask[None, :], gram_matmul(self.params, xs, self.z), jnp.zeros((), dt))
+        return ks @ self.weights + self.y_mean
+
+    def astype(self, dtype) -> "SparseGP":
+        return _cast(self, dtype)
+
+
+@eqx.filter_jit
+def _predict_sparse(sp: SparseGP, xs, include_noise: bool):
+    dt = sp.z.dtype
+    xs = _standardise(xs.astype(dt), sp.x_mean, sp.x_scale)
+    ks = jnp.where(sp.z_mask[:, None], gram_matmul(sp.params, sp.z, xs), jnp.zeros((), dt))  # inducing x tests
+    mean = ks.T @ sp.weights + sp.y_mean
+    kv = ks[: sp.n_variance]
+    t1 = sp.proj_m @ kv
+    t2 = sp.proj_b @ kv
+    var = sp.params.signal_var - jnp.sum(t1 * t1, axis=0) + jnp.sum(t2 * t2, axis=0)
+    var = jnp.maximum(var, jnp.zeros((), dt))
+    if include_noise:
+        var = var + sp.params.noise_var
+    return mean, var
+
+
+# ------------------------------------------------------------------------------------------ building
+
+
+def _pivoted_cholesky(params, x, mask, m: int, tol):
+    """Greedy pivoted Cholesky: indices of ``m`` training rows and whether each slot is used."""
+    n = x.shape[0]
+    neg_inf = jnp.asarray(-jnp.inf, x.dtype)
+    resid0 = jnp.where(mask, jnp.broadcast_to(params.signal_var, (n,)), neg_inf)
+
+    def body(j, carry):
+        resid, rows, idx, used = carry
+        p = jnp.argmax(resid)
+        r = resid[p]
+        ok = r > tol
+        kp = jnp.where(mask, jax.vmap(lambda b: kernel(params, x[p], b))(x), jnp.zeros((), x.dtype))
+        safe_r = jnp.where(ok, r, jnp.ones((), x.dtype))
+        row = (kp - rows.T @ rows[:, p]) / jnp.sqrt(safe_r)
+        row = jnp.where(ok, row, jnp.zeros((), x.dtype))
+        rows = rows.at[j].set(row)
+        resid = (resid - row * row).at[p].set(neg_inf)
+        return resid, rows, idx.at[j].set(p.astype(jnp.int32)), used.at[j].set(ok)
+
+    init = (resid0, jnp.zeros((m, n), x.dtype), jnp.zeros((m,), jnp.int32), jnp.zeros((m,), bool))
+    _, _, idx, used = jax.lax.fori_loop(0, m, body, init)
+    return idx, used
+
+
+@eqx.filter_jit
+def _build_sparse(gp: "GP", m: int, mv: int) -> SparseGP:
+    """The :class:`SparseGP` of ``gp`` on ``m`` inducing points, its variance on the first ``mv``
+    (both already clipped to ``1 <= mv <= m <= N``; :meth:`gtsjax.gp.GP.sparse` is the entry point)."""
+    params = gp.params
+    dt = gp.x.dtype
+    n = gp.n_points
+    tol = gp.jitter * params.signal_var
+    if m >= n:
+        # Every training point: the variance's pivots first, then the rest in order; the exact mean.
+        idx_v, used_v = _pivoted_cholesky(params, gp.x, gp.mask, mv, tol)
+        first = jnp.zeros((n,), bool).at[idx_v].set(used_v)
+        pos = jnp.zeros((n,), jnp.int32).at[idx_v].set(jnp.arange(mv, dtype=jnp.int32))
+        rest = mv + jnp.cumsum(~first, dtype=jnp.int32) - 1
+        perm = jnp.argsort(jnp.where(first, pos, rest))
+        z_mask = gp.mask[perm]
+        z = jnp.where(z_mask[:, None], gp.x[perm], jnp.zeros((), dt))
+        weights = jnp.where(z_mask, gp.alpha[perm], jnp.zeros((), dt))
+    else:
+        idx, z_mask = _pivoted_cholesky(params, gp.x, gp.mask, m, tol)
+        z = jnp.where(z_mask[:, None], gp.x[idx], jnp.zeros((), dt))
+        weights = _dtc(params, z, z_mask, gp, tol)[0]
+    noise = _effective_noise(params, gp.jitter)
+    # The variance needs L_m^-1 k_z and L_b^-1 L_m^-1 k_z for every test point. Two triangular solves
+    # per call are slow on small matrices (the step's budget is a fraction of a millisecond), so the
+    # two triangular inverses are formed once here, in the fit's float64, and prediction is matmuls.
+    _, proj_m, proj_b = _dtc(params, z[:mv], z_mask[:mv], gp, tol)
+    return SparseGP(z, z_mask, params, weights, proj_m, proj_b, gp.y_mean, gp.x_mean, gp.x_scale, noise)
+
+
+def _dtc(params, z, z_mask, gp: "GP", tol):
+    """DTC on inducing points ``z`` for the training set of ``gp``: the weights of the mean and the
+    two triangular inverses of the variance (see :class:`SparseGP`)."""
+    dt = z.dtype
+    m = z.shape[0]
+    noise = _effective_noise(params, gp.jitter)
+    kmm = _masked_gram(params, z, z_mask, tol)
+    kmx = jnp.where(z_mask[:, None] & gp.mask[None, :], gram(params, z, gp.x), jnp.zeros((), dt))
+    chol_m = jnp.linalg.cholesky(kmm)
+    sn = jnp.sqrt(noise)
+    a = jsl.solve_triangular(chol_m, kmx, lower=True) / sn
+    chol_b = jnp.linalg.cholesky(jnp.eye(m, dtype=dt) + a @ a.T)
+    c = jsl.solve_triangular(chol_b, a @ gp.y, lower=True) / sn
+    weights = jsl.solve_triangular(chol_m.T, jsl.solve_triangular(chol_b.T, c, lower=False), lower=False)
+    eye = jnp.eye(m, dtype=dt)
+    proj_m = jsl.solve_triangular(chol_m, eye, lower=True)
+    proj_b = jsl.solve_triangular(chol_b, proj_m, lower=True)
+    return weights, proj_m, proj_b
