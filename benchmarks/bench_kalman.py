@@ -11,7 +11,7 @@ The model is gtsjax's (``_track.motion_model`` with the demo model's tuning, dt 
   The filtered means are compared (gtsjax runs in float32 as its step does; the others in float64).
 * **a scan's tracking** with M = 8 tracks and 8 detections: gtsjax ``track_step`` (gating,
   assignment, updates, life cycle, all M slots) against the reference's filterpy tracker
-  (``benchmarks/reference.py``) doing the same.
+  (``tests/reference/track.py``) doing the same.
 """
 
 import jax
@@ -171,7 +171,7 @@ def _set(state: TrackerState, m, c) -> TrackerState:
 
 def tracking_m8(ctx, params, reps: int) -> None:
     """Stage g for one scan with 8 robots: gtsjax ``track_step`` against the filterpy reference tracker."""
-    from .reference import _Tracker
+    from .reference import Tracker
 
     res = ctx.results
     m = 8
@@ -184,7 +184,7 @@ def tracking_m8(ctx, params, reps: int) -> None:
     cov = np.broadcast_to(np.diag([1e-4, 1e-4, 3e-3]), (m, 3, 3)).copy()
     cls = np.full(m, 2)  # the demo model's robot class
 
-    ref = _Tracker(params, m)
+    ref = Tracker(params, m)
     for k in range(8):  # confirm the tracks first
         ref.step(poses[k], cov, cls, DT)
 

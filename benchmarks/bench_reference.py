@@ -1,4 +1,4 @@
-"""gtsjax's step against the NumPy / scikit-learn / filterpy reference (``benchmarks/reference.py``),
+"""gtsjax's step against the NumPy / scikit-learn / filterpy reference (``tests/reference/``),
 on the same simulated log with the same trained model: first that both give the same tracks, then
 the time per scan of each, one scan at a time as the live loop runs them.
 
@@ -38,7 +38,7 @@ def _profile(ref: ReferencePipeline, arrays, n: int) -> dict:
     from filterpy.kalman import KalmanFilter
     from sklearn.gaussian_process import GaussianProcessRegressor
 
-    from .reference import SklearnGP, _Tracker
+    from .reference import SklearnGP, Tracker
 
     prof = cProfile.Profile()
     ref.reset()
@@ -53,7 +53,7 @@ def _profile(ref: ReferencePipeline, arrays, n: int) -> dict:
         "GP predictions (d, e): scikit-learn GPR predict, plus the DTC variance term": gps,
         "  of which inside GaussianProcessRegressor.predict": _cum(st, GaussianProcessRegressor.predict),
         "segmentation, ORS, features (a-c; Python loop over segments)": _cum(st, ReferencePipeline.candidates),
-        "tracking (g): gating, assignment, life cycle": _cum(st, _Tracker.step),
+        "tracking (g): gating, assignment, life cycle": _cum(st, Tracker.step),
         "  of which filterpy KalmanFilter predict + update": _cum(st, KalmanFilter.predict)
         + _cum(st, KalmanFilter.update),
         "map transformation (f)": _cum(st, ReferencePipeline.update_transform),

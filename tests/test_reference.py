@@ -1,5 +1,5 @@
 """A second implementation of the pipeline gives the same tracks: the NumPy / scikit-learn / filterpy
-reference of ``benchmarks/reference.py`` against gtsjax's step, on the same simulated log with the
+reference of ``tests/reference/`` against gtsjax's step, on the same simulated log with the
 shipped model. The reference runs in float64 and the step in float32, so ids and counts must be
 identical and poses equal to rounding (micrometres; the tolerances leave room for a retrained model)."""
 
@@ -10,13 +10,14 @@ import pytest
 pytest.importorskip("filterpy")
 pytest.importorskip("sklearn")
 
-from benchmarks.reference import ReferencePipeline, compare_tracks, scans_to_numpy, sklearn_gp  # noqa: E402
 from gtsjax.cli.demo import demo_model_path  # noqa: E402
 from gtsjax.drivers.replay import process_log  # noqa: E402
 from gtsjax.gp import predict_mean  # noqa: E402
 from gtsjax.io import to_scans  # noqa: E402
 from gtsjax.io.modelfile import load_model  # noqa: E402
 from gtsjax.sim import simulate  # noqa: E402
+from tests.reference.gp import sklearn_gp  # noqa: E402
+from tests.reference.pipeline import ReferencePipeline, compare_tracks, scans_to_numpy  # noqa: E402
 
 
 @pytest.fixture(scope="module")

@@ -338,13 +338,13 @@ def scan(poses, cls=1, other=(), var=(1e-4, 1e-4, 4e-3), k=6):
 
 
 def run_both(params, scans, m=4, dt=0.1):
-    """Step gtsjax's tracker and the reference's (``benchmarks.reference._Tracker``, filterpy in
+    """Step gtsjax's tracker and the reference's (``tests.reference.track.Tracker``, filterpy in
     float64) through ``scans``; per scan, both must have the same live ids with the same confirmation
     and counters. Returns per scan ``{id: (confirmed, hits, contrary)}`` and the states (gtsjax's)."""
     pytest.importorskip("filterpy")
-    from benchmarks.reference import _Tracker
+    from tests.reference.track import Tracker
 
-    ref = _Tracker(params, m)
+    ref = Tracker(params, m)
     state = TrackerState.empty(m)
     hist, states = [], []
     for d, (z, R, c, o) in scans:
@@ -481,10 +481,10 @@ def test_partial_views_follow_a_confirmed_track_but_never_start_one():
     have confirmed a track, they keep it updated (a robot passing behind another). The reference
     tracker agrees scan by scan."""
     pytest.importorskip("filterpy")
-    from benchmarks.reference import _Tracker
+    from tests.reference.track import Tracker
 
     def run(partial_flags):
-        ref = _Tracker(CONFIRM3, 4)
+        ref = Tracker(CONFIRM3, 4)
         state = TrackerState.empty(4)
         rng = np.random.default_rng(7)
         out = []
@@ -517,10 +517,10 @@ def test_vague_headings_move_the_position_only_and_may_start_a_track():
     they pass the heading gate (their variance widens it) and pull it. Vague reads alone still start and
     confirm a track (unlike partial views). gtsjax and the reference agree on every scan."""
     pytest.importorskip("filterpy")
-    from benchmarks.reference import _Tracker
+    from tests.reference.track import Tracker
 
     def run(flags, off):
-        ref = _Tracker(CONFIRM3, 4)
+        ref = Tracker(CONFIRM3, 4)
         state = TrackerState.empty(4)
         rng = np.random.default_rng(3)
         headings = []

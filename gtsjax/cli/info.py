@@ -1,5 +1,5 @@
-"""``gtsjax info FILE...``: validate scan logs and site files and summarise them; ``gtsjax sensors``:
-the sensor models gtsjax knows."""
+"""``gtsjax info FILE...``: validate scan logs, site files and model files and summarise them;
+``gtsjax sensors``: the sensor models gtsjax knows."""
 
 from pathlib import Path
 
@@ -11,6 +11,7 @@ from rich.table import Table
 
 from ..io import load_site
 from ..io.importers import detect_format, format_name
+from ..io.modelfile import is_model_file, load_model, read_header
 from ..sensors import MODELS
 from ._app import app
 from ._common import TOPIC_HELP, describe, load_input, source_of
@@ -18,14 +19,17 @@ from ._common import TOPIC_HELP, describe, load_input, source_of
 
 @app.command()
 def info(
-    files: list[Path] = typer.Argument(..., help="Scan logs (.npz, or any input gtsjax convert takes) and site "
-                                                 "files (.json) to check."),
+    files: list[Path] = typer.Argument(..., help="Scan logs (.npz, or any input gtsjax convert takes), site "
+                                                 "files (.json) and model files (.npz) to check."),
     topic: str | None = typer.Option(None, "--topic", help=TOPIC_HELP),
 ):
-    """Check scan logs and site files against the format and print what they hold."""
+    """Check scan logs, site files and model files against their format and print what they hold."""
     console = Console(soft_wrap=True)
     for path in files:
-        if path.suffix.lower() == ".json":
+        if is_model_file(path):
+            for line in describe_model(path):
+                console.print(escape(line))
+        elif path.suffix.lower() == ".json":
             site = load_site(path)
             console.print(f"{path}: site, {len(site.landmarks)} landmarks", soft_wrap=True)
             table = Table()
@@ -51,6 +55,38 @@ def info(
                 console.print(f"  labelled objects: {labels}")
             if extra := sorted(k for k in log.extra if k != "source"):
                 console.print(f"  extra keys: {', '.join(extra)}")
+
+
+def describe_model(path: Path) -> list[str]:
+    """A model file, checked as ``replay`` loads it, in a few lines: scanner, classes, predictors, and
+    what its training summary says."""
+    model, header = load_model(path), read_header(path)
+    landmark, tracked = np.asarray(model.landmark_mask), np.asarray(model.tracker.tracked)
+    roles = [c + (" (landmark)" if lm else " (tracked)" if tr else "")
+             for c, lm, tr in zip(model.classes, landmark, tracked, strict=True)]
+    fov = (f", {np.degrees(model.angle_min):.1f}° … "
+           f"{np.degrees(model.angle_min + (model.n_beams - 1) * model.angle_increment):.1f}°"
+           if np.isfinite(model.angle_min) else "")
+    gps = model.classifier.gps
+    sizes = sorted({int((gp.z if hasattr(gp, "z") else gp.x).shape[0]) for gp in gps})  # sparse: inducing points
+    points = str(sizes[0]) if len(sizes) == 1 else f"{sizes[0]}–{sizes[-1]}"
+    poses = ", ".join(f"{c} ({'x, y, heading' if reg.sin is not None else 'x, y'})"
+                      for c, reg in zip(model.classes, model.pose, strict=True) if reg is not None)
+    lines = [
+        f"{path}: gtsjax model (format version {header['version']}) for {model.sensor_model}, {model.n_beams} beams"
+        f"{fov}, returns in [{model.range_min:g}, {model.range_max:g}] m",
+        f"  classes: {', '.join(roles)}",
+        f"  classifier: {len(gps)} GPs on {int(gps[0].x_mean.shape[0])} inputs ({points} points each); "
+        f"pose regressors: {poses or 'none'}",
+        f"  tracker: at most {model.max_tracks} tracks, confirmed after {int(model.tracker.n_confirm)} scans",
+    ]
+    summary = header.get("summary", {})
+    held, scans = summary.get("heldout"), summary.get("scans")
+    if isinstance(scans, int):
+        lines.append(f"  trained on {scans} scans" + (
+            f"; held-out classification accuracy {100 * held['accuracy']:.2f} % on {held['n']} candidates"
+            if isinstance(held, dict) and isinstance(held.get("accuracy"), float) and held.get("n") else ""))
+    return lines
 
 
 @app.command()

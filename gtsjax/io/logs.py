@@ -157,6 +157,8 @@ def _validate(d: dict[str, np.ndarray], where: object) -> None:
     def bad(problem: str):
         raise InputError(where, problem)
 
+    if "gtsjax_model" in d:
+        bad("a gtsjax model file, not a scan log")
     missing = [k for k in REQUIRED if k not in d]
     if missing:
         bad(f"missing required key(s) {', '.join(repr(k) for k in missing)}")

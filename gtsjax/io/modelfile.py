@@ -6,17 +6,32 @@ training summary, and a schema of the model's pytree), and one array per leaf (`
 The schema names each node's type from a fixed registry, so loading never unpickles anything and a
 file cannot make gtsjax build an object it does not know. Arrays keep their dtype (the step's
 float32 copies of the GPs).
+
+Loading checks the file against the model its header describes before building anything, as
+equinox's ``tree_deserialise_leaves`` checks leaves against a ``like`` tree: every node is of a type
+its field allows, every field without a default is there, and every leaf has the shape and dtype of
+its field's jaxtyping annotation. Dimension names bind to the model's configuration where it fixes
+them (``classes``: the class list; ``features``/``inputs``: the GP inputs, ``gp_columns``) and
+otherwise to the size most leaves of the same node agree on (``points``, ``inducing``, ``bins``, …),
+so a leaf that differs is named: ``leaf classifier.gps[1].z has shape (5, 21), expected (5, 22)``.
+Fields added after version 3 came out (a pose regressor's ``heading_var_max``) have defaults, and a
+file without them loads.
 """
 
 import dataclasses
 import json
 import os
+import types
+import typing
 import zipfile
+from collections import Counter
 from pathlib import Path
+from typing import Any
 
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import AbstractArray
 
 from .._classify import Classifier, Support
 from .._filters import Envelope
@@ -30,8 +45,28 @@ from ..model import Model, SiteArrays
 FORMAT = "gtsjax-model"
 VERSION = 3  # 3: scanner geometry, open-set supports, shape envelopes, per-class motion limits (and, optional, the pose regressors' heading_var_max)
 _HEADER_KEY = "gtsjax_model"
-_TYPES = {c.__name__: c for c in (Model, FrontEndConfig, Classifier, Support, Envelope, PoseRegressor, TrackerParams,
-                                  SparseGP, GP, Hyperparameters, SiteArrays)}
+_TYPES = {
+    c.__name__: c
+    for c in (
+        Model,
+        FrontEndConfig,
+        Classifier,
+        Support,
+        Envelope,
+        PoseRegressor,
+        TrackerParams,
+        SparseGP,
+        GP,
+        Hyperparameters,
+        SiteArrays,
+    )
+}
+# Header keys and their JSON types (``summary`` may be absent).
+_HEADER = {"format": str, "version": int, "sensor_model": str, "n_beams": int, "classes": list, "schema": dict}
+# Tuples with one entry per class.
+_PER_CLASS = {(Classifier, "gps"), (Model, "pose")}
+# The dtype the float32 step expects of each jaxtyping kind.
+_DTYPES = ("float32", "int32", "bool")
 
 
 def _encode(node, leaves: dict[str, np.ndarray]):
@@ -41,8 +76,10 @@ def _encode(node, leaves: dict[str, np.ndarray]):
         name = type(node).__name__
         if _TYPES.get(name) is not type(node):
             raise TypeError(f"cannot save a {type(node)!r} in a model file")
-        return {"type": name, "fields": {f.name: _encode(getattr(node, f.name), leaves)
-                                         for f in dataclasses.fields(node)}}
+        return {
+            "type": name,
+            "fields": {f.name: _encode(getattr(node, f.name), leaves) for f in dataclasses.fields(node)},
+        }
     if isinstance(node, tuple):
         return {"tuple": [_encode(v, leaves) for v in node]}
     if isinstance(node, (bool, int, float, str)):
@@ -53,27 +90,179 @@ def _encode(node, leaves: dict[str, np.ndarray]):
     return {"array": key}
 
 
-def _decode(spec, npz, where):
-    if spec is None:
-        return None
-    if "array" in spec:
-        key = spec["array"]
-        if key not in npz.files:
-            raise InputError(where, f"truncated or damaged model file (array {key} missing)")
-        return jnp.asarray(npz[key])
-    if "value" in spec:
-        v = spec["value"]
-        return tuple(v) if isinstance(v, list) else v
-    if "tuple" in spec:
-        return tuple(_decode(v, npz, where) for v in spec["tuple"])
-    cls = _TYPES.get(spec.get("type", ""))
-    if cls is None:
-        raise InputError(where, f"unknown node type {spec.get('type')!r} in the model file")
-    fields = {k: _decode(v, npz, where) for k, v in spec["fields"].items()}
-    if spec["type"] == "Model":
-        for k in ("classes",):
-            fields[k] = tuple(fields[k])
-    return cls(**fields)
+# ------------------------------------------------------------------------------------------ loading
+
+
+@dataclasses.dataclass(frozen=True)
+class _Node:
+    """A module read from the file, not built yet: its class, its fields (NumPy leaves, values,
+    tuples, nodes) and where it sits in the model (``classifier.gps[1]``)."""
+
+    cls: type
+    fields: dict[str, Any]
+    where: str
+
+
+def _join(where: str, name: str) -> str:
+    return f"{where}.{name}" if where else name
+
+
+def _alternatives(ann) -> tuple:
+    return typing.get_args(ann) if typing.get_origin(ann) in (typing.Union, types.UnionType) else (ann,)
+
+
+def _is_array(ann) -> bool:
+    return isinstance(ann, type) and issubclass(ann, AbstractArray)
+
+
+def _describe(alts) -> str:
+    def one(a):
+        if a is type(None):
+            return "nothing"
+        if _is_array(a):
+            return "an array"
+        if typing.get_origin(a) is tuple:
+            return "a tuple"
+        return getattr(a, "__name__", str(a))
+
+    return " or ".join(one(a) for a in alts)
+
+
+class _Reader:
+    """Phase one of loading: the schema read against the classes' fields, leaves as NumPy arrays."""
+
+    def __init__(self, path: Path, npz):
+        self.path, self.npz = path, npz
+
+    def fail(self, problem: str) -> InputError:
+        return InputError(self.path, problem)
+
+    def read(self, spec, ann, where: str):
+        alts = _alternatives(ann)
+        if spec is None:
+            if type(None) in alts:
+                return None
+            raise self.fail(f"field {where} is missing (expected {_describe(alts)})")
+        if not isinstance(spec, dict):
+            raise self.fail(f"damaged model schema at {where or 'the top'}")
+        if "array" in spec:
+            if not any(_is_array(a) for a in alts):
+                raise self.fail(f"field {where} holds an array, expected {_describe(alts)}")
+            key = spec["array"]
+            if not isinstance(key, str) or key not in self.npz.files:
+                raise self.fail(f"truncated or damaged model file (array {key} of {where} missing)")
+            return self.npz[key]
+        if "value" in spec:
+            return self.value(spec["value"], alts, where)
+        if "tuple" in spec:
+            elems = [typing.get_args(a)[0] for a in alts if typing.get_origin(a) is tuple]
+            if not elems or not isinstance(spec["tuple"], list):
+                raise self.fail(f"field {where} holds a tuple, expected {_describe(alts)}")
+            return tuple(self.read(s, elems[0], f"{where}[{i}]") for i, s in enumerate(spec["tuple"]))
+        name = spec.get("type")
+        cls = _TYPES.get(name) if isinstance(name, str) else None
+        if cls is None:
+            raise self.fail(f"unknown node type {name!r} at {where or 'the top'} of the model file")
+        if cls not in alts:
+            raise self.fail(f"{where or 'the top'} is a {name}, expected {_describe(alts)}")
+        given = spec.get("fields")
+        if not isinstance(given, dict):
+            raise self.fail(f"damaged model schema at {where or 'the top'}")
+        fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
+        if unknown := sorted(set(given) - set(fields)):
+            raise self.fail(f"field {_join(where, unknown[0])} is not one a {name} has (a newer gtsjax's model file?)")
+        out = {}
+        for f in fields.values():
+            if f.name in given:
+                out[f.name] = self.read(given[f.name], f.type, _join(where, f.name))
+            elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+                raise self.fail(f"field {_join(where, f.name)} is missing")
+        return _Node(cls, out, where)
+
+    def value(self, v, alts, where: str):
+        for a in alts:
+            if a is bool and isinstance(v, bool) or a is str and isinstance(v, str):
+                return v
+            if a is int and isinstance(v, int) and not isinstance(v, bool):
+                return v
+            if a is float and isinstance(v, (int, float)) and not isinstance(v, bool):
+                return float(v)
+            if typing.get_origin(a) is tuple and isinstance(v, list):
+                elem = typing.get_args(a)[0]
+                return tuple(self.value(x, (elem,), f"{where}[{i}]") for i, x in enumerate(v))
+        raise self.fail(f"field {where} is {type(v).__name__} {_short(v)}, expected {_describe(alts)}")
+
+
+def _short(v) -> str:
+    s = repr(v)
+    return s if len(s) <= 40 else s[:37] + "..."
+
+
+def _expected_dtype(ann) -> str:
+    return next(d for d in _DTYPES if d in ann.dtypes)
+
+
+def _shape(dims) -> str:
+    return "(" + ", ".join(map(str, dims)) + ("," if len(dims) == 1 else "") + ")"
+
+
+def _check(node: _Node, sizes: dict[str, int], path: Path) -> None:
+    """Phase two: every leaf of ``node`` and below against its field's annotation (see the module
+    docstring); the first that differs is one line."""
+    anns = {f.name: f.type for f in dataclasses.fields(node.cls)}
+    leaves = {}
+    for name, v in node.fields.items():
+        if isinstance(v, np.ndarray):
+            leaves[name] = (v, next(a for a in _alternatives(anns[name]) if _is_array(a)))
+    # Sizes the configuration leaves open, by majority over this node's leaves of the right rank.
+    votes: dict[str, Counter] = {}
+    for v, ann in leaves.values():
+        names = ann.dim_str.split()
+        if len(names) == v.ndim:
+            for n, size in zip(names, v.shape, strict=True):
+                if not n.isdigit() and n not in sizes:
+                    votes.setdefault(n, Counter())[size] += 1
+    local = {**{n: c.most_common(1)[0][0] for n, c in votes.items()}, **sizes}
+    for name, v in node.fields.items():
+        where = _join(node.where, name)
+        if (node.cls, name) in _PER_CLASS and len(v) != sizes["classes"]:
+            raise InputError(path, f"{where} has {len(v)} entries, expected {sizes['classes']} (one per class)")
+        if name in leaves:
+            arr, ann = leaves[name]
+            want = [int(n) if n.isdigit() else local.get(n, n) for n in ann.dim_str.split()]
+            if list(arr.shape) != want:
+                raise InputError(path, f"leaf {where} has shape {_shape(arr.shape)}, expected {_shape(want)}")
+            if arr.dtype != (dtype := _expected_dtype(ann)):
+                raise InputError(path, f"leaf {where} has dtype {arr.dtype}, expected {dtype}")
+        for child in v if isinstance(v, tuple) else (v,):
+            if isinstance(child, _Node):
+                _check(child, sizes, path)
+
+
+def _build(v):
+    """Phase three: the checked tree as modules of JAX arrays."""
+    if isinstance(v, _Node):
+        return v.cls(**{k: _build(x) for k, x in v.fields.items()})
+    if isinstance(v, tuple):
+        return tuple(_build(x) for x in v)
+    return jnp.asarray(v) if isinstance(v, np.ndarray) else v
+
+
+def _config_sizes(top: _Node, header: dict, path: Path) -> dict[str, int]:
+    """The dimensions the model's configuration fixes, after checking that the header says what the
+    model says."""
+    f = top.fields
+    for key in ("classes", "sensor_model", "n_beams"):
+        mine = list(f[key]) if key == "classes" else f[key]
+        if header[key] != mine:
+            raise InputError(
+                path, f"model header's {key} {_short(header[key])} differs from the model's {_short(mine)}"
+            )
+    columns = f.get("gp_columns", ())
+    if not columns:  # all of gp_inputs: the characteristic vector, depth and range
+        fe = f["frontend"].fields
+        columns = range(FrontEndConfig(**{k: v for k, v in fe.items() if not isinstance(v, np.ndarray)}).n_features + 2)
+    return {"classes": len(f["classes"]), "features": len(columns), "inputs": len(columns)}
 
 
 def save_model(model: Model, path: str | os.PathLike, *, summary: dict | None = None) -> None:
@@ -97,9 +286,20 @@ def save_model(model: Model, path: str | os.PathLike, *, summary: dict | None = 
     os.replace(tmp, path)
 
 
+def is_model_file(path: str | os.PathLike) -> bool:
+    """Whether ``path`` is an ``.npz`` archive with a model header (whatever else may be wrong with it)."""
+    try:
+        with zipfile.ZipFile(path) as z:
+            return f"{_HEADER_KEY}.npy" in z.namelist()
+    except (OSError, zipfile.BadZipFile, ValueError):
+        return False
+
+
 def read_header(path: str | os.PathLike) -> dict:
     """The JSON header of a model file (format, version, sensor model, classes, training summary)."""
-    return _open(Path(path))[0]
+    header, npz = _open(Path(path))
+    npz.close()
+    return header
 
 
 def _open(path: Path):
@@ -110,39 +310,60 @@ def _open(path: Path):
         files = npz.files
     except (zipfile.BadZipFile, ValueError, OSError, EOFError):
         raise InputError(path, "not a gtsjax model file (not an .npz archive)") from None
-    if _HEADER_KEY not in files:
-        raise InputError(path, "not a gtsjax model file (no model header; is it a scan log?)")
     try:
-        header = json.loads(str(npz[_HEADER_KEY]))
-    except (ValueError, zipfile.BadZipFile, OSError, EOFError):
-        raise InputError(path, "damaged model header") from None
-    if not isinstance(header, dict) or header.get("format") != FORMAT:
-        raise InputError(path, "not a gtsjax model file (wrong format name)")
-    if header.get("version") != VERSION:
-        raise InputError(path, f"model format version {header.get('version')!r}; this gtsjax reads version {VERSION} "
-                               "(retrain with this version)")
+        if _HEADER_KEY not in files:
+            raise InputError(path, "not a gtsjax model file (no model header; is it a scan log?)")
+        try:
+            header = json.loads(str(npz[_HEADER_KEY]))
+        except (ValueError, zipfile.BadZipFile, OSError, EOFError):
+            raise InputError(path, "damaged model header") from None
+        _check_header(header, path)
+    except InputError:
+        npz.close()
+        raise
     return header, npz
 
 
+def _check_header(header, path: Path) -> None:
+    if not isinstance(header, dict) or header.get("format") != FORMAT:
+        raise InputError(path, "not a gtsjax model file (wrong format name)")
+    if header.get("version") != VERSION:
+        raise InputError(
+            path,
+            f"model format version {_short(header.get('version'))}; this gtsjax reads version "
+            f"{VERSION} (retrain with this version)",
+        )
+    if missing := [k for k in _HEADER if k not in header]:
+        raise InputError(path, f"model header missing required key(s) {', '.join(map(repr, missing))}")
+    for key, typ in {**_HEADER, "summary": dict}.items():
+        v = header.get(key, {})
+        if not isinstance(v, typ) or isinstance(v, bool) or (typ is list and not all(isinstance(c, str) for c in v)):
+            want = {int: "an integer", str: "a string", list: "a list of names", dict: "an object"}[typ]
+            raise InputError(path, f"model header field {key!r} is {type(v).__name__} {_short(v)}, expected {want}")
+    if header["n_beams"] < 1:
+        raise InputError(path, f"model header field 'n_beams' is {header['n_beams']}, expected at least 1")
+
+
 def load_model(path: str | os.PathLike, *, sensor_model: str | None = None, n_beams: int | None = None) -> Model:
-    """Read a model file. With ``sensor_model``/``n_beams`` given (from the log or the live sensor),
-    a model trained for another scanner is refused with one line."""
+    """Read a model file, checked against the model its header describes (see the module docstring).
+    With ``sensor_model``/``n_beams`` given (from the log or the live sensor), a model trained for
+    another scanner is refused with one line."""
     path = Path(path)
     header, npz = _open(path)
     try:
         if sensor_model is not None and header["sensor_model"] != sensor_model:
-            raise InputError(path, f"model trained for sensor {header['sensor_model']}, but the scans come from "
-                                   f"{sensor_model}")
+            raise InputError(
+                path, f"model trained for sensor {header['sensor_model']}, but the scans come from {sensor_model}"
+            )
         if n_beams is not None and n_beams > header["n_beams"]:
             raise InputError(path, f"model expects at most {header['n_beams']} beams per scan, got {n_beams}")
         try:
-            model = _decode(header["schema"], npz, path)
-        except (KeyError, TypeError, zipfile.BadZipFile, OSError, EOFError, ValueError) as err:
+            top = _Reader(path, npz).read(header["schema"], Model, "")
+        except (zipfile.BadZipFile, OSError, EOFError, ValueError) as err:
             if isinstance(err, InputError):
                 raise
             raise InputError(path, f"truncated or damaged model file ({type(err).__name__})") from None
     finally:
         npz.close()
-    if not isinstance(model, Model):
-        raise InputError(path, "damaged model file (top node is not a model)")
-    return model
+    _check(top, _config_sizes(top, header, path), path)
+    return _build(top)

@@ -1,0 +1,101 @@
+"""One of the model's GPs as a fitted scikit-learn ``GaussianProcessRegressor`` (``ConstantKernel ×
+RBF`` with the model's hyperparameters, ``optimizer=None``), for stages d and e.
+
+**How a model GP becomes a scikit-learn GPR.** An exact :class:`gtsjax.gp.GP` stores its
+standardised training inputs and centred targets: the GPR is fitted on those with ``alpha`` equal
+to the GP's effective noise ``σn² + jitter σf²``, which reproduces its mean and variance. A
+:class:`gtsjax.gp.SparseGP` (the DTC predictor the shipped models hold) stores only its ``M``
+inducing inputs ``Z``, the weights ``w`` of its mean ``k_Z(x)ᵀ w``, ``L_m⁻¹`` (``K_ZZ + a I = L_m
+L_mᵀ``, ``a = jitter σf²``) and ``L_b⁻¹ L_m⁻¹``. The GPR is fitted on ``Z`` with ``alpha = a`` and
+targets ``(K_ZZ + a I) w``, so that its ``alpha_`` is ``w`` and its mean is the DTC mean; its
+variance ``σf² − k_Zᵀ (K_ZZ + a I)⁻¹ k_Z`` is the first two terms of the DTC variance, to which the
+third, ``‖L_b⁻¹ L_m⁻¹ k_Z‖²``, is added from the stored matrix (``a`` is recovered as the stored
+effective noise minus ``σn²``).
+"""
+
+import warnings
+
+import numpy as np
+from sklearn.gaussian_process import GaussianProcessRegressor
+from sklearn.gaussian_process.kernels import RBF, ConstantKernel
+
+
+def _f(a) -> np.ndarray:
+    return np.asarray(a, dtype=np.float64)
+
+
+_FITTED: dict[tuple[int, ...], tuple[list, "SklearnGP"]] = {}
+
+
+def sklearn_gp(gp) -> "SklearnGP":
+    """:class:`SklearnGP` of ``gp``, built once per set of arrays: carrying a pose GP over 6 000 examples
+    into scikit-learn costs seconds (two Cholesky factorisations), and a model changed elsewhere
+    (``eqx.tree_at`` on its tracker) keeps the same GP arrays. Keyed by the identity of the arrays,
+    which the entry keeps alive, so a key is never reused by other arrays."""
+    import jax
+
+    leaves = jax.tree_util.tree_leaves(gp)
+    key = tuple(id(x) for x in leaves)
+    hit = _FITTED.get(key)
+    if hit is None:
+        hit = _FITTED[key] = (leaves, SklearnGP(gp))
+    return hit[1]
+
+
+class SklearnGP:
+    """One of the model's GPs (exact or DTC) as a fitted scikit-learn ``GaussianProcessRegressor``
+    (see the module docstring for how the DTC predictor is carried over)."""
+
+    def __init__(self, gp):
+        p = gp.params
+        sf2 = float(np.exp(_f(p.log_signal_var)))
+        self.noise_var = float(np.exp(_f(p.log_noise_var)))
+        with np.errstate(over="ignore"):  # a feature BFGS switched off (log l ~ 1e3): l = inf, as w = 0 in gtsjax
+            lengthscale = np.exp(_f(p.log_lengthscale))
+        kernel = ConstantKernel(sf2, constant_value_bounds="fixed") * RBF(lengthscale, length_scale_bounds="fixed")
+        self.x_mean = _f(gp.x_mean)
+        self.x_scale = _f(gp.x_scale)
+        self.y_mean = float(gp.y_mean)
+        self.var_gpr = None
+        if hasattr(gp, "z"):  # SparseGP (DTC)
+            use = np.asarray(gp.z_mask, bool)
+            z = _f(gp.z)[use]
+            w = _f(gp.weights)[use]
+            a = max(float(_f(gp.noise)) - self.noise_var, 1e-12 * sf2)
+            targets = (kernel(z) + a * np.eye(len(z))) @ w
+            mv = int(gp.proj_m.shape[0])  # the variance uses the first mv inducing points only
+            use_v = np.asarray(gp.z_mask, bool)[:mv]
+            self.proj_b = _f(gp.proj_b)[np.ix_(use_v, use_v)]
+            zv = _f(gp.z)[:mv][use_v]
+            self.var_gpr = GaussianProcessRegressor(
+                kernel, alpha=a, optimizer=None, normalize_y=False, copy_X_train=False
+            ).fit(zv, np.zeros(len(zv)))
+        else:  # exact GP
+            use = np.asarray(gp.mask, bool)
+            z = _f(gp.x)[use]
+            targets = _f(gp.y)[use]
+            a = float(np.exp(_f(p.log_noise_var)) + _f(gp.jitter) * sf2)
+            self.proj_b = None
+        self.gpr = GaussianProcessRegressor(kernel, alpha=a, optimizer=None, normalize_y=False, copy_X_train=False)
+        self.gpr.fit(z, targets)
+        self.var_gpr = self.var_gpr or self.gpr
+
+    def _std(self, x: np.ndarray) -> np.ndarray:
+        return (x - self.x_mean) / self.x_scale
+
+    def predict_mean(self, x: np.ndarray) -> np.ndarray:
+        """Predictive mean (eq. 7) of raw inputs ``x`` [n, d]."""
+        return self.gpr.predict(self._std(x)) + self.y_mean
+
+    def predict(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Predictive mean and variance, observation noise included (what pose regression uses)."""
+        xs = self._std(x)
+        mean = self.gpr.predict(xs)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # sklearn warns when it clips a variance of -1e-17 at 0
+            _, std = self.var_gpr.predict(xs, return_std=True)
+        var = std**2
+        if self.proj_b is not None:
+            t2 = self.var_gpr.kernel_(xs, self.var_gpr.X_train_) @ self.proj_b.T
+            var = var + np.sum(t2 * t2, axis=1)
+        return mean + self.y_mean, np.maximum(var, 0.0) + self.noise_var
