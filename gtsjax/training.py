@@ -36,7 +36,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._classify import Classifier, Support, classify, gp_inputs, nearest_d2
+from ._classify import DEFAULT_THRESHOLD, Classifier, Support, classify, gp_inputs, nearest_d2
 from ._filters import Envelope, envelope_pass, shape_quantities
 from ._frontend import FrontEndConfig, front_end_batch
 from ._geometry import affine_heading, compose, field_to_sensor, in_bounds, relative, sensor_to_field, wrap
@@ -48,7 +48,7 @@ from .errors import InputError
 from .gp import GPArgumentError, fit
 from .io.logs import ScanLog, fit_geometry, to_scans
 from .io.site import Site
-from .model import Model
+from .model import DEFAULT_MAP_GATE, DEFAULT_MAP_MIN_SPREAD, DEFAULT_MAX_TRACKS, DEFAULT_MEAS_VAR_FLOOR, Model
 from .sensors import get_model
 
 BACKGROUND = "background"
@@ -95,15 +95,15 @@ class TrainConfig:
     label_radius: float = 0.3  # m: a candidate this close to a labelled object is that object
     landmark_radius: float = 0.25  # m: a candidate this close to a site landmark is that landmark
     bounds_margin: float | None = 0.5  # m: background examples only this far outside the site's bounds
-    threshold: float = 0.35  # winning class score needed to keep a candidate (scores are GP means, not probabilities)
-    map_gate: float = 0.4  # m: landmark association gate of stage f
-    map_min_spread: float = 0.3  # m: associated landmarks must spread this much in 2-D
-    meas_var_floor: tuple[float, float, float] = (2.5e-5, 2.5e-5, 3e-4)  # (5 mm)², (5 mm)², (1°)²
+    threshold: float = DEFAULT_THRESHOLD  # every class's score threshold (``Classifier.threshold``)
+    map_gate: float = DEFAULT_MAP_GATE  # m: landmark association gate of stage f (``Model.map_gate``)
+    map_min_spread: float = DEFAULT_MAP_MIN_SPREAD  # m: associated landmarks must spread this much in 2-D
+    meas_var_floor: tuple[float, float, float] = DEFAULT_MEAS_VAR_FLOOR  # m², m², rad² (``Model.meas_var_floor``)
     # Noise floor of every GP, relative to its signal variance. Many scans of one static pose give
     # near-duplicate inputs with equal targets; without a floor the likelihood is maximised by
     # interpolating them (σn² → 0, tiny length scales), which generalises badly to new poses.
     noise_floor: float = 1e-2
-    max_tracks: int = 8
+    max_tracks: int = DEFAULT_MAX_TRACKS  # track slots (``Model.max_tracks``)
     seed: int = 0
 
 
