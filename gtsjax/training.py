@@ -41,7 +41,7 @@ from ._filters import Envelope, envelope_pass, shape_quantities
 from ._frontend import FrontEndConfig, front_end_batch
 from ._geometry import affine_heading, compose, field_to_sensor, in_bounds, relative, sensor_to_field, wrap
 from ._maptransform import Transform, update_transform
-from ._pose import PoseRegressor, calibrate, regress_one_class
+from ._pose import PoseRegressor, regress_one_class
 from ._precision import exact_products
 from ._track import DEFAULT_MAX_SPEED, DEFAULT_MAX_TURN_RATE, TrackerParams
 from .errors import InputError
@@ -50,6 +50,7 @@ from .io.logs import ScanLog, fit_geometry, to_scans
 from .io.site import Site
 from .model import DEFAULT_MAP_GATE, DEFAULT_MAP_MIN_SPREAD, DEFAULT_MAX_TRACKS, DEFAULT_MEAS_VAR_FLOOR, Model
 from .sensors import get_model
+from .train.calibrate import calibrate
 
 BACKGROUND = "background"
 
