@@ -65,7 +65,7 @@ def utm_model_path(log=print) -> Path:
     import jax
 
     from gtsjax.io.modelfile import load_model, save_model
-    from gtsjax.training import TrainConfig, train
+    from gtsjax.train import TrainConfig, train
 
     path = CACHE / f"utm30lx-{_source_hash()}.npz"
     if path.exists():
@@ -96,7 +96,7 @@ def utm_model(site, log=print):
 def gp_examples(n_scans: int = 1200):
     """The robot examples of the SPL training grid: GP inputs ``[E, 23]`` and ORS-relative pose
     targets ``[E, 3]`` (x̃, ỹ, θ̃), labelled as ``gtsjax train`` labels them (first pass)."""
-    from gtsjax.training import TrainConfig, class_list, estimate_transforms, label_log, run_front_end
+    from gtsjax.train import TrainConfig, class_list, estimate_transforms, label_log, run_front_end
 
     log, site = scenario("spl-train", 0, n_scans)
     cfg = TrainConfig()

@@ -29,7 +29,7 @@ from gtsjax.drivers.replay import process_log
 from gtsjax.gp import GP, SparseGP
 from gtsjax.io import to_scans
 from gtsjax.sensors import URG_04LX, UTM_30LX, RangeNoise, SensorModel
-from gtsjax.training import TrainConfig
+from gtsjax.train import TrainConfig
 
 from . import _data
 from ._harness import closed_step

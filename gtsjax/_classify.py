@@ -27,6 +27,9 @@ from jaxtyping import Array, Bool, Float, Int
 from .gp import GP, SparseGP
 
 BACKGROUND = 0
+# Winning class score needed to keep a candidate, every class's until training says otherwise: the
+# scores are GP means on 1/0 targets, not probabilities (``Classifier.threshold``).
+DEFAULT_THRESHOLD = 0.35
 
 
 def gp_inputs(

@@ -15,20 +15,20 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from ._buckets import bucketed
-from ._geometry import compose, wrap
+from ._geometry import compose
 from .gp import GP, SparseGP
 
 # Heading variance is capped where the sine and cosine predictions carry no information.
-_MAX_THETA_VAR = float(jnp.pi**2 / 3)
+MAX_THETA_VAR = float(jnp.pi**2 / 3)
 
 
 class PoseRegressor(eqx.Module):
     """GPs of one class: ``x``, ``y`` (ORS-relative position) and, if the class has a heading, ``sin``, ``cos``.
 
-    ``var_scale`` multiplies the predictive variances of ``(x̃, ỹ, θ̃)`` (see :func:`calibrate`).
-    ``heading_var_max``: the largest (calibrated) heading variance of a read the tracker trusts for the
-    heading; a candidate above it is *vague* and updates a track's position only (see :func:`calibrate`;
-    ``None``: every heading is used)."""
+    ``var_scale`` multiplies the predictive variances of ``(x̃, ỹ, θ̃)``, set at training
+    (:func:`gtsjax.train.calibrate.calibrate`). ``heading_var_max``: the largest (calibrated) heading
+    variance of a read the tracker trusts for the heading; a candidate above it is *vague* and updates
+    a track's position only (set by the same calibration; ``None``: every heading is used)."""
 
     x: SparseGP | GP
     y: SparseGP | GP
@@ -59,85 +59,12 @@ def regress_one_class(
     # dθ = (c ds − s dc) / (s² + c²): first-order propagation of the two predictive variances.
     r2 = ms**2 + mc**2
     r2_safe = jnp.where(r2 > 1e-6, r2, 1.0)
-    vt = jnp.where(r2 > 1e-6, (mc**2 * vs + ms**2 * vc) / r2_safe**2, _MAX_THETA_VAR)
+    vt = jnp.where(r2 > 1e-6, (mc**2 * vs + ms**2 * vc) / r2_safe**2, MAX_THETA_VAR)
     var = jnp.stack([vx, vy, vt], -1)
     if reg.var_scale is not None:
         var = var * reg.var_scale.astype(var.dtype)[None, :]
-    cap = jnp.asarray([jnp.inf, jnp.inf, _MAX_THETA_VAR], var.dtype)
+    cap = jnp.asarray([jnp.inf, jnp.inf, MAX_THETA_VAR], var.dtype)
     return jnp.stack([mx, my, theta], -1), jnp.minimum(var, cap[None, :])
-
-
-# Median of χ² with one degree of freedom, and its 0.999 quantile: the tracker's heading gate.
-_CHI2_1_MEDIAN = 0.45493642311957283
-_CHI2_1_GATE = 10.827566170662733
-
-
-def _trimmed_chi2_mean(gate: float) -> float:
-    """``E[z² | z² < gate]`` for a standard normal ``z``."""
-    import math
-
-    a = math.sqrt(gate)
-    tail = math.erfc(a / math.sqrt(2))  # P(|z| > a)
-    phi = math.exp(-0.5 * gate) / math.sqrt(2 * math.pi)
-    return (1.0 - 2 * a * phi - tail) / (1.0 - tail)
-
-
-def robust_variance_scale(z2, iterations: int = 10) -> float:
-    """The factor ``s`` by which variances must grow so that normalised squared errors ``z2`` are
-    those of a calibrated Gaussian, outliers aside: starting from the median, repeatedly take as
-    inliers the errors inside the 0.999 gate (``z2 / s < 10.83``, the tracker's heading gate) and set
-    ``s`` so that their mean is that of a Gaussian truncated at the gate. A plain median is biased
-    by contamination (10 % of misreads raise it by a quarter); this is not, while the outliers lie
-    beyond the gate."""
-    import numpy as np
-
-    z2 = np.asarray(z2, np.float64)
-    s = float(np.median(z2) / _CHI2_1_MEDIAN)
-    m = _trimmed_chi2_mean(_CHI2_1_GATE)
-    for _ in range(iterations):
-        inl = z2 < _CHI2_1_GATE * s
-        s = float(np.mean(z2[inl]) / m)
-    return s
-
-
-def calibrate(reg: PoseRegressor, vectors, target, *, good_deg: float = 15.0,
-              vague_quantile: float = 0.99) -> PoseRegressor:
-    """Scale the variances of a class's pose GPs so that, on held-out examples, the normalised
-    squared errors of ``x̃``, ``ỹ`` and ``θ̃`` are those of a calibrated Gaussian, gross misreads aside
-    (:func:`robust_variance_scale`).
-
-    Why: the pose GPs' noise is homoscedastic, so the rare scan that sees a side of the robot as
-    another (a heading off by 90° or more) inflates the noise estimate, and with it the variance of
-    every prediction: typical headings, good to 2°, came with a σ of 25°. The tracker weighs and gates
-    measurements by these variances; calibrated, typical errors get their true size and the misreads
-    fall outside the heading gate. ``target`` [n, 3] holds the held-out ``(x̃, ỹ, θ̃)`` (θ̃ NaN for a
-    class without heading).
-
-    Also sets ``heading_var_max``: the ``vague_quantile`` (99 %) of the calibrated heading variances
-    of the held-out examples read within ``good_deg`` (15°) of their heading. The rare read above it
-    is far more often a misread than not (on the SPL field, simulated: 91 of 175 misreads and 34 of
-    3 211 good reads have a σ above its 5°), and the tracker takes only its position: a misread with a
-    large variance passes a heading gate widened by a few missed scans, and took the track with it."""
-    import numpy as np
-
-    rel, var = regress_one_class(eqx.tree_at(lambda r: r.var_scale, reg, None, is_leaf=lambda v: v is None),
-                                 jnp.asarray(vectors, jnp.float32))
-    rel, var, target = np.asarray(rel, np.float64), np.asarray(var, np.float64), np.asarray(target, np.float64)
-    err = rel - target
-    err[:, 2] = wrap(err[:, 2])
-    scale = np.ones(3)
-    for j in range(3 if reg.sin is not None else 2):
-        ok = np.isfinite(err[:, j]) & (var[:, j] > 0)
-        if ok.sum() >= 10:
-            scale[j] = robust_variance_scale(err[ok, j] ** 2 / var[ok, j])
-    var_max = None
-    if reg.sin is not None:
-        vt = np.minimum(var[:, 2] * scale[2], _MAX_THETA_VAR)
-        good = np.isfinite(err[:, 2]) & (np.abs(err[:, 2]) <= np.radians(good_deg))
-        if good.sum() >= 20:
-            var_max = jnp.asarray(np.quantile(vt[good], vague_quantile), jnp.float32)
-    return eqx.tree_at(lambda r: (r.var_scale, r.heading_var_max), reg, (jnp.asarray(scale, jnp.float32), var_max),
-                       is_leaf=lambda v: v is None)
 
 
 def vague_headings(regressors: "tuple[PoseRegressor | None, ...]", cls: Int[Array, " cands"],

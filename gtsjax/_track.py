@@ -17,7 +17,7 @@ every right one it rejects. ``ω`` is kept within its class's ``max_turn_rate``.
 
 Gating cannot tell a misread whose own variance is large: it widens the gate it is tested
 against. A detection whose heading variance is above its class's ``heading_var_max`` (learnt at
-training: almost no good read of the class has one so large, ``_pose.calibrate``) is *vague*: it
+training: almost no good read of the class has one so large, ``train.calibrate``) is *vague*: it
 updates the track's position only, and its heading neither supports nor rejects the track's. Unlike
 a partial view (below) it may start and confirm a track.
 
@@ -215,7 +215,7 @@ class Detections(eqx.Module):
     ``None``: no such candidates. Where ``partial``, the detection is of a class that is seen whole
     (``Envelope.whole``) but is occluded at an end: it may update a confirmed track, never start or
     confirm one (``None``: none is partial). Where ``vague``, the detection's heading variance is above
-    its class's ``heading_var_max`` (``_pose.calibrate``): it updates a track's position only, and its
+    its class's ``heading_var_max`` (``train.calibrate``): it updates a track's position only, and its
     heading neither supports nor rejects the track's (``None``: none is vague)."""
 
     pose: Float[Array, "dets 3"]

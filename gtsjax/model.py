@@ -21,6 +21,14 @@ from .errors import InputError
 
 _F32 = jnp.float32
 
+# Defaults of the model's tunable settings, the one home of these values (``gtsjax train`` starts from
+# them): stage f's landmark association gate and the 2-D spread its landmarks need (m), the floor added
+# to the pose GPs' variances ((5 mm)², (5 mm)², (1°)²), and the number of track slots.
+DEFAULT_MAP_GATE = 0.4
+DEFAULT_MAP_MIN_SPREAD = 0.3
+DEFAULT_MEAS_VAR_FLOOR = (2.5e-5, 2.5e-5, 3e-4)
+DEFAULT_MAX_TRACKS = 8
+
 
 class SiteArrays(eqx.Module):
     """A site file as arrays: landmark positions in O and their class indices in the model."""

@@ -20,7 +20,7 @@ import jax
 from gtsjax.io.importers import import_log
 from gtsjax.io.modelfile import save_model
 from gtsjax.sim import simulate
-from gtsjax.training import TrainConfig, train
+from gtsjax.train import TrainConfig, train
 
 DEMO_CONFIG = dataclasses.replace(TrainConfig(), seed=0)
 SHARED = Path(__file__).resolve().parents[2] / "shared"

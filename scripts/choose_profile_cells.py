@@ -23,7 +23,7 @@ from gtsjax import FrontEndConfig
 from gtsjax._geometry import wrap
 from gtsjax.gp import fit
 from gtsjax.sim import simulate
-from gtsjax.training import TrainConfig, class_list, estimate_transforms, label_log, run_front_end
+from gtsjax.train import TrainConfig, class_list, estimate_transforms, label_log, run_front_end
 
 LAYOUTS = {
     "fixed span 0.6 m, 10 cells": dict(cells_on_bbox=False, cell_span=0.6),

@@ -31,7 +31,7 @@ def tiny(tmp_path_factory):
     from gtsjax.io import save_site
     from gtsjax.io.modelfile import save_model
     from gtsjax.sim import simulate
-    from gtsjax.training import TrainConfig, train
+    from gtsjax.train import TrainConfig, train
 
     config = dataclasses.replace(TrainConfig(), max_per_class=60, max_pose_examples=80, n_inducing=32, restarts=1)
     d = tmp_path_factory.mktemp("tiny")

@@ -9,9 +9,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from gtsjax import InputError, gp, training
+from gtsjax import InputError, gp
 from gtsjax.gp.kernel import _effective_noise, _lml_forward, _safe_rows
-from gtsjax.training import TrainConfig
+from gtsjax.train import TrainConfig
+from gtsjax.train.fit import fit_gp
 
 sk_gp = pytest.importorskip("sklearn.gaussian_process")
 sk_k = pytest.importorskip("sklearn.gaussian_process.kernels")
@@ -353,10 +354,10 @@ def test_bad_gp_arguments_reach_the_user_as_one_line_input_errors():
     assert not isinstance(err.value, InputError)
     assert str(err.value) == "gp.fit: restarts must be >= 1, got 0"
     with pytest.raises(InputError) as err:
-        training._fit32(x, y, jax.random.key(0), dataclasses.replace(TrainConfig(), restarts=0), None, "c", 8)
+        fit_gp(x, y, jax.random.key(0), dataclasses.replace(TrainConfig(), restarts=0), None, "c", 8)
     assert str(err.value) == "gp.fit: restarts must be >= 1, got 0"
     with pytest.raises(InputError) as err:  # constant targets: no optimisation, then the sparse form
-        training._fit32(x, y, jax.random.key(0), TrainConfig(restarts=1), None, "c", 0)
+        fit_gp(x, y, jax.random.key(0), TrainConfig(restarts=1), None, "c", 0)
     assert str(err.value).startswith("GP.sparse: n_inducing and n_variance must be >= 1, got 0,")
 
 

@@ -12,7 +12,7 @@ from gtsjax import InputError
 from gtsjax._classify import Support, classify, nearest_d2
 from gtsjax._filters import Envelope, envelope_pass, partial_view
 from gtsjax.io.logs import ScanLog
-from gtsjax.training import Examples, fit_envelope, motion_limits, train
+from gtsjax.train import Examples, fit_envelope, motion_limits, train
 
 F32 = jnp.float32
 

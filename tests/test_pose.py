@@ -5,7 +5,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from gtsjax import gp
-from gtsjax._pose import PoseRegressor, calibrate, regress, regress_one_class
+from gtsjax._pose import PoseRegressor, regress, regress_one_class
+from gtsjax.train.calibrate import calibrate
 
 
 def _regressor(rng):

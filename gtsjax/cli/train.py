@@ -15,7 +15,7 @@ from rich.table import Table
 from ..errors import InputError
 from ..io import load_log, load_site
 from ..io.modelfile import save_model
-from ..training import TrainConfig, fit_background, train
+from ..train import TrainConfig, fit_background, train
 from ._app import app
 from ._common import load_input
 
@@ -38,7 +38,7 @@ def train_cmd(
     inducing_class: int = typer.Option(TrainConfig.n_inducing_class,
                                        help="Inducing points of the classifier's and landmark GPs."),
     restarts: int = typer.Option(TrainConfig.restarts, help="Optimiser starts per GP fit."),
-    seed: int = typer.Option(0, help="Seed for sampling, the held-out split and restarts."),
+    seed: int = typer.Option(TrainConfig.seed, help="Seed for sampling, the held-out split and restarts."),
     report: Path | None = typer.Option(None, "--report", help="Also write the training report as JSON."),
     background: list[Path] = typer.Option(
         [], "--background",

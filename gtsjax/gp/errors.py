@@ -1,5 +1,5 @@
 """The GP library's exceptions. The library is core code: it knows nothing of the command line, so
-the host side that calls it (``gtsjax.training``) turns a :class:`GPArgumentError` into the CLI's
+the host side that calls it (``gtsjax.train``) turns a :class:`GPArgumentError` into the CLI's
 :class:`gtsjax.errors.InputError` with the same message."""
 
 

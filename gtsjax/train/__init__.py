@@ -1,0 +1,141 @@
+"""Training from labelled logs (``gtsjax train``): the :class:`~gtsjax.model.Model` of one scanner
+and the site's kinds of landmarks, and a report of how it was made and how it does on held-out data.
+
+One module per step, in the order :func:`train` takes them (the paper's stages in brackets):
+
+- :mod:`.labels`: stages a–c over the logs, each scan's map transformation (f), and the labelled
+  examples, in two passes; background logs' examples; the held-out split by one-second blocks.
+- :mod:`.fit`: each GP fitted in float64 and kept as the step's float32 bounded-cost predictor.
+- :mod:`.classifier`: shape envelopes (c), the open-set test and the classifier's GPs (d, eq. 13–14).
+- :mod:`.pose`: the landmark classes' position GPs and the mobile classes' pose GPs (e, eq. 15–17),
+  with :mod:`.calibrate` scaling their variances on held-out examples.
+- :mod:`.motion`: each tracked class's motion limits and the scanner's rate (g).
+- :mod:`.report`: held-out classification as the step decides it, and pose errors.
+- :mod:`.config`: :class:`TrainConfig`.
+"""
+
+from collections.abc import Callable, Sequence
+
+import jax.numpy as jnp
+import numpy as np
+
+from .._precision import exact_products
+from .._track import TrackerParams
+from ..errors import InputError
+from ..io.logs import ScanLog
+from ..io.site import Site
+from ..model import Model
+from .classifier import fit_classifier, fit_support, landmark_lookalikes
+from .classifier import fit_envelope as fit_envelope
+from .config import TrainConfig as TrainConfig
+from .fit import GPFits
+from .labels import Examples as Examples
+from .labels import background_examples, check_logs, first_pass, front_end_logs, holdout_groups, second_pass, step_beams
+from .labels import class_list as class_list
+from .labels import estimate_transforms as estimate_transforms
+from .labels import fit_background as fit_background
+from .labels import label_log as label_log
+from .labels import run_front_end as run_front_end
+from .motion import motion_limits as motion_limits
+from .motion import scan_rate, tracker_limits
+from .pose import fit_landmark_positions, fit_pose_regressors
+from .report import evaluate_examples as evaluate_examples
+
+
+@exact_products
+def train(logs: Sequence[ScanLog], site: Site, cfg: TrainConfig = TrainConfig(), *,
+          progress: Callable[[dict], None] | None = None, names: Sequence[str] | None = None,
+          background: Sequence[ScanLog] = (), background_names: Sequence[str] | None = None) -> tuple[Model, dict]:
+    """Train a model from labelled logs of one site, and optional background logs (recorded anywhere,
+    with no robot in view: every candidate in them is a background example; their beams are checked
+    against the labelled logs' scanner and cropped to its field of view). Returns the model (float32
+    predictors, bounded cost) and a report: examples per class, GP fits, shape envelopes, open-set
+    thresholds, motion limits, held-out accuracy and pose errors, and warnings. ``progress`` is called
+    with each GP fit's summary as it ends."""
+    names = list(names) if names is not None else [f"log {i}" for i in range(len(logs))]
+    bg_names = list(background_names) if background_names is not None else [
+        f"background log {i}" for i in range(len(background))]
+    check_logs(logs, names)
+    first = logs[0]
+    n_beams = step_beams(first)
+    background = fit_background(first, background, bg_names)
+    classes, landmarks, mobiles = class_list(logs, site)
+    if not mobiles:
+        raise InputError(names[0], "no labelled object classes in the logs")
+    rng = np.random.default_rng(cfg.seed)  # examples, the held-out split, the open-set supports
+    gps = GPFits(cfg, progress)  # the GP fits' keys, and their summaries
+
+    # Labels, pass 1 (transforms from raw ORS origins); background logs' examples; the held-out split;
+    # the landmark classes' position GPs; pass 2 (landmark candidates at their predicted centres).
+    per_log, columns = front_end_logs(logs, cfg.frontend, n_beams)
+    ex1, cls_slots, offset = first_pass(logs, per_log, site, classes, cfg)
+    bg_ex, bg_info = background_examples(background, bg_names, cfg, n_beams, columns, offset)
+    held = holdout_groups(rng, np.concatenate([ex1.group, bg_ex.group]), cfg.holdout)
+    pose = [None] * len(classes)
+    for k, reg in fit_landmark_positions(ex1, held, classes, landmarks, cfg, rng, gps).items():
+        pose[k] = reg
+    ex_lab, degraded, n_scans = second_pass(logs, per_log, cls_slots, pose, site, classes, landmarks, cfg)
+
+    # Shape envelopes and open-set supports from the labelled classes; then the background logs'
+    # examples join the background class, landmark look-alikes left out.
+    is_held_lab = np.isin(ex_lab.group, held)
+    envelope, env_report = fit_envelope(ex_lab.take(np.flatnonzero(~is_held_lab)), len(classes),
+                                        first.angle_increment)
+    support, sup_report = fit_support(Examples.concat([ex_lab, bg_ex]),
+                                      np.isin(np.concatenate([ex_lab.group, bg_ex.group]), held), len(classes), rng,
+                                      size=cfg.support_size)
+    lookalike = landmark_lookalikes(support, bg_ex, bg_info, classes, landmarks)
+    ex = Examples.concat([ex_lab, bg_ex.take(np.flatnonzero(~lookalike))])
+    source = np.concatenate([np.full(len(ex_lab.cls), -1),  # the labelled logs, then each background log
+                             np.repeat(np.arange(len(bg_info)), [i["candidates"] for i in bg_info])[~lookalike]])
+    is_held = np.isin(ex.group, held)
+
+    classifier, train_idx, warnings = fit_classifier(ex, is_held, source, len(bg_info), support, classes, mobiles,
+                                                     cfg, rng, gps)
+    mobile_pose, calibration = fit_pose_regressors(ex, is_held, classes, mobiles, cfg, rng, gps)
+    for k, reg in mobile_pose.items():
+        pose[k] = reg
+    speed, turn, motion = tracker_limits(logs, classes, mobiles, cfg)
+
+    model = Model(
+        frontend=cfg.frontend,
+        classifier=classifier,
+        envelope=envelope,
+        pose=tuple(pose),
+        tracker=TrackerParams.default([c in mobiles for c in classes], rate_hz=scan_rate(logs), max_speed=speed,
+                                      max_turn_rate=turn),
+        landmark_mask=jnp.asarray([c in landmarks for c in classes]),
+        map_gate=jnp.asarray(cfg.map_gate, jnp.float32),
+        map_min_spread=jnp.asarray(cfg.map_min_spread, jnp.float32),
+        meas_var_floor=jnp.asarray(cfg.meas_var_floor, jnp.float32),
+        site=None,
+        classes=classes,
+        max_tracks=cfg.max_tracks,
+        sensor_model=first.sensor_model or "unknown",
+        n_beams=n_beams,
+        gp_columns=columns,
+        angle_min=float(first.angle_min),
+        angle_increment=float(first.angle_increment),
+        range_min=float(first.range_min),
+        range_max=float(first.range_max),
+    )
+    report = {
+        "classes": list(classes),
+        "examples": {c: int(np.sum(ex.cls == k)) for k, c in enumerate(classes)},
+        "examples_labelled_logs": {c: int(np.sum(ex_lab.cls == k)) for k, c in enumerate(classes)},
+        "examples_used": {c: int(np.sum(ex.cls[train_idx] == k)) for k, c in enumerate(classes)},
+        "background_logs": bg_info,
+        "fits": gps.fits,
+        "variance_calibration": calibration,
+        "envelopes": {classes[k]: v for k, v in env_report.items()},
+        "open_set": {classes[k]: v for k, v in sup_report.items()},
+        "motion_limits": motion,
+        "scans": n_scans,
+        "degraded_scans": degraded,
+        "warnings": warnings,
+        "heldout": evaluate_examples(model, ex.take(np.flatnonzero(is_held))),
+    }
+    if len(bg_ex.cls):
+        report["heldout_background_logs"] = evaluate_examples(
+            model, bg_ex.take(np.flatnonzero(np.isin(bg_ex.group, held))))
+    return model, report

@@ -1,0 +1,67 @@
+"""GP fits of training: each GP of the classifier (stage d, eq. 13–14) and of the pose regressors
+(stage e, eq. 15–17) is fitted in float64 (:func:`gtsjax.gp.fit`: hyperparameters by maximum
+marginal likelihood, paper section 3b) and stored as the float32, bounded-cost predictor the step
+runs (:meth:`~gtsjax.gp.GP.sparse`), with a line of the training report per fit.
+
+:class:`GPFits` draws each fit's random key from one stream seeded by ``TrainConfig.seed``, in the
+order training fits them, so that a seed fixes the model.
+"""
+
+import time
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..errors import InputError
+from ..gp import GPArgumentError, SparseGP, fit
+from .config import TrainConfig
+
+
+def sample(rng: np.random.Generator, idx: np.ndarray, cap: int) -> np.ndarray:
+    """``idx`` if at most ``cap`` long, else ``cap`` of them drawn without replacement, in order."""
+    return idx if idx.size <= cap else np.sort(rng.choice(idx, cap, replace=False))
+
+
+def fit_gp(x, y, key, cfg: TrainConfig, progress: Callable[[dict], None] | None, label: str, n_inducing: int,
+           max_fit: int | None = None) -> tuple[SparseGP, dict]:
+    """One GP on inputs ``x`` [n, d] and targets ``y`` [n], with ``cfg``'s restarts and noise floor;
+    returns its float32 predictor on ``n_inducing`` inducing points (``cfg.n_inducing_var`` for the
+    variance) and the fit's summary (also passed to ``progress``). With ``max_fit`` the
+    hyperparameters are fitted on a subsample of that many and the posterior takes every example
+    given (the caller capped them); without, the GP library's own cap applies to both. A bad setting
+    is the user's :class:`~gtsjax.errors.InputError`, not the GP library's error."""
+    t0 = time.perf_counter()
+    cap = {} if max_fit is None else {"max_points": x.shape[0], "max_fit_points": max_fit}
+    try:
+        gp = fit(x, y, key=key, restarts=cfg.restarts, jitter=cfg.noise_floor, **cap)
+        sparse = gp.sparse(n_inducing, cfg.n_inducing_var).astype(jnp.float32)
+    except GPArgumentError as err:  # the GP library is core code; to the user it is a bad setting
+        raise InputError(err.where, err.problem) from None
+    p = gp.params
+    info = {"gp": label, "n": int(x.shape[0]), "n_fit": int(min(x.shape[0], max_fit or x.shape[0])),
+            "seconds": round(time.perf_counter() - t0, 2),
+            "lml": float(gp.log_marginal_likelihood()),
+            "signal_var": float(p.signal_var), "noise_var": float(p.noise_var),
+            "lengthscale_median": float(np.median(np.asarray(p.lengthscale)))}
+    if progress is not None:
+        progress(info)
+    return sparse, info
+
+
+class GPFits:
+    """The GP fits of one training run: each call fits one GP (:func:`fit_gp`) with the next key of
+    the run's stream, and ``fits`` lists their summaries in order."""
+
+    def __init__(self, cfg: TrainConfig, progress: Callable[[dict], None] | None = None):
+        self.cfg = cfg
+        self.progress = progress
+        self.key = jax.random.PRNGKey(cfg.seed)
+        self.fits: list[dict] = []
+
+    def __call__(self, x, y, label: str, n_inducing: int, max_fit: int | None = None) -> SparseGP:
+        self.key, sub = jax.random.split(self.key)
+        gp, info = fit_gp(x, y, sub, self.cfg, self.progress, label, n_inducing, max_fit)
+        self.fits.append(info)
+        return gp

@@ -1,0 +1,366 @@
+"""Training's front end and labels: stages a–c over the logs, each scan's map transformation (stage
+f), and the labelled examples of the classifier (stage d) and the pose regressors (stage e).
+
+The rules are those of ``shared/spec/formats.md``: a candidate near a labelled object is an example
+of that object's class, with the object's pose in the candidate's ORS as its pose target (eq. 9, 16
+inverted); a candidate near a site landmark is an example of the landmark's class; every other
+candidate that passes the binary filters is ``background``.
+
+"Near" needs each scan's map transformation (eq. 10), which is estimated as stage f does at run time
+(the core's own ``update_transform``), from the candidates near the site's landmarks, seeded by the
+site's rough sensor pose. Two passes: the first (:func:`first_pass`) uses the candidates' ORS origins
+(which sit on the visible surface, a few cm in front of a post's centre); it gives the landmark
+classes' position targets, whose GPs then move each landmark candidate to its centre for the second
+pass (:func:`second_pass`), as the step does at run time. All targets come from the second pass.
+
+Every frame change goes through the core's geometry (:mod:`gtsjax._geometry`), on float64 host
+arrays: the labels are the step's own maths, not a copy of it.
+
+The held-out split (:func:`holdout_groups`) is by blocks of one second of scans, so that
+near-identical consecutive scans do not sit on both sides of it. Background logs (recorded with no
+robot in view, :func:`background_examples`) give background examples: every candidate the binary
+filters keep in them, in one-second blocks as well.
+"""
+
+import dataclasses
+import math
+from collections.abc import Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._classify import gp_inputs
+from .._filters import shape_quantities
+from .._frontend import FrontEndConfig, front_end_batch
+from .._geometry import affine_heading, compose, field_to_sensor, in_bounds, relative, sensor_to_field, wrap
+from .._maptransform import Transform, update_transform
+from .._pose import PoseRegressor, regress_one_class
+from ..errors import InputError
+from ..io.logs import ScanLog, fit_geometry, to_scans
+from ..io.site import Site
+from ..sensors import get_model
+from .config import TrainConfig
+
+BACKGROUND = "background"
+
+
+@dataclasses.dataclass
+class Examples:
+    """Labelled candidates from one or more logs (host arrays)."""
+
+    vectors: np.ndarray  # [E, D] characteristic vectors
+    cls: np.ndarray  # [E] class index
+    target: np.ndarray  # [E, 3] ORS-relative (x̃, ỹ, θ̃); θ̃ NaN where the class has no heading
+    group: np.ndarray  # [E] held-out block id
+    origin: np.ndarray  # [E, 2] ORS origin in S
+    heading: np.ndarray  # [E] ORS heading in S
+    shape: np.ndarray  # [E, 3] width, depth, n_points · range (what the shape envelopes bound)
+    rng: np.ndarray  # [E] range of the ORS origin
+    occluded: np.ndarray  # [E] a nearer return beside either end (``Candidates.occluded``)
+
+    def take(self, idx) -> "Examples":
+        return Examples(*(getattr(self, f.name)[idx] for f in dataclasses.fields(self)))
+
+    @staticmethod
+    def concat(exs: "Sequence[Examples]") -> "Examples":
+        return Examples(*(np.concatenate([getattr(e, f.name) for e in exs]) for f in dataclasses.fields(Examples)))
+
+
+# ------------------------------------------------------------------------------------------ the logs
+
+
+def class_list(logs: Sequence[ScanLog], site: Site) -> tuple[tuple[str, ...], tuple[str, ...], tuple[str, ...]]:
+    """All classes (background first, then landmark classes, then mobile classes), landmarks, mobiles."""
+    landmarks = tuple(sorted(set(site.landmark_classes)))
+    mobiles = tuple(sorted({str(c) for log in logs for c in log.truth_classes}))
+    clash = set(landmarks) & set(mobiles)
+    if clash or BACKGROUND in landmarks or BACKGROUND in mobiles:
+        raise InputError("training data", f"class name(s) {sorted(clash or {BACKGROUND})} used for both landmarks "
+                                          "and labelled objects, or reserved")
+    return (BACKGROUND, *landmarks, *mobiles), landmarks, mobiles
+
+
+def check_logs(logs: Sequence[ScanLog], names: Sequence[str]) -> None:
+    """Labelled logs of one scanner: each labelled, all with the first one's beams, angles and model."""
+    if not logs:
+        raise InputError("train", "no logs given")
+    for log, name in zip(logs, names, strict=True):
+        if not log.labelled:
+            raise InputError(name, "not a labelled log (no truth_classes / truth_poses)")
+    first = logs[0]
+    for log, name in zip(logs[1:], names[1:], strict=True):
+        if (log.n_beams, log.sensor_model) != (first.n_beams, first.sensor_model) or not math.isclose(
+                log.angle_min, first.angle_min, abs_tol=1e-9) or not math.isclose(
+                log.angle_increment, first.angle_increment, abs_tol=1e-12):
+            raise InputError(name, f"scan geometry differs from {names[0]} (beams, angles or sensor model)")
+
+
+def step_beams(log: ScanLog) -> int:
+    """The step's beam count for a model trained on ``log``: its own, or its scanner model's if more."""
+    n = log.n_beams
+    if log.sensor_model is not None:
+        try:
+            n = max(n, get_model(log.sensor_model).n_beams)
+        except InputError:
+            pass
+    return n
+
+
+def fit_background(first: ScanLog, background: Sequence[ScanLog], names: Sequence[str]) -> list[ScanLog]:
+    """Background logs checked against the labelled logs' scanner (``first``): the same angular step
+    within 1 %, cropped to its field of view and range window (:func:`~gtsjax.io.logs.fit_geometry`);
+    another step is one :class:`InputError` naming the log."""
+    geometry = dict(angle_min=first.angle_min, angle_increment=first.angle_increment, n_beams=step_beams(first),
+                    range_min=first.range_min, range_max=first.range_max)
+    return [fit_geometry(log, **geometry, where=name, crop=True, sensor_model=first.sensor_model)
+            for log, name in zip(background, names, strict=True)]
+
+
+def _block_scans(log: ScanLog) -> int:
+    """Scans in one second of ``log``: the size of a held-out block."""
+    period = np.median(np.diff(log.stamps)) if log.n_scans > 1 else 0.1
+    return max(1, int(round(1.0 / max(period, 1e-3))))
+
+
+# ---------------------------------------------------------------------------- stages a–c over the logs
+
+
+_front_end_batch = jax.jit(front_end_batch, static_argnames=("chunk", "windows"))
+
+
+def run_front_end(log: ScanLog, cfg: FrontEndConfig, n_beams: int, chunk: int = 1024):
+    """Stages a–c over a log, chunk by chunk; returns host arrays ``[T, K, …]``: origin, heading,
+    keep, ``vector`` (the GP inputs of each candidate, :func:`~gtsjax._classify.gp_inputs`),
+    ``shape`` (:func:`~gtsjax._filters.shape_quantities`), ``rng`` (the ORS origin's range) and
+    ``occluded``."""
+    outs = {"origin": [], "heading": [], "vector": [], "keep": [], "shape": [], "rng": [], "occluded": []}
+    for start in range(0, log.n_scans, chunk):
+        scans = to_scans(log.slice(start, start + chunk), n_beams)
+        fe = _front_end_batch(cfg, scans)
+        f = fe.features
+        rng = jnp.sqrt(jnp.sum(f.origin**2, axis=-1))
+        outs["origin"].append(np.asarray(f.origin, np.float64))
+        outs["heading"].append(np.asarray(f.heading, np.float64))
+        outs["vector"].append(np.asarray(gp_inputs(f.vector, f.origin, f.height), np.float64))
+        outs["keep"].append(np.asarray(fe.keep))
+        outs["shape"].append(np.asarray(shape_quantities(f.width, f.height, f.n_points, rng), np.float64))
+        outs["rng"].append(np.asarray(rng, np.float64))
+        outs["occluded"].append(np.asarray(fe.candidates.occluded))
+    return {k: np.concatenate(v) for k, v in outs.items()}
+
+
+def informative_columns(vectors: np.ndarray) -> tuple[int, ...]:
+    """Indices of the columns of ``vectors`` [n, d] that vary (relative spread above 1e-9)."""
+    if len(vectors) == 0:
+        return tuple(range(vectors.shape[-1]))
+    spread = vectors.max(axis=0) - vectors.min(axis=0)
+    scale = np.maximum(np.abs(vectors).max(axis=0), 1.0)
+    return tuple(int(c) for c in np.flatnonzero(spread > 1e-9 * scale))
+
+
+def front_end_logs(logs: Sequence[ScanLog], cfg: FrontEndConfig, n_beams: int) -> tuple[list[dict], tuple[int, ...]]:
+    """:func:`run_front_end` over every log, and the GP input columns the model keeps: those that
+    vary over the kept candidates (the intensity profile of a scanner without intensity never does);
+    the others are dropped from each log's ``vector``."""
+    per_log = [run_front_end(log, cfg, n_beams) for log in logs]
+    columns = informative_columns(np.concatenate([fe["vector"][fe["keep"]] for fe in per_log]))
+    for fe in per_log:
+        fe["vector"] = fe["vector"][..., list(columns)]
+    return per_log, columns
+
+
+# ------------------------------------------------------------------------- stage f, scan by scan
+
+
+@jax.jit
+def _transforms(tf0: Transform, det_s, keep, map_o, gate, min_spread):
+    """Stage f over a whole log with class-agnostic association (training knows which points are
+    landmarks only by where they are)."""
+    zeros_d = jnp.zeros(det_s.shape[1], jnp.int32)
+    zeros_m = jnp.zeros(map_o.shape[0], jnp.int32)
+
+    def body(tf, inp):
+        d, k = inp
+        new, _, _ = update_transform(tf, d, zeros_d, k, map_o, zeros_m, gate, min_spread)
+        return new, new
+
+    return jax.lax.scan(body, tf0, (det_s, keep))[1]
+
+
+def estimate_transforms(det_s: np.ndarray, keep: np.ndarray, site: Site, cfg: TrainConfig) -> dict[str, np.ndarray]:
+    """Each scan's map transformation (eq. 10, 18) from the points ``det_s`` ``[T, K, 2]`` in S (where
+    ``keep``), seeded by the site's sensor pose: host arrays ``A``, ``mu_s``, ``mu_o``, ``degraded``
+    and ``n`` (landmarks associated), one per scan."""
+    tf0 = Transform.from_sensor_pose(jnp.asarray(site.sensor_pose, jnp.float32))
+    tfs = _transforms(tf0, jnp.asarray(det_s, jnp.float32), jnp.asarray(keep), jnp.asarray(site.landmark_xy, jnp.float32),
+                      jnp.asarray(cfg.map_gate, jnp.float32), jnp.asarray(cfg.map_min_spread, jnp.float32))
+    return {"A": np.asarray(tfs.A, np.float64), "mu_s": np.asarray(tfs.mu_s, np.float64),
+            "mu_o": np.asarray(tfs.mu_o, np.float64), "degraded": np.asarray(tfs.degraded),
+            "n": np.asarray(tfs.n_landmarks)}
+
+
+def _per_scan(tf):
+    """A log's transforms ``[T]`` as arguments of ``_geometry``'s S ↔ O maps for points ``[T, n, 2]``."""
+    return tf["A"][:, None], tf["mu_s"][:, None], tf["mu_o"][:, None]
+
+
+def _ors(origin, heading):
+    """Candidates' ORS frames ``[..., 3]`` (eq. 9) from their origins and headings."""
+    return np.concatenate([origin, heading[..., None]], -1)
+
+
+# ------------------------------------------------------------------------------------------ labels
+
+
+def label_log(log: ScanLog, fe: dict, tf: dict, site: Site, classes: tuple[str, ...], cfg: TrainConfig,
+              group_offset: int) -> tuple[Examples, np.ndarray]:
+    """Label one log's candidates (spec rules) and compute their ORS-relative pose targets. Also
+    returns the class of every candidate slot ``[T, K]`` (0 where not an example or background)."""
+    T, K = fe["keep"].shape
+    origin, heading = fe["origin"], fe["heading"]
+    origin_o = sensor_to_field(*_per_scan(tf), origin)  # [T, K, 2]
+    rot_s = affine_heading(tf["A"])  # [T]
+    ors = _ors(origin, heading)
+    cls = np.zeros((T, K), np.int64)
+    target = np.full((T, K, 3), np.nan)
+    best = np.full((T, K), np.inf)
+
+    lm_xy = site.landmark_xy
+    lm_s = field_to_sensor(*_per_scan(tf), np.broadcast_to(lm_xy, (T,) + lm_xy.shape))  # [T, L, 2]
+    for j, lm in enumerate(site.landmarks):
+        d = np.linalg.norm(origin_o - lm_xy[j], axis=-1)
+        hit = (d < cfg.landmark_radius) & (d < best)
+        rel = relative(ors, np.broadcast_to(lm_s[:, j : j + 1], origin.shape))
+        cls[hit] = classes.index(lm.cls)
+        target[hit, :2] = rel[hit]
+        target[hit, 2] = np.nan
+        best[hit] = d[hit]
+
+    poses = log.truth_poses  # [T, M, 3]
+    ambiguous = np.zeros((T, K), bool)
+    for m, name in enumerate(log.truth_classes):
+        p = poses[:, m]
+        present = ~np.isnan(p[:, 0])
+        d = np.linalg.norm(origin_o - np.nan_to_num(p[:, None, :2]), axis=-1)
+        d = np.where(fe["keep"], d, np.inf)
+        near = (d < cfg.label_radius) & present[:, None]
+        # One example per object and scan: the candidate nearest its centre. Other pieces of it (a
+        # robot the scan splits in two) are neither that class nor background: left out.
+        nearest = np.arange(K)[None, :] == np.argmin(d, axis=1)[:, None]
+        hit = near & nearest & (d < best)
+        ambiguous |= near & ~nearest
+        p_s = field_to_sensor(*_per_scan(tf), np.nan_to_num(p[:, None, :2]))  # [T, 1, 2]
+        rel = relative(ors, np.broadcast_to(p_s, origin.shape))
+        th = wrap(np.nan_to_num(p[:, 2])[:, None] - rot_s[:, None] - heading)
+        cls[hit] = classes.index(str(name))
+        target[hit, :2] = rel[hit]
+        target[hit, 2] = th[hit]
+        best[hit] = d[hit]
+
+    # A scan whose transform could not be estimated gives no labels worth having. With bounds, the
+    # background is what the step could confuse with an object on the field: candidates inside the
+    # bounds (plus a margin), not the walls and furniture around it, which the step drops anyway.
+    use = fe["keep"] & ~tf["degraded"][:, None] & ~(ambiguous & (cls == 0))
+    if site.bounds is not None and cfg.bounds_margin is not None:
+        use &= in_bounds(origin_o, np.asarray(site.bounds), cfg.bounds_margin) | (cls != 0)
+    t_idx, k_idx = np.nonzero(use)
+    return Examples(
+        vectors=fe["vector"][t_idx, k_idx],
+        cls=cls[t_idx, k_idx],
+        target=target[t_idx, k_idx],
+        group=group_offset + t_idx // _block_scans(log),
+        origin=origin[t_idx, k_idx],
+        heading=heading[t_idx, k_idx],
+        shape=fe["shape"][t_idx, k_idx],
+        rng=fe["rng"][t_idx, k_idx],
+        occluded=fe["occluded"][t_idx, k_idx],
+    ), np.where(use, cls, 0)
+
+
+def first_pass(logs: Sequence[ScanLog], per_log: Sequence[dict], site: Site, classes: tuple[str, ...],
+               cfg: TrainConfig) -> tuple[Examples, list[np.ndarray], int]:
+    """Pass 1: transforms from the raw ORS origins, and the labels they give. Returns the examples of
+    all logs, each log's class per candidate slot ``[T, K]``, and the next free held-out group id."""
+    offset = 0
+    exs, cls_slots = [], []
+    for log, fe in zip(logs, per_log, strict=True):
+        tf = estimate_transforms(fe["origin"], fe["keep"], site, cfg)
+        ex, cls_tk = label_log(log, fe, tf, site, classes, cfg, offset)
+        cls_slots.append(cls_tk)
+        offset = int(ex.group.max(initial=offset)) + 1
+        exs.append(ex)
+    return Examples.concat(exs), cls_slots, offset
+
+
+def _relabel(logs, per_log, cls_slots, pose, site, classes, landmarks, cfg) -> tuple[Examples, int, int]:
+    degraded = 0
+    n_scans = 0
+    offset = 0
+    exs = []
+    for log, fe, cls_tk in zip(logs, per_log, cls_slots, strict=True):
+        det_s = fe["origin"].copy()
+        T, K, D = fe["vector"].shape
+        for name in landmarks:
+            k = classes.index(name)
+            rel, _ = regress_one_class(pose[k], jnp.asarray(fe["vector"].reshape(T * K, D), jnp.float32))
+            rel = np.asarray(rel, np.float64).reshape(T, K, 3)
+            moved = compose(_ors(fe["origin"], fe["heading"]), rel[..., :2])
+            det_s = np.where((cls_tk == k)[..., None], moved, det_s)
+        tf = estimate_transforms(det_s, fe["keep"], site, cfg)
+        degraded += int(tf["degraded"].sum())
+        n_scans += log.n_scans
+        ex, _ = label_log(log, fe, tf, site, classes, cfg, offset)
+        offset = int(ex.group.max(initial=offset)) + 1
+        exs.append(ex)
+    return Examples.concat(exs), degraded, n_scans
+
+
+def second_pass(logs: Sequence[ScanLog], per_log: Sequence[dict], cls_slots: Sequence[np.ndarray],
+                pose: Sequence[PoseRegressor | None], site: Site, classes: tuple[str, ...],
+                landmarks: tuple[str, ...], cfg: TrainConfig) -> tuple[Examples, int, int]:
+    """Pass 2: each landmark candidate of pass 1 (``cls_slots``) moved to its centre as its class's
+    position GPs (``pose``) predict it (eq. 16), transforms again, all labels and targets. Returns the
+    examples, the scans whose transform was degraded, and the scans in all. A field with nothing but
+    objects on it gives no background inside the bounds: then the background is taken from around
+    it (walls, furniture)."""
+    ex, degraded, n_scans = _relabel(logs, per_log, cls_slots, pose, site, classes, landmarks, cfg)
+    if not np.any(ex.cls == 0) and cfg.bounds_margin is not None:
+        ex, degraded, n_scans = _relabel(logs, per_log, cls_slots, pose, site, classes, landmarks,
+                                         dataclasses.replace(cfg, bounds_margin=None))
+    return ex, degraded, n_scans
+
+
+def background_examples(logs: Sequence[ScanLog], names: Sequence[str], cfg: TrainConfig, n_beams: int,
+                        columns: tuple[int, ...], group_offset: int) -> tuple[Examples, list[dict]]:
+    """Every candidate that the binary filters keep in a background log (recorded with no robot in view)
+    is a background example; one-second blocks of scans are the held-out groups, as for labelled logs."""
+    exs, info = [], []
+    for log, name in zip(logs, names, strict=True):
+        fe = run_front_end(log, cfg.frontend, n_beams)
+        t_idx, k_idx = np.nonzero(fe["keep"])
+        n = t_idx.size
+        exs.append(Examples(
+            vectors=fe["vector"][t_idx, k_idx][:, list(columns)],
+            cls=np.zeros(n, np.int64),
+            target=np.full((n, 3), np.nan),
+            group=group_offset + t_idx // _block_scans(log),
+            origin=fe["origin"][t_idx, k_idx],
+            heading=fe["heading"][t_idx, k_idx],
+            shape=fe["shape"][t_idx, k_idx],
+            rng=fe["rng"][t_idx, k_idx],
+            occluded=fe["occluded"][t_idx, k_idx],
+        ))
+        group_offset = int(exs[-1].group.max(initial=group_offset)) + 1
+        info.append({"log": str(name), "scans": int(log.n_scans), "candidates": int(n)})
+    if not exs:
+        z = np.zeros(0)
+        return Examples(np.zeros((0, len(columns))), z.astype(np.int64), np.zeros((0, 3)), z.astype(np.int64),
+                        np.zeros((0, 2)), z, np.zeros((0, 3)), z, z.astype(bool)), info
+    return Examples.concat(exs), info
+
+
+def holdout_groups(rng: np.random.Generator, groups: np.ndarray, fraction: float) -> list:
+    """The held-out split: a ``fraction`` (at least one) of the distinct one-second blocks ``groups``."""
+    groups = np.unique(groups)
+    return list(set(rng.choice(groups, max(1, int(round(fraction * groups.size))), replace=False).tolist()))
