@@ -221,6 +221,6 @@ def closed_step(model):
     program), jitted once; ``f(state, scan) -> (state, output)``."""
     import jax
 
-    from gtsjax._pipeline import step
+    from gtsjax.core.pipeline import step
 
     return jax.jit(lambda state, scan: step(model, state, scan))

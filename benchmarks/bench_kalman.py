@@ -1,10 +1,10 @@
 """The Kalman filter of stage g against filterpy and dynamax, on the same constant-velocity model.
 
-The model is gtsjax's (``_track.motion_model`` with the demo model's tuning, dt = 0.1 s), observing
+The model is gtsjax's (``g_track.motion_model`` with the demo model's tuning, dt = 0.1 s), observing
 ``(x, y, θ)`` of a robot walking the simulated SPL trajectory with noise ``R``:
 
 * **one step** (predict + update of one track, one call): filterpy ``KalmanFilter.predict`` and
-  ``update``; gtsjax ``_track.predict`` + ``kalman_update`` jitted; dynamax ``lgssm_filter`` on a
+  ``update``; gtsjax ``g_track.predict`` + ``kalman_update`` jitted; dynamax ``lgssm_filter`` on a
   one-step sequence, jitted.
 * **a sequence** of T steps, time per step: filterpy in a Python loop; gtsjax's predict + update
   under ``lax.scan``; dynamax ``lgssm_filter`` (which also accumulates the marginal likelihood).
@@ -18,8 +18,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gtsjax._geometry import wrap
-from gtsjax._track import Detections, TrackerState, kalman_update, motion_model, predict, track_step
+from gtsjax.core.g_track import Detections, TrackerState, kalman_update, motion_model, predict, track_step
+from gtsjax.core.geometry import wrap
 
 from . import _data
 

@@ -17,15 +17,15 @@
 import jax
 import jax.numpy as jnp
 
-from gtsjax._classify import classify, gp_inputs
-from gtsjax._features import characterise_all
-from gtsjax._filters import binary_filter, envelope_pass, shape_quantities
-from gtsjax._frontend import front_end, front_end_batch
-from gtsjax._maptransform import poses_to_field, update_transform
-from gtsjax._pipeline import init_state, landmark_cap, perceive
-from gtsjax._pose import regress, to_sensor_frame
-from gtsjax._segment import segment
-from gtsjax._track import Detections, track_step
+from gtsjax.core.a_segment import segment
+from gtsjax.core.b_features import characterise_all
+from gtsjax.core.c_filters import binary_filter, envelope_pass, shape_quantities
+from gtsjax.core.d_classify import classify, gp_inputs
+from gtsjax.core.e_pose import regress, to_sensor_frame
+from gtsjax.core.f_maptransform import poses_to_field, update_transform
+from gtsjax.core.frontend import front_end, front_end_batch
+from gtsjax.core.g_track import Detections, track_step
+from gtsjax.core.pipeline import init_state, landmark_cap, perceive
 from gtsjax.drivers.replay import process_log
 from gtsjax.io import to_scans
 

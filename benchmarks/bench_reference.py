@@ -16,7 +16,7 @@ import pstats
 import jax
 import numpy as np
 
-from gtsjax._pipeline import init_state
+from gtsjax.core.pipeline import init_state
 from gtsjax.io import to_scans
 
 from . import _data

@@ -23,8 +23,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gtsjax._pipeline import init_state
-from gtsjax._scan import Scan
+from gtsjax.core.pipeline import init_state
+from gtsjax.core.scan import Scan
 from gtsjax.drivers.replay import process_log
 from gtsjax.gp import GP, SparseGP
 from gtsjax.io import to_scans

@@ -12,11 +12,11 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from ._classify import Classifier
-from ._filters import Envelope
-from ._frontend import FrontEndConfig
-from ._pose import PoseRegressor
-from ._track import TrackerParams
+from .core.c_filters import Envelope
+from .core.d_classify import Classifier
+from .core.e_pose import PoseRegressor
+from .core.frontend import FrontEndConfig
+from .core.g_track import TrackerParams
 from .errors import InputError
 
 _F32 = jnp.float32
@@ -60,7 +60,7 @@ class Model(eqx.Module):
     # Candidates of each mobile class that get a pose per scan (the best by class score): the pose GPs'
     # variance is the step's costliest part, so it is computed for these only.
     max_objects: int = eqx.field(static=True, default=8)
-    # The GP inputs (``_classify.gp_inputs``) that varied over the training set; the others (the
+    # The GP inputs (``d_classify.gp_inputs``) that varied over the training set; the others (the
     # intensity profile of a scanner without intensity) carry nothing and are left out of every kernel.
     gp_columns: tuple[int, ...] = eqx.field(static=True, default=())
     # The scanner geometry the model was trained on (beam ``i`` at ``angle_min + i * angle_increment``

@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from gtsjax import FrontEndConfig
-from gtsjax._geometry import wrap
+from gtsjax.core.geometry import wrap
 from gtsjax.gp import fit
 from gtsjax.sim import simulate
 from gtsjax.train import TrainConfig, class_list, estimate_transforms, label_log, run_front_end

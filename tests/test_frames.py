@@ -1,4 +1,4 @@
-"""The one geometry module (``gtsjax._geometry``): wrap, rotations, ORS ↔ S ↔ O and the bounds test,
+"""The one geometry module (``gtsjax.core.geometry``): wrap, rotations, ORS ↔ S ↔ O and the bounds test,
 each against an obvious second implementation (complex numbers, ``np.linalg``), on NumPy and on JAX
 inputs (the same function serves the jitted step and the host)."""
 
@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from gtsjax._geometry import (
+from gtsjax.core.geometry import (
     affine_heading,
     compose,
     field_to_sensor,

@@ -10,10 +10,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from gtsjax._features import characterise
-from gtsjax._frontend import FrontEndConfig, front_end_batch
-from gtsjax._frontend import front_end as front_end_pure
-from gtsjax._scan import Scan
+from gtsjax.core.b_features import characterise
+from gtsjax.core.frontend import FrontEndConfig, front_end_batch
+from gtsjax.core.frontend import front_end as front_end_pure
+from gtsjax.core.scan import Scan
 from gtsjax.io.logs import ScanLog, to_scans
 from gtsjax.sensors import URG_04LX, UTM_30LX
 

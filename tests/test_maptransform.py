@@ -3,8 +3,8 @@
 import jax.numpy as jnp
 import numpy as np
 
-from gtsjax._geometry import rot
-from gtsjax._maptransform import Transform, fit_transform, update_transform
+from gtsjax.core.f_maptransform import Transform, fit_transform, update_transform
+from gtsjax.core.geometry import rot
 
 F32 = jnp.float32
 MAP = np.array([[0, 1.3], [0, 2.7], [6, 1.3], [6, 2.7]], np.float64)

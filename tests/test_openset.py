@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from gtsjax import InputError
-from gtsjax._classify import Support, classify, nearest_d2
-from gtsjax._filters import Envelope, envelope_pass, partial_view
+from gtsjax.core.c_filters import Envelope, envelope_pass, partial_view
+from gtsjax.core.d_classify import Support, classify, nearest_d2
 from gtsjax.io.logs import ScanLog
 from gtsjax.train import Examples, fit_envelope, motion_limits, train
 
@@ -112,7 +112,7 @@ def test_envelope_rules_the_classes_out_of_the_argmax():
         return SparseGP(z, jnp.zeros(1, bool), hp, jnp.zeros(1, F32), one, one, jnp.asarray(value, F32),
                         jnp.zeros(2, F32), jnp.ones(2, F32), jnp.asarray(1.0, F32))
 
-    from gtsjax._classify import Classifier
+    from gtsjax.core.d_classify import Classifier
 
     clf = Classifier((const_gp(0.1), const_gp(0.5), const_gp(0.9)), jnp.full(3, 0.35, F32), Support.none(3, 2))
     x = jnp.zeros((3, 2), F32)

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from gtsjax import InputError
-from gtsjax._pipeline import init_state, step
 from gtsjax.cli import main
+from gtsjax.core.pipeline import init_state, step
 from gtsjax.drivers.replay import process_log
 from gtsjax.io import save_log, save_site, to_scans
 from gtsjax.io.gtd import HEADER
@@ -218,9 +218,9 @@ def test_seen_through_reads_the_beams_at_a_tracks_bearing():
     left, beam 135)."""
     import jax.numpy as jnp
 
-    from gtsjax._maptransform import Transform
-    from gtsjax._pipeline import seen_through
-    from gtsjax._scan import Scan
+    from gtsjax.core.f_maptransform import Transform
+    from gtsjax.core.pipeline import seen_through
+    from gtsjax.core.scan import Scan
 
     def scan(ranges):
         r = np.asarray(ranges, np.float32)

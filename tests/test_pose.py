@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from gtsjax import gp
-from gtsjax._pose import PoseRegressor, regress, regress_one_class
+from gtsjax.core.e_pose import PoseRegressor, regress, regress_one_class
 from gtsjax.train.calibrate import calibrate
 
 
@@ -56,7 +56,7 @@ def test_only_the_best_candidates_of_a_mobile_class_get_a_pose():
 def test_bucketed_regression_equals_regression_of_every_slot():
     """However many candidates a scan holds (none, one, a bucket's worth, one past it, all), the
     bucketed pose regression gives the poses that regressing every slot gives, and zeros elsewhere."""
-    from gtsjax._buckets import sizes
+    from gtsjax.core.buckets import sizes
 
     assert sizes(8) == (1, 2, 4, 8) and sizes(14) == (1, 2, 4, 8, 14) and sizes(1) == (1,)
     rng = np.random.default_rng(2)

@@ -201,7 +201,7 @@ def test_hall_is_clean(name):
     cut short by a shadow or by the range window), and no wall piece comes within 0.5 m of the field
     (training's margin for background examples). The front end finds every post in most scans and the
     robot in nearly every scan it is on the field."""
-    from gtsjax._frontend import FrontEndConfig, front_end_batch
+    from gtsjax.core.frontend import FrontEndConfig, front_end_batch
     from gtsjax.io import to_scans
     from gtsjax.sim.scenarios import hall_layout
 

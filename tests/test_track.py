@@ -8,8 +8,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from gtsjax._geometry import wrap
-from gtsjax._track import Detections, TrackerParams, TrackerState, assign, heading_consistent, predict, track_step
+from gtsjax.core.g_track import Detections, TrackerParams, TrackerState, assign, heading_consistent, predict, track_step
+from gtsjax.core.geometry import wrap
 
 F32 = jnp.float32
 
@@ -249,7 +249,7 @@ def test_track_born_on_a_flipped_heading_recovers_the_majority_heading():
 def test_unseen_track_is_not_reported_but_keeps_its_id():
     """A confirmed track missed for ``m_report`` scans is no longer reported (a robot picked up is not
     reported at a predicted pose); seen again before ``m_delete``, it is reported under the same id."""
-    from gtsjax._track import reported
+    from gtsjax.core.g_track import reported
 
     state = TrackerState.empty(3)
     dt = jnp.asarray(0.1, F32)
@@ -374,7 +374,7 @@ def test_default_motion_limits_per_class():
     p = TrackerParams.default([False, True, True], max_speed=0.5, max_turn_rate=[3.0, 0.5, 2.0])
     np.testing.assert_array_equal(np.asarray(p.max_speed), np.full(3, 0.5, np.float32))
     np.testing.assert_array_equal(np.asarray(p.max_turn_rate), np.asarray([3.0, 0.5, 2.0], np.float32))
-    from gtsjax._track import DEFAULT_MAX_SPEED, DEFAULT_MAX_TURN_RATE
+    from gtsjax.core.g_track import DEFAULT_MAX_SPEED, DEFAULT_MAX_TURN_RATE
 
     np.testing.assert_array_equal(np.asarray(PARAMS.max_speed), np.full(2, DEFAULT_MAX_SPEED, np.float32))
     np.testing.assert_array_equal(np.asarray(PARAMS.max_turn_rate), np.full(2, DEFAULT_MAX_TURN_RATE, np.float32))

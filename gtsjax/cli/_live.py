@@ -8,7 +8,7 @@ from rich.console import Console, Group
 from rich.live import Live
 from rich.table import Table
 
-from .._geometry import wrap
+from ..core.geometry import wrap
 
 
 def live_view(model, link, stats, output, stamp) -> Group:

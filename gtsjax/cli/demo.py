@@ -14,7 +14,7 @@ import numpy as np
 import typer
 from rich.console import Console
 
-from .._geometry import wrap
+from ..core.geometry import wrap
 from ._app import app
 
 DEMO_SCENARIO = "spl-trajectory"

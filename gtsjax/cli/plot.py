@@ -10,7 +10,7 @@ import numpy as np
 import typer
 from rich.console import Console
 
-from .._geometry import wrap
+from ..core.geometry import wrap
 from ..errors import InputError
 from ..io import load_log, load_site
 from ..io.gtd import TrackRow, read_gtd, tracks_of

@@ -21,7 +21,7 @@ object's class nearest each object, before tracking, within ``match_radius``; it
 
 import numpy as np
 
-from .._geometry import wrap
+from ..core.geometry import wrap
 from ..io.logs import ScanLog, fit_to_model, to_scans
 from ..model import Model
 from .replay import process_log

@@ -25,8 +25,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._pipeline import Output, init_state, step
-from .._scan import Scan
+from ..core.pipeline import Output, init_state, step
+from ..core.scan import Scan
 from ..errors import InputError
 from ..io.gtd import GTDWriter, json_line, rows_from_output
 from ..io.logs import ScanLog, fit_to_model, scan_dt, valid_beams

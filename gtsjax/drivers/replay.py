@@ -17,9 +17,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Int
 
-from .._geometry import wrap
-from .._pipeline import Output, PipelineState, init_state, perceive, step, update
-from .._scan import Scan
+from ..core.geometry import wrap
+from ..core.pipeline import Output, PipelineState, init_state, perceive, step, update
+from ..core.scan import Scan
 from ..io.gtd import GTDWriter, rows_from_output
 from ..io.logs import to_scans
 from ..model import Model

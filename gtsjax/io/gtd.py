@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._geometry import wrap
+from ..core.geometry import wrap
 from ..errors import InputError
 
 HEADER = ("stamp", "track_id", "class", "x", "y", "theta", "var_x", "var_y", "var_theta")

@@ -348,7 +348,7 @@ def to_scans(log: ScanLog, n_beams: int | None = None, *, prev_stamp: float | No
     """
     import jax.numpy as jnp
 
-    from .._scan import Scan
+    from ..core.scan import Scan
 
     n = log.n_beams if n_beams is None else n_beams
     if n < log.n_beams:

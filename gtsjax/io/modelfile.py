@@ -33,11 +33,11 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import AbstractArray
 
-from .._classify import Classifier, Support
-from .._filters import Envelope
-from .._frontend import FrontEndConfig
-from .._pose import PoseRegressor
-from .._track import TrackerParams
+from ..core.c_filters import Envelope
+from ..core.d_classify import Classifier, Support
+from ..core.e_pose import PoseRegressor
+from ..core.frontend import FrontEndConfig
+from ..core.g_track import TrackerParams
 from ..errors import InputError
 from ..gp import GP, Hyperparameters, SparseGP
 from ..model import Model, SiteArrays

@@ -13,7 +13,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .._geometry import wrap
+from ..core.geometry import wrap
 from ..errors import InputError
 from ..io.logs import ScanLog
 from ..io.site import Landmark, Site

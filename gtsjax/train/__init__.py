@@ -19,8 +19,8 @@ from collections.abc import Callable, Sequence
 import jax.numpy as jnp
 import numpy as np
 
-from .._precision import exact_products
-from .._track import TrackerParams
+from ..core.g_track import TrackerParams
+from ..core.precision import exact_products
 from ..errors import InputError
 from ..io.logs import ScanLog
 from ..io.site import Site

@@ -4,7 +4,7 @@ The GPs' predictive variances (eq. 7, noise included) become the tracker's measu
 g); :func:`calibrate` scales them so that held-out errors are those of a calibrated Gaussian, gross
 misreads aside (:func:`robust_variance_scale`), and sets the largest heading variance the tracker
 trusts (``PoseRegressor.heading_var_max``). The step only applies what is stored here
-(:func:`gtsjax._pose.regress_one_class`, :func:`gtsjax._pose.vague_headings`).
+(:func:`gtsjax.core.e_pose.regress_one_class`, :func:`gtsjax.core.e_pose.vague_headings`).
 """
 
 import math
@@ -13,8 +13,8 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from .._geometry import wrap
-from .._pose import MAX_THETA_VAR, PoseRegressor, regress_one_class
+from ..core.e_pose import MAX_THETA_VAR, PoseRegressor, regress_one_class
+from ..core.geometry import wrap
 
 # Median of χ² with one degree of freedom, and its 0.999 quantile: the tracker's heading gate.
 _CHI2_1_MEDIAN = 0.45493642311957283

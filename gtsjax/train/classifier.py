@@ -16,8 +16,8 @@ from collections.abc import Sequence
 import jax.numpy as jnp
 import numpy as np
 
-from .._classify import Classifier, Support, nearest_d2
-from .._filters import Envelope
+from ..core.c_filters import Envelope
+from ..core.d_classify import Classifier, Support, nearest_d2
 from .config import TrainConfig
 from .fit import GPFits, sample
 from .labels import BACKGROUND, Examples
@@ -25,7 +25,7 @@ from .labels import BACKGROUND, Examples
 
 def fit_envelope(ex: Examples, n_classes: int, beam_step: float, *, n_bins: int = 8, quantile: float = 0.01,
                  min_per_bin: int = 20, whole_fraction: float = 0.95) -> tuple[Envelope, dict]:
-    """Per-class shape envelopes (:class:`~gtsjax._filters.Envelope`) from labelled examples: in each
+    """Per-class shape envelopes (:class:`~gtsjax.core.c_filters.Envelope`) from labelled examples: in each
     range bin, the ``quantile`` and ``1 − quantile`` quantiles of the class's width, depth and
     ``n · r``, widened by a tenth of their spread plus what one beam more or less and the range noise
     can add at the bin's far edge (a beam's spacing for width, 1 cm for depth, one point for
@@ -83,7 +83,7 @@ def fit_envelope(ex: Examples, n_classes: int, beam_step: float, *, n_bins: int 
 
 def _nearest_d2_np(x: np.ndarray, s: np.ndarray, chunk: int = 4096) -> np.ndarray:
     """Squared Euclidean distance from each row of ``x`` to the nearest row of ``s`` (host, float64:
-    the thresholds are set on these, the step tests them with :func:`~gtsjax._classify.nearest_d2`)."""
+    the thresholds are set on these, the step tests them with :func:`~gtsjax.core.d_classify.nearest_d2`)."""
     out = np.full(len(x), np.inf)
     if len(s) == 0:
         return out
@@ -97,7 +97,7 @@ def _nearest_d2_np(x: np.ndarray, s: np.ndarray, chunk: int = 4096) -> np.ndarra
 
 def fit_support(ex: Examples, is_held: np.ndarray, n_classes: int, rng, *, size: int = 512,
                 quantile: float = 0.995, margin: float = 1.5, min_held: int = 50) -> tuple[Support, dict]:
-    """The open-set test's examples and thresholds (:class:`~gtsjax._classify.Support`).
+    """The open-set test's examples and thresholds (:class:`~gtsjax.core.d_classify.Support`).
 
     Per non-background class: up to ``size`` of its training examples, drawn at random (so the
     examples keep the class's density; a farthest-point choice would keep its outliers first, and a

@@ -8,8 +8,8 @@ caps, inducing points, fits, the held-out split, the labelling radii).
 
 import dataclasses
 
-from .._classify import DEFAULT_THRESHOLD
-from .._frontend import FrontEndConfig
+from ..core.d_classify import DEFAULT_THRESHOLD
+from ..core.frontend import FrontEndConfig
 from ..model import DEFAULT_MAP_GATE, DEFAULT_MAP_MIN_SPREAD, DEFAULT_MAX_TRACKS, DEFAULT_MEAS_VAR_FLOOR
 
 
@@ -48,7 +48,7 @@ class TrainConfig:
     max_class_fit: int | None = 1500
     support_size: int = 512  # open-set test: training examples kept per class
     # Motion limits per class (m/s, rad/s) that override what labelled motion, or the tracker's default
-    # (``_track.DEFAULT_MAX_SPEED``, ``DEFAULT_MAX_TURN_RATE``), gives.
+    # (``g_track.DEFAULT_MAX_SPEED``, ``DEFAULT_MAX_TURN_RATE``), gives.
     max_speed: dict[str, float] = dataclasses.field(default_factory=dict)
     max_turn_rate: dict[str, float] = dataclasses.field(default_factory=dict)
     holdout: float = 0.2  # fraction of one-second blocks held out for evaluation

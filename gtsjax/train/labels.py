@@ -13,7 +13,7 @@ site's rough sensor pose. Two passes: the first (:func:`first_pass`) uses the ca
 classes' position targets, whose GPs then move each landmark candidate to its centre for the second
 pass (:func:`second_pass`), as the step does at run time. All targets come from the second pass.
 
-Every frame change goes through the core's geometry (:mod:`gtsjax._geometry`), on float64 host
+Every frame change goes through the core's geometry (:mod:`gtsjax.core.geometry`), on float64 host
 arrays: the labels are the step's own maths, not a copy of it.
 
 The held-out split (:func:`holdout_groups`) is by blocks of one second of scans, so that
@@ -30,12 +30,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._classify import gp_inputs
-from .._filters import shape_quantities
-from .._frontend import FrontEndConfig, front_end_batch
-from .._geometry import affine_heading, compose, field_to_sensor, in_bounds, relative, sensor_to_field, wrap
-from .._maptransform import Transform, update_transform
-from .._pose import PoseRegressor, regress_one_class
+from ..core.c_filters import shape_quantities
+from ..core.d_classify import gp_inputs
+from ..core.e_pose import PoseRegressor, regress_one_class
+from ..core.f_maptransform import Transform, update_transform
+from ..core.frontend import FrontEndConfig, front_end_batch
+from ..core.geometry import affine_heading, compose, field_to_sensor, in_bounds, relative, sensor_to_field, wrap
 from ..errors import InputError
 from ..io.logs import ScanLog, fit_geometry, to_scans
 from ..io.site import Site
@@ -131,8 +131,8 @@ _front_end_batch = jax.jit(front_end_batch, static_argnames=("chunk", "windows")
 
 def run_front_end(log: ScanLog, cfg: FrontEndConfig, n_beams: int, chunk: int = 1024):
     """Stages a–c over a log, chunk by chunk; returns host arrays ``[T, K, …]``: origin, heading,
-    keep, ``vector`` (the GP inputs of each candidate, :func:`~gtsjax._classify.gp_inputs`),
-    ``shape`` (:func:`~gtsjax._filters.shape_quantities`), ``rng`` (the ORS origin's range) and
+    keep, ``vector`` (the GP inputs of each candidate, :func:`~gtsjax.core.d_classify.gp_inputs`),
+    ``shape`` (:func:`~gtsjax.core.c_filters.shape_quantities`), ``rng`` (the ORS origin's range) and
     ``occluded``."""
     outs = {"origin": [], "heading": [], "vector": [], "keep": [], "shape": [], "rng": [], "occluded": []}
     for start in range(0, log.n_scans, chunk):
@@ -201,7 +201,7 @@ def estimate_transforms(det_s: np.ndarray, keep: np.ndarray, site: Site, cfg: Tr
 
 
 def _per_scan(tf):
-    """A log's transforms ``[T]`` as arguments of ``_geometry``'s S ↔ O maps for points ``[T, n, 2]``."""
+    """A log's transforms ``[T]`` as arguments of ``geometry``'s S ↔ O maps for points ``[T, n, 2]``."""
     return tf["A"][:, None], tf["mu_s"][:, None], tf["mu_o"][:, None]
 
 

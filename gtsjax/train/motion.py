@@ -1,5 +1,5 @@
 """What training learns for stage g, tracking: each tracked class's top speed and turn rate (the
-tracker's plausible-motion test, :class:`~gtsjax._track.TrackerParams`) from its labelled motion
+tracker's plausible-motion test, :class:`~gtsjax.core.g_track.TrackerParams`) from its labelled motion
 (:func:`motion_limits`), else the user's or the tracker's defaults (:func:`tracker_limits`), and the
 scanner's rate, which sets the tracker's confirmation and deletion counts (:func:`scan_rate`).
 """
@@ -8,8 +8,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .._geometry import wrap
-from .._track import DEFAULT_MAX_SPEED, DEFAULT_MAX_TURN_RATE
+from ..core.g_track import DEFAULT_MAX_SPEED, DEFAULT_MAX_TURN_RATE
+from ..core.geometry import wrap
 from ..io.logs import ScanLog
 from .config import TrainConfig
 
@@ -59,7 +59,7 @@ def motion_limits(logs: Sequence[ScanLog], classes: tuple[str, ...], *, quantile
 
 def tracker_limits(logs: Sequence[ScanLog], classes: tuple[str, ...], mobiles: tuple[str, ...],
                    cfg: TrainConfig) -> tuple[list[float], list[float], dict[str, dict]]:
-    """Every class's top speed and turn rate for :meth:`~gtsjax._track.TrackerParams.default`: the
+    """Every class's top speed and turn rate for :meth:`~gtsjax.core.g_track.TrackerParams.default`: the
     user's (``cfg.max_speed``, ``cfg.max_turn_rate``), else from labelled motion
     (:func:`motion_limits`), else the tracker's defaults; and, for the report, each tracked or set
     class's limits and where they came from."""

@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 
-from .._pose import PoseRegressor
+from ..core.e_pose import PoseRegressor
 from ..errors import InputError
 from .calibrate import calibrate
 from .config import TrainConfig

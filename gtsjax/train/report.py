@@ -1,5 +1,5 @@
 """Held-out evaluation for the training report: stage d on held-out examples exactly as the step
-decides it (the core's :func:`~gtsjax._classify.classify` with the shape envelopes of stage c,
+decides it (the core's :func:`~gtsjax.core.d_classify.classify` with the shape envelopes of stage c,
 :func:`decide`), and the pose errors of the mobile classes' regressors (stage e, eq. 15), in
 :func:`evaluate_examples`.
 """
@@ -8,10 +8,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._classify import classify
-from .._filters import envelope_pass
-from .._geometry import wrap
-from .._pose import regress_one_class
+from ..core.c_filters import envelope_pass
+from ..core.d_classify import classify
+from ..core.e_pose import regress_one_class
+from ..core.geometry import wrap
 from ..model import Model
 from .labels import Examples
 

@@ -11,7 +11,7 @@ What "a careful NumPy user" means here:
 * every GP is a scikit-learn ``GaussianProcessRegressor`` (``ConstantKernel × RBF`` with the
   model's hyperparameters, ``optimizer=None``), predicting in batch for the scan's candidates;
 * one filterpy ``KalmanFilter`` per track, with the same constant-velocity model, Mahalanobis gating,
-  heading gate, greedy one-to-one assignment and track life cycle as ``gtsjax._track``;
+  heading gate, greedy one-to-one assignment and track life cycle as ``gtsjax.core.g_track``;
 * the map transformation as centred OLS with NumPy's ``eigvalsh`` and ``solve``.
 
 Everything is read from a trained :class:`gtsjax.Model` (front-end settings, GP hyperparameters and

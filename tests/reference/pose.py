@@ -9,7 +9,7 @@ import numpy as np
 
 from .gp import _f, sklearn_gp
 
-MAX_THETA_VAR = math.pi**2 / 3  # as gtsjax._pose: the heading variance where sin/cos carry nothing
+MAX_THETA_VAR = math.pi**2 / 3  # as gtsjax.core.e_pose: the heading variance where sin/cos carry nothing
 
 
 class PoseRegressors:

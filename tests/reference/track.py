@@ -1,5 +1,5 @@
 """Stage g, tracking: one filterpy ``KalmanFilter`` per track with gtsjax's motion model and track life
-cycle, written out plainly from the module docstring of ``gtsjax._track``."""
+cycle, written out plainly from the module docstring of ``gtsjax.core.g_track``."""
 
 import dataclasses
 import math
@@ -43,7 +43,7 @@ class Tracker:
     ``eigvalsh``), turn rate before clipping at most ``max_turn_rate + 2 σ_ω``; an implausible scan
     takes the confirmation away and restarts ``hits`` and ``contrary`` at 0; tracks reported while
     confirmed and missed fewer than ``m_report`` scans (written out plainly from the module docstring
-    of ``gtsjax._track``)."""
+    of ``gtsjax.core.g_track``)."""
 
     def __init__(self, params, max_tracks: int):
         g = {f.name: np.asarray(getattr(params, f.name)) for f in dataclasses.fields(params)}

@@ -14,9 +14,9 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from ._buckets import bucketed
-from ._geometry import compose
-from .gp import GP, SparseGP
+from ..gp import GP, SparseGP
+from .buckets import bucketed
+from .geometry import compose
 
 # Heading variance is capped where the sine and cosine predictions carry no information.
 MAX_THETA_VAR = float(jnp.pi**2 / 3)
@@ -100,7 +100,7 @@ def regress(
     ``max_objects`` best of a mobile class get the mean and variance GPs, the ``max_landmarks`` best
     of a landmark class the position means only (stage f reads no variance). With ``bucket`` each
     runs at the smallest of a few fixed sizes that holds the candidates present
-    (:func:`~gtsjax._buckets.bucketed`: a scan with one robot pays for one, not eight); leave it off
+    (:func:`~gtsjax.core.buckets.bucketed`: a scan with one robot pays for one, not eight); leave it off
     under ``vmap``, which turns the branches into selects that all run. A candidate beyond its
     class's cap gets no pose and must be dropped (the third output is False for it). Background and
     unkept candidates give zeros."""

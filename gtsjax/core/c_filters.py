@@ -6,10 +6,10 @@ its width lies in ``[width_min, width_max]``.
 
 Per class, the shape envelopes (:class:`Envelope`, learnt at training) then say which classes a kept
 candidate may be: its width, depth and point count against range, and whether it is seen whole; the
-classifier takes its argmax among those classes only (``_classify.classify``).
+classifier takes its argmax among those classes only (``d_classify.classify``).
 
 The site's bounds are given in the field frame O, which the front end does not know: the pipeline
-tests them (``_geometry.in_bounds``) once stage f has mapped the regressed poses into O.
+tests them (``geometry.in_bounds``) once stage f has mapped the regressed poses into O.
 """
 
 import equinox as eqx

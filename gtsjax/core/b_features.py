@@ -30,7 +30,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from ._segment import Candidates
+from .a_segment import Candidates
 
 _F32 = jnp.float32
 _I32 = jnp.int32

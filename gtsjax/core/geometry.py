@@ -4,7 +4,7 @@
   heading ``θ_j``. Poses regressed in it are *relative* to the candidate.
 * **S**, the sensor's frame: what the scan measures.
 * **O**, the field's frame: ``p_O = μo + A (p_S − μs)`` (eq. 10), with a general 2×2 ``A`` (the map
-  transformation, ``_maptransform.Transform``).
+  transformation, ``f_maptransform.Transform``).
 
 Every function takes NumPy or JAX arrays and returns the same kind, so the jitted step (float32, on
 the device), training's labels (float64), evaluation and the file writers (NumPy, on the host) share

@@ -16,7 +16,7 @@ to the nearest of them, in that class's own scale (each input divided by the cla
 exceeds the class's threshold. The examples kept for the test (:class:`Support`, a fixed number per
 class) and the thresholds (a high quantile of the distances of held-out examples of the class,
 with a margin) come from training and are stored in the model. Before the argmax, each class's
-shape envelope (stage c, :class:`~gtsjax._filters.Envelope`) removes the classes a candidate cannot
+shape envelope (stage c, :class:`~gtsjax.core.c_filters.Envelope`) removes the classes a candidate cannot
 be, so a leg is never "robot" because of its size.
 """
 
@@ -24,7 +24,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from .gp import GP, SparseGP
+from ..gp import GP, SparseGP
 
 BACKGROUND = 0
 # Winning class score needed to keep a candidate, every class's until training says otherwise: the

@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from ._geometry import affine_heading, field_to_sensor, rot, sensor_pose, sensor_to_field, wrap
+from .geometry import affine_heading, field_to_sensor, rot, sensor_pose, sensor_to_field, wrap
 
 _F32 = jnp.float32
 

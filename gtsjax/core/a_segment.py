@@ -21,7 +21,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from ._scan import Scan
+from .scan import Scan
 
 _F32 = jnp.float32
 _I32 = jnp.int32

@@ -85,7 +85,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from ._geometry import wrap
+from .geometry import wrap
 
 _F32 = jnp.float32
 NX = 6  # x, y, theta, vx, vy, omega

@@ -11,11 +11,11 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from ._features import Features, characterise_all
-from ._filters import binary_filter
-from ._precision import exact_products
-from ._scan import Scan
-from ._segment import Candidates, segment
+from .a_segment import Candidates, segment
+from .b_features import Features, characterise_all
+from .c_filters import binary_filter
+from .precision import exact_products
+from .scan import Scan
 
 _F32 = jnp.float32
 _I32 = jnp.int32

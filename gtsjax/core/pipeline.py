@@ -16,16 +16,16 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from ._classify import classify, gp_inputs
-from ._filters import envelope_pass, partial_view, shape_quantities
-from ._frontend import front_end
-from ._geometry import in_bounds
-from ._maptransform import Transform, poses_to_field, update_transform
-from ._pose import regress, to_sensor_frame, vague_headings
-from ._precision import exact_products
-from ._scan import Scan
-from ._track import Detections, TrackerState, reported, track_step
-from .model import Model
+from ..model import Model
+from .c_filters import envelope_pass, partial_view, shape_quantities
+from .d_classify import classify, gp_inputs
+from .e_pose import regress, to_sensor_frame, vague_headings
+from .f_maptransform import Transform, poses_to_field, update_transform
+from .frontend import front_end
+from .g_track import Detections, TrackerState, reported, track_step
+from .geometry import in_bounds
+from .precision import exact_products
+from .scan import Scan
 
 _F32 = jnp.float32
 
@@ -44,8 +44,8 @@ class Perception(eqx.Module):
     cls: Int[Array, " cands"]
     ok: Bool[Array, " cands"]  # kept by the filters and classified as an object (not background)
     kept: Bool[Array, " cands"]  # kept by the binary filters (stage c), whatever the classifier said
-    partial: Bool[Array, " cands"]  # occluded view of a class seen whole (``_filters.partial_view``)
-    vague: Bool[Array, " cands"]  # heading variance above its class's ``heading_var_max`` (``_pose``)
+    partial: Bool[Array, " cands"]  # occluded view of a class seen whole (``c_filters.partial_view``)
+    vague: Bool[Array, " cands"]  # heading variance above its class's ``heading_var_max`` (``e_pose``)
     scores: Float[Array, "cands classes"]
     pose_s: Float[Array, "cands 3"]
     cov_s: Float[Array, "cands 3 3"]
@@ -53,7 +53,7 @@ class Perception(eqx.Module):
     n_kept: Int[Array, ""]
     n_overflow: Int[Array, ""]
     n_too_long: Int[Array, ""]
-    unposed: Int[Array, ""]  # objects beyond their class's cap (see ``_pose.regress``), dropped
+    unposed: Int[Array, ""]  # objects beyond their class's cap (see ``e_pose.regress``), dropped
     unlike: Int[Array, ""]  # candidates unlike every training example of their class (open set), dropped
     off_envelope: Int[Array, ""]  # candidates whose best class's shape envelope they lie outside
 
@@ -78,7 +78,7 @@ class Output(eqx.Module):
     n_objects: Int[Array, ""]  # candidates classified as landmarks or tracked objects
     n_overflow: Int[Array, ""]  # segments beyond K, dropped
     n_too_long: Int[Array, ""]  # segments longer than L beams, filtered
-    unposed: Int[Array, ""]  # objects beyond their class's cap (see ``_pose.regress``), dropped
+    unposed: Int[Array, ""]  # objects beyond their class's cap (see ``e_pose.regress``), dropped
     unlike: Int[Array, ""]  # candidates unlike every training example of their class (open set), dropped
     off_envelope: Int[Array, ""]  # candidates whose best class's shape envelope they lie outside
     degraded: Bool[Array, ""]  # too few landmarks: the previous transform was kept
@@ -102,7 +102,7 @@ def landmark_cap(model: Model) -> int:
 @exact_products
 def perceive(model: Model, scan: Scan, *, bucket: bool | None = None) -> Perception:
     """Stages a–e (segmentation … pose regression) of one scan; no state. ``bucket``: see
-    :func:`~gtsjax._pose.regress`; off where ``perceive`` is ``vmap``ped, and by default on a CPU
+    :func:`~gtsjax.core.e_pose.regress`; off where ``perceive`` is ``vmap``ped, and by default on a CPU
     only: on a GPU each branch choice waits for its index on the host (an H100's step took 2.23 ms
     with it, 1.61 ms without)."""
     if bucket is None:
