@@ -17,7 +17,9 @@ from gtsjax.core.pipeline import init_state, step
 from gtsjax.drivers.replay import process_log
 from gtsjax.io import save_log, save_site, to_scans
 from gtsjax.io.gtd import HEADER
+from gtsjax.io.logs import ScanLog, fit_to_model
 from gtsjax.io.modelfile import load_model, read_header
+from gtsjax.sensors import UTM_30LX
 from gtsjax.sim import simulate
 
 
@@ -57,8 +59,10 @@ def test_bad_model_files_are_one_line(tiny, tmp_path):
         with pytest.raises(InputError) as exc:
             load_model(path)
         assert match in str(exc.value) and str(path) in str(exc.value) and "\n" not in str(exc.value)
-    with pytest.raises(InputError, match="trained for sensor URG-04LX"):
-        load_model(tiny["path"], sensor_model="UTM-30LX")
+    utm = ScanLog(ranges=np.ones((1, UTM_30LX.n_beams), np.float32), stamps=np.zeros(1),
+                  angle_min=UTM_30LX.angle_min, angle_increment=UTM_30LX.angle_increment, sensor_model="UTM-30LX")
+    with pytest.raises(InputError, match=r"^utm\.npz: scans from a UTM-30LX, but the model was trained for sensor URG-04LX$"):
+        fit_to_model(utm, load_model(tiny["path"]), "utm.npz")
 
 
 def test_step_traced_once_per_model_shape_and_replay_equals_stepping(tiny):

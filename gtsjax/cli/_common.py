@@ -52,7 +52,7 @@ def track_summary(model, track_ids: dict, unlike: int, off_envelope: int) -> str
             f"outside their class's shape envelope: {off_envelope}")
 
 
-def load_for_run(model_path: Path, site_path: Path, *, sensor_model: str | None):
+def load_for_run(model_path: Path, site_path: Path):
+    """The model with the site attached (whether it fits the scans is ``fit_to_model``'s check)."""
     site = load_site(site_path)
-    model = load_model(model_path, sensor_model=sensor_model)
-    return model.with_site(site, where=str(site_path))
+    return load_model(model_path).with_site(site, where=str(site_path))

@@ -37,7 +37,7 @@ def replay_cmd(
     """Process a logged scan file into ground truth (GTD CSV)."""
     console = Console(stderr=True)
     raw = load_input(log, topic, console)
-    m = load_for_run(model, site, sensor_model=raw.sensor_model).with_confirmation(confirm_scans)
+    m = load_for_run(model, site).with_confirmation(confirm_scans)
     scan_log = fit_to_model(raw, m, log, crop=crop_fov, hint="" if crop_fov else "; crop it with --crop-fov")
     if detect_format(log) != "npz":  # what was read from another program's log, once it is known to fit
         console.print(f"{log} ({format_name(log)}): {describe(raw)}", soft_wrap=True)

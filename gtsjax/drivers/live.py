@@ -111,15 +111,11 @@ def rows_from_packed(stamp: float, packed: np.ndarray, class_names) -> list:
 
 
 def check_sensor(model: Model, sensor: SensorModel, where: str) -> None:
-    """Refuse a live sensor that is not the scanner ``model`` was trained for: another model name
-    (unless the model's is ``unknown``), or a geometry that breaks the rules a log must meet
-    (:func:`~gtsjax.io.logs.fit_geometry`: the same angular step within 1 %, every beam inside the
-    model's field of view, at most its beams). A live scan cannot be cropped, so a wider field of view
-    is refused too; the check runs on an empty scan with the sensor's geometry, through the same
-    function as a log's."""
-    if model.sensor_model not in (sensor.name, "unknown") or sensor.n_beams > model.n_beams:
-        raise InputError(where, f"the model was trained for {model.sensor_model} ({model.n_beams} beams) but the sensor "
-                                f"is a {sensor.name} ({sensor.n_beams} beams)")
+    """Refuse a live sensor that is not the scanner ``model`` was trained for, by the rules a log
+    must meet (:func:`~gtsjax.io.logs.fit_geometry`: the model's scanner name unless it is
+    ``unknown``, the same angular step within 1 %, every beam inside the model's field of view, at
+    most its beams), through the same function on an empty scan with the sensor's geometry. A live
+    scan cannot be cropped, so a wider field of view is refused too."""
     probe = ScanLog(ranges=np.zeros((1, sensor.n_beams), np.float32), stamps=np.zeros(1), angle_min=sensor.angle_min,
                     angle_increment=sensor.angle_increment, range_min=sensor.range_min, range_max=sensor.range_max,
                     sensor_model=sensor.name)

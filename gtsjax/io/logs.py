@@ -270,11 +270,16 @@ def fit_geometry(
     since the model never saw anything there; the log's range window narrows to the overlap. Without
     ``crop`` such a log is refused and ``hint`` (e.g. ``"; crop it with --crop-fov"``) ends the message.
 
+    A log that names its scanner must name the model's (unless the model's is ``unknown``): this is
+    the one check that a model fits the scans, for logs, background logs and live sensors alike.
+
     A model from before its geometry was stored (``angle_increment`` NaN) takes any log of at most
     ``n_beams`` beams, as it did then. Every refusal is :class:`InputError` naming ``where``; without
     ``crop`` a log that fits is returned as it is (the same object).
     """
     name = sensor_model or "unknown scanner"
+    if sensor_model not in (None, "unknown") and log.sensor_model is not None and log.sensor_model != sensor_model:
+        raise InputError(where, f"scans from a {log.sensor_model}, but the model was trained for sensor {sensor_model}")
     if not math.isfinite(angle_increment):
         if log.n_beams > n_beams:
             raise InputError(where, f"has {log.n_beams} beams per scan; the model ({name}) takes at most {n_beams}")

@@ -344,19 +344,12 @@ def _check_header(header, path: Path) -> None:
         raise InputError(path, f"model header field 'n_beams' is {header['n_beams']}, expected at least 1")
 
 
-def load_model(path: str | os.PathLike, *, sensor_model: str | None = None, n_beams: int | None = None) -> Model:
+def load_model(path: str | os.PathLike) -> Model:
     """Read a model file, checked against the model its header describes (see the module docstring).
-    With ``sensor_model``/``n_beams`` given (from the log or the live sensor), a model trained for
-    another scanner is refused with one line."""
+    Whether it fits a log or a sensor is :func:`~gtsjax.io.logs.fit_to_model`'s to say."""
     path = Path(path)
     header, npz = _open(path)
     try:
-        if sensor_model is not None and header["sensor_model"] != sensor_model:
-            raise InputError(
-                path, f"model trained for sensor {header['sensor_model']}, but the scans come from {sensor_model}"
-            )
-        if n_beams is not None and n_beams > header["n_beams"]:
-            raise InputError(path, f"model expects at most {header['n_beams']} beams per scan, got {n_beams}")
         try:
             top = _Reader(path, npz).read(header["schema"], Model, "")
         except (zipfile.BadZipFile, OSError, EOFError, ValueError) as err:
