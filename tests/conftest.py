@@ -7,6 +7,11 @@ from pathlib import Path
 
 import jax
 import pytest
+from jaxtyping import install_import_hook
+
+# The core's and the GP library's annotations (shapes, dtypes) checked at run time in every test: when a
+# function is traced, or called eagerly. Installed before anything imports gtsjax.
+install_import_hook(["gtsjax.core", "gtsjax.gp"], "beartype.beartype")
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")

@@ -34,15 +34,16 @@ class Candidates(eqx.Module):
         ``index[k, l] = start[k] + l`` for ``l < length[k]``. ``mask`` marks the window entries that are
         the segment's measurements; it is all False for dead slots and for ``too_long`` segments.
         ``ranges``, ``angles``, ``xy`` (the points in S) and ``intensities`` are gathered from the scan and 0
-    where ``mask`` is False.
+    where ``mask`` is False. These per-beam windows are None where batch training drops them
+    (``frontend.front_end_batch(windows=False)``).
     """
 
-    index: Int[Array, "*scans cands window"]
-    mask: Bool[Array, "*scans cands window"]
-    ranges: Float[Array, "*scans cands window"]
-    angles: Float[Array, "*scans cands window"]
-    xy: Float[Array, "*scans cands window 2"]  # the measurements in S, Cartesian
-    intensities: Float[Array, "*scans cands window"]
+    index: Int[Array, "*scans cands window"] | None
+    mask: Bool[Array, "*scans cands window"] | None
+    ranges: Float[Array, "*scans cands window"] | None
+    angles: Float[Array, "*scans cands window"] | None
+    xy: Float[Array, "*scans cands window 2"] | None  # the measurements in S, Cartesian
+    intensities: Float[Array, "*scans cands window"] | None
     live: Bool[Array, "*scans cands"]  # the slot holds a segment
     too_long: Bool[Array, "*scans cands"]  # the segment has more than L beams (mask empty)
     start: Int[Array, "*scans cands"]  # first beam of the segment (n_beams for dead slots)

@@ -42,7 +42,7 @@ class Features(eqx.Module):
 
     origin: Float[Array, "*cands 2"]  # ORS origin o′_j in S (eq. 8)
     heading: Float[Array, "*cands"]  # ORS heading θ_j in S (eq. 8)
-    points: Float[Array, "*cands window 2"]  # (x′, y′) of each measurement (eq. 9), 0 where masked
+    points: Float[Array, "*cands window 2"] | None  # (x′, y′) of each measurement (eq. 9), 0 where masked
     vector: Float[Array, "*cands features"]  # (w, d_0 … d_{N_d−1}, I_0 … I_{N_I−1}) (eq. 11–12)
     n_points: Int[Array, "*cands"]
     width: Float[Array, "*cands"]  # bounding box along y′: max y′ − min y′

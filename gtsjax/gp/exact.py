@@ -13,7 +13,7 @@ Conventions:
 import equinox as eqx
 import jax.numpy as jnp
 import jax.scipy.linalg as jsl
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from ..core.precision import exact_products
 from .errors import GPArgumentError
@@ -121,9 +121,9 @@ def _condition(params, x, y, mask, y_mean, x_mean, x_scale, jitter) -> GP:
 @exact_products
 def condition(
     params: Hyperparameters,
-    x: Float[Array, "points features"],
-    y: Float[Array, " points"],
-    mask: Bool[Array, " points"] | None = None,
+    x: Float[ArrayLike, "points features"],
+    y: Float[ArrayLike, " points"],
+    mask: Bool[ArrayLike, " points"] | None = None,
     *,
     jitter: float = DEFAULT_JITTER,
 ) -> GP:
