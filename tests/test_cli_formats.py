@@ -27,11 +27,10 @@ SPL_SITE = ('{"landmarks": [{"class": "post", "x": 0.0, "y": 1.3}, {"class": "po
 
 
 @pytest.fixture(scope="module")
-def logs(shared_dir):
-    d = shared_dir / "data" / "logs"
-    if not (d / LEG_BAG).exists():
-        pytest.skip("real logs not in the shared folder")
-    return d
+def logs(shared_file):
+    for name in (LEG_BAG, CARMEN, BREEZY):
+        shared_file("data", "logs", name)
+    return shared_file("data", "logs")
 
 
 def run(*args, env=None):

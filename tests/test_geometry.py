@@ -219,11 +219,10 @@ def one_line_exit_2(res, path, *fragments):
 
 
 @pytest.fixture(scope="module")
-def real_logs(shared_dir):
-    d = shared_dir / "data" / "logs"
-    if not (d / "leg_tracker_positive_1.bag").exists():
-        pytest.skip("real logs not in the shared folder")
-    return d
+def real_logs(shared_file):
+    for name in ("leg_tracker_positive_1.bag", "carmen_intel-corrected.log.gz"):
+        shared_file("data", "logs", name)
+    return shared_file("data", "logs")
 
 
 @pytest.fixture()

@@ -31,11 +31,10 @@ BREEZY = "breezyslam_exp1.dat"
 
 
 @pytest.fixture(scope="module")
-def logs(shared_dir):
-    d = shared_dir / "data" / "logs"
-    if not (d / LEG_BAG).exists():
-        pytest.skip("real logs not in the shared folder")
-    return d
+def logs(shared_file):
+    for name in (LEG_BAG, LEG_EXTRACTED, CARMEN, BREEZY):
+        shared_file("data", "logs", name)
+    return shared_file("data", "logs")
 
 
 # ------------------------------------------------------------------------------------------ ROS 1, real
