@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _utils import assert_allclose
 
 from gtsjax._features import characterise
 from gtsjax._filters import binary_filter, in_bounds
@@ -407,10 +408,10 @@ def test_log_level_matches_scan_level():
         one = front_end(cfg, scan)
         got = jax.tree_util.tree_map(lambda a, t=t: a[t], out)
         for x, y in zip(jax.tree_util.tree_leaves(got), jax.tree_util.tree_leaves(one), strict=True):
-            np.testing.assert_allclose(np.asarray(x), np.asarray(y), rtol=1e-6, atol=1e-6)
+            assert_allclose(np.asarray(x), np.asarray(y))
         for name in ("vector", "origin", "heading", "width", "height", "n_points"):
             a, b = getattr(compact.features, name)[t], getattr(one.features, name)
-            np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-6, atol=1e-6)
+            assert_allclose(np.asarray(a), np.asarray(b))
         np.testing.assert_array_equal(np.asarray(compact.keep[t]), np.asarray(one.keep))
         np.testing.assert_array_equal(np.asarray(compact.candidates.start[t]), np.asarray(one.candidates.start))
 
