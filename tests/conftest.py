@@ -33,11 +33,6 @@ def shared_path(*parts: str) -> Path:
 
 
 @pytest.fixture(scope="session")
-def shared_dir() -> Path:
-    return shared_path()
-
-
-@pytest.fixture(scope="session")
 def shared_file():
     """:func:`shared_path` for the tests: ``shared_file("data", "logs", NAME)`` skips (fails in CI) when
     the file is not there."""
