@@ -1,17 +1,16 @@
 """The command line's promises: a user's mistake is one line on stderr and exit status 2."""
 
 import re
-import subprocess
-import sys
 
 import numpy as np
 import pytest
+from _utils import run_cli
 
 from gtsjax.cli import main
 
 
 def run(*args):
-    return subprocess.run([sys.executable, "-m", "gtsjax", *args], capture_output=True, text=True, timeout=120)
+    return run_cli(*args, timeout=120)
 
 
 def test_info_bad_file_one_line_exit_2(tmp_path):
