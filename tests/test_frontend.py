@@ -211,15 +211,12 @@ def test_synthetic_scenes_match_reference(sensor, bbox):
 
 
 def test_every_simulated_scenario_matches_reference():
-    try:
-        from gtsjax import sim
-        from gtsjax.sensors import get_model
+    from gtsjax.sensors import get_model
+    from gtsjax.sim import SCENARIOS, simulate  # part of the package: an import error is a failure, not a skip
 
-        scenarios, simulate = sim.SCENARIOS, sim.simulate
-    except (ImportError, AttributeError) as err:
-        pytest.skip(f"gtsjax.sim not available yet ({err}); synthetic scenes cover the reference check")
+    assert {"spl-train", "spl-eval", "lab-eval", "hall-eval"} <= set(SCENARIOS)  # the README's sites: not a vacuous loop
     cfg = FrontEndConfig()
-    for name in scenarios:
+    for name in SCENARIOS:
         log, _site = simulate(name, seed=0, n_scans=3)
         n_beams = get_model(log.sensor_model).n_beams if log.sensor_model else log.n_beams
         scans = to_scans(log, n_beams)
