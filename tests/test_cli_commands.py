@@ -346,6 +346,7 @@ def test_evaluate_labelled_log_with_site_and_error_map(tmp_path):
     )
     assert res.returncode == 0, res.stderr
     result = json.loads((out / "results.json").read_text())[str(tmp_path / "eval.npz")]
+    assert "points" in result, result  # a per-point table and an error map for a static log
     truth = log.truth_poses[:, 0]
     points = np.unique(np.round(truth[~np.isnan(truth[:, 0]), :2], 6), axis=0)
     got = np.array([[p["x"], p["y"]] for p in result["points"]])

@@ -106,6 +106,7 @@ def test_replay_writes_spec_csv(tiny, tmp_path):
     # The robot walks in every scan: against its true poses (README: recall 99.7 % after the first
     # second, 0.9 cm, 2.7°, no id switch), one track, in ≥ 90 % of the scans after the first second,
     # within the README's targets for a moving robot (5 cm, 6°), the position within 3 cm.
+    assert len(rows) > 1, "no track reported"
     assert {(r[1], r[2]) for r in rows[1:]} == {(rows[1][1], "robot")}
     t = np.searchsorted(log.stamps, stamps)
     assert np.sum(t >= 10) >= 0.9 * (log.n_scans - 10)
