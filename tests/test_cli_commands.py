@@ -285,7 +285,7 @@ def test_emulate_fault_options(tmp_path, option, value, fault):
         path = re.search(r" on (\S+) \(pty", first[0])[1]
         seen = {
             "checksum": lambda s: s.checksum_errors > 0,
-            "damaged": lambda s: s.bad_frames + s.garbage_bytes > 0,
+            "damaged": lambda s: s.truncated + s.malformed + s.garbage_bytes > 0,  # never from a bad sum alone
             "stall": lambda s: s.timeouts > 0,
             "disconnect": lambda s: s.io_errors > 0 and s.reconnects > 0,
         }[fault]
@@ -304,6 +304,8 @@ def test_emulate_fault_options(tmp_path, option, value, fault):
         assert len(frames) >= 10 and all(f.frame.ranges_mm.astype(np.int64).tobytes() in served for f in frames)
         if fault in ("checksum", "damaged"):
             assert stats.timeouts == stats.reconnects == 0, stats  # only the fault asked for
+        if fault == "checksum":
+            assert stats.truncated == stats.malformed == stats.garbage_bytes == 0, stats
     finally:
         proc.send_signal(signal.SIGINT)
         try:
