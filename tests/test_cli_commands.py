@@ -393,7 +393,7 @@ EXIT_2 = {
             "--model",
             str(DEMO_MODEL),
             "--out",
-            "{d}/o.csv",
+            "{o}/o.csv",
         ],
         "bad_site.json",
         SITE,
@@ -408,13 +408,13 @@ EXIT_2 = {
             "--model",
             "{d}/bad_model.npz",
             "--out",
-            "{d}/o.csv",
+            "{o}/o.csv",
         ],
         "bad_model.npz",
         MODEL,
     ),
     "train, bad site": (
-        ["train", "{d}/log.npz", "--site", "{d}/bad_site.json", "--out", "{d}/m.npz"],
+        ["train", "{d}/log.npz", "--site", "{d}/bad_site.json", "--out", "{o}/m.npz"],
         "bad_site.json",
         SITE,
     ),
@@ -424,17 +424,17 @@ EXIT_2 = {
         "is a directory",
     ),
     "evaluate, bad site": (
-        ["evaluate", "--model", str(DEMO_MODEL), "{d}/log.npz", "--site", "{d}/bad_site.json", "--out-dir", "{d}/ev"],
+        ["evaluate", "--model", str(DEMO_MODEL), "{d}/log.npz", "--site", "{d}/bad_site.json", "--out-dir", "{o}/ev"],
         "bad_site.json",
         SITE,
     ),
     "evaluate, bad model": (
-        ["evaluate", "--model", "{d}/bad_model.npz", "{d}/log.npz", "--site", "{d}/site.json", "--out-dir", "{d}/ev"],
+        ["evaluate", "--model", "{d}/bad_model.npz", "{d}/log.npz", "--site", "{d}/site.json", "--out-dir", "{o}/ev"],
         "bad_model.npz",
         MODEL,
     ),
     "plot, bad site": (
-        ["plot", "{d}/gtd.csv", "--site", "{d}/bad_site.json", "--out", "{d}/o.png"],
+        ["plot", "{d}/gtd.csv", "--site", "{d}/bad_site.json", "--out", "{o}/o.png"],
         "bad_site.json",
         SITE,
     ),
@@ -444,12 +444,13 @@ EXIT_2 = {
 
 
 @pytest.mark.parametrize("case", sorted(EXIT_2))
-def test_bad_site_or_model_is_one_line_and_exit_2(inputs, capsys, case):
+def test_bad_site_or_model_is_one_line_and_exit_2(inputs, tmp_path, capsys, case):
+    """Inputs in a shared folder ({d}), outputs asked for in this test's own ({o}), which stays empty."""
     args, names, fragment = EXIT_2[case]
     before = sorted(p.name for p in inputs.iterdir())
     capsys.readouterr()
-    code = main([a.format(d=inputs) for a in args])
+    code = main([a.format(d=inputs, o=tmp_path) for a in args])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2, err
     assert len(err) == 1 and err[0].startswith("gtsjax: ") and names in err[0] and fragment in err[0], err
-    assert sorted(p.name for p in inputs.iterdir()) == before  # nothing written
+    assert sorted(p.name for p in inputs.iterdir()) == before and list(tmp_path.iterdir()) == []  # nothing written
