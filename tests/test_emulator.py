@@ -22,7 +22,7 @@ class Client:
         self.dec = scip.StreamDecoder()
         self.raw = bytearray()
 
-    def read_replies(self, n, timeout=2.0):
+    def read_replies(self, n, timeout=10.0):  # a bound against hanging: returns once n replies are in
         out = []
         deadline = time.monotonic() + timeout
         while len(out) < n and time.monotonic() < deadline:
@@ -32,7 +32,7 @@ class Client:
                 out += self.dec.feed(chunk)
         return out
 
-    def ask(self, command: bytes, n=1, timeout=2.0):
+    def ask(self, command: bytes, n=1, timeout=10.0):
         self.ser.write(command)
         return self.read_replies(n, timeout)
 
@@ -158,7 +158,7 @@ def test_checksum_faults_are_seeded_and_caught_by_the_decoder():
         with SensorEmulator(URG_04LX, frame_source(URG_04LX), faults=faults) as emu:
             c = Client(emu.path)
             frames = [r for r in c.ask(scip.md_command(44, 725, count=8)) if isinstance(r, scip.ScanFrame)]
-            deadline = time.monotonic() + 3.0
+            deadline = time.monotonic() + 30.0
             while len(frames) + c.dec.stats.checksum_errors < 8 and time.monotonic() < deadline:
                 frames += [r for r in c.read_replies(1, timeout=0.1) if isinstance(r, scip.ScanFrame)]
             assert len(frames) + c.dec.stats.checksum_errors == 8 == emu.frames_sent
@@ -195,14 +195,24 @@ def test_stall_sends_nothing_for_its_duration(urg):
     emu, c = urg
     c.ask(scip.md_command(44, 725), n=2)
     emu.inject_stall(0.5)
-    deadline = time.monotonic() + 1.0
+    deadline = time.monotonic() + 30.0
     while emu.faults.stalls == 0 and time.monotonic() < deadline:
         time.sleep(0.01)
-    c.ser.reset_input_buffer()
-    c.dec = scip.StreamDecoder()
-    assert c.read_replies(1, timeout=0.3) == []
-    assert len(c.read_replies(2, timeout=1.0)) >= 2  # and then the stream resumes
+    before = emu.frames_sent
+    assert len(c.read_replies(3, timeout=30.0)) == 3  # the stream resumes after the stall
     assert emu.faults.stalls == 1
+    # By the emulator's own record, not this thread's timing: nothing handed to the pty for at least the
+    # stall, from a block sent before it was seen; one jump of the sensor clock there (the first block
+    # after a stall still carries the slot that fell due first, so the jump may follow it), the scans
+    # that fell due in the stall lost; else a block every 100 ms.
+    sent = list(emu.sent_log)
+    stamps, times = np.array([ms for ms, _ in sent]), np.array([t for _, t in sent])
+    gap = int(np.argmax(np.diff(times)))
+    jumps = np.flatnonzero(np.diff(stamps) > 101)
+    assert times[gap + 1] - times[gap] >= 0.45 and gap < before, (np.diff(times), before)
+    assert len(jumps) == 1 and jumps[0] in (gap, gap + 1), (np.diff(stamps), gap)
+    assert stamps[jumps[0] + 1] - stamps[jumps[0]] >= 500 - 100
+    assert np.all(np.abs(np.delete(np.diff(stamps), jumps[0]) - 100) <= 1)
 
 
 def test_serve_prints_the_path_and_serves_a_saved_log_until_stopped(tmp_path):
@@ -264,10 +274,10 @@ def test_urg_library_sample_sequence(model):
             assert {"DMIN", "DMAX", "ARES", "AMIN", "AMAX", "AFRT", "SCAN"} <= set(pp.fields)
             assert scip.sensor_model_from_pp(pp) == model
             cmd = (scip.me_command if model.has_intensity else scip.md_command)(model.amin, model.amax, count=0)
-            frames = [f for f in c.ask(cmd, n=4, timeout=3.0) if isinstance(f, scip.ScanFrame) and f.status == "99"]
+            frames = [f for f in c.ask(cmd, n=4, timeout=30.0) if isinstance(f, scip.ScanFrame) and f.status == "99"]
             assert len(frames) >= 2 and all(f.n_values == model.n_beams for f in frames)
             c.ser.write(scip.qt_command())
-            replies = c.read_replies(20, timeout=1.0)  # frames already on their way, then QT's reply
+            replies = c.read_replies(20, timeout=3.0)  # frames already on their way, then QT's reply
             assert any(getattr(r, "command", "") == "QT" and r.ok for r in replies)
             assert c.dec.stats.dropped == 0
         finally:
