@@ -20,11 +20,28 @@ jax.config.update("jax_numpy_rank_promotion", "raise")
 SHARED = Path(os.environ.get("GTSJAX_SHARED", Path(__file__).resolve().parents[1].parent / "shared"))
 
 
+def in_ci() -> bool:
+    return os.environ.get("CI", "").strip().lower() in ("true", "1", "yes")
+
+
+def shared_path(*parts: str) -> Path:
+    """``SHARED/parts...`` (the real captures and logs beside the clone). Missing, the test is skipped on a
+    developer's machine, and fails in CI (``CI=true``): there the real data must be present, or the
+    tests on it would pass by not running."""
+    p = SHARED.joinpath(*parts)
+    if not p.exists():
+        what = f"shared data not found at {p}"
+        if in_ci():
+            pytest.fail(f"{what} (CI=true: the tests on real captures and logs must run)", pytrace=False)
+        pytest.skip(what)
+    return p
+
+
 @pytest.fixture(scope="session")
-def shared_dir() -> Path:
-    if not SHARED.is_dir():
-        pytest.skip(f"shared data folder not found at {SHARED}")
-    return SHARED
+def shared_file():
+    """:func:`shared_path` for the tests: ``shared_file("data", "logs", NAME)`` skips (fails in CI) when
+    the file is not there."""
+    return shared_path
 
 
 @pytest.fixture(scope="session")

@@ -1,15 +1,16 @@
 """The command line's promises: a user's mistake is one line on stderr and exit status 2."""
 
-import subprocess
-import sys
+import re
 
 import numpy as np
+import pytest
+from _utils import run_cli
 
 from gtsjax.cli import main
 
 
 def run(*args):
-    return subprocess.run([sys.executable, "-m", "gtsjax", *args], capture_output=True, text=True, timeout=120)
+    return run_cli(*args, timeout=120)
 
 
 def test_info_bad_file_one_line_exit_2(tmp_path):
@@ -35,4 +36,38 @@ def test_info_good_files(tmp_path, capsys):
 
 def test_usage_error_exit_2():
     assert run("info", "--no-such-flag").returncode == 2
-    assert run("sensors").returncode == 0
+
+
+# The data sheets' figures: beams, field of view [°], range window [m], scans per second, intensity.
+DATA_SHEETS = {
+    "URG-04LX": (682, 240, (0.02, 5.6), 10, "no"),
+    "URG-04LX-UG01": (682, 240, (0.02, 5.6), 10, "no"),
+    "UTM-30LX": (1081, 270, (0.1, 30), 40, "yes"),
+    "UST-10LX": (1081, 270, (0.06, 10), 40, "yes"),
+}
+
+
+def test_sensors_lists_the_data_sheet_figures(capsys, monkeypatch):
+    """``gtsjax sensors``: one row per known scanner with its data sheet's figures, and its noise as a
+    reader would write it (3 mm up to 1 m, then 0.3 % of the range, for the URG-04LX)."""
+    from gtsjax.sensors import MODELS
+
+    monkeypatch.setenv("COLUMNS", "200")  # one line per row
+    assert main(["sensors"]) == 0
+    rows = {}
+    for line in capsys.readouterr().out.splitlines():
+        cells = [c.strip() for c in line.split("│")[1:-1]]
+        if cells and cells[0] in DATA_SHEETS:
+            rows[cells[0]] = cells
+    assert sorted(rows) == sorted(DATA_SHEETS) == sorted(MODELS)
+    for name, (beams, fov, (lo, hi), rate, inten) in DATA_SHEETS.items():
+        _, n, _, _, fov_text, window, rate_text, inten_text, noise = rows[name]
+        assert int(n) == beams and abs(float(fov_text) - fov) < 1.0, rows[name]
+        assert tuple(float(v) for v in window.split("–")) == (lo, hi) and float(rate_text) == rate, rows[name]
+        assert inten_text == inten
+        m = MODELS[name].noise
+        far = m.frac_far * 100 if m.frac_far else m.sigma_far * 1000
+        numbers = [float(v) for v in re.findall(r"\d+(?:\.\d+)?", noise)]
+        assert numbers[0] == pytest.approx(m.sigma * 1000), noise
+        if m.knee != float("inf"):
+            assert numbers[1:] == pytest.approx([m.knee, far]), noise

@@ -5,13 +5,12 @@ loop over the beams; the commands against real logs of other scanners (SICK CARM
 
 import dataclasses
 import math
-import subprocess
-import sys
 from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from _utils import run_cli
 
 from gtsjax import InputError
 from gtsjax.io import ScanLog, save_log
@@ -204,8 +203,7 @@ def test_live_check_refuses_another_step_or_a_wider_field(demo_model):
 
 
 def run(*args):
-    return subprocess.run([sys.executable, "-m", "gtsjax", *map(str, args)], capture_output=True, text=True,
-                          timeout=300)
+    return run_cli(*args, timeout=300)
 
 
 def one_line_exit_2(res, path, *fragments):
@@ -219,11 +217,10 @@ def one_line_exit_2(res, path, *fragments):
 
 
 @pytest.fixture(scope="module")
-def real_logs(shared_dir):
-    d = shared_dir / "data" / "logs"
-    if not (d / "leg_tracker_positive_1.bag").exists():
-        pytest.skip("real logs not in the shared folder")
-    return d
+def real_logs(shared_file):
+    for name in ("leg_tracker_positive_1.bag", "carmen_intel-corrected.log.gz"):
+        shared_file("data", "logs", name)
+    return shared_file("data", "logs")
 
 
 @pytest.fixture()

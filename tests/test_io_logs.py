@@ -5,6 +5,7 @@ import zipfile
 
 import numpy as np
 import pytest
+from _utils import assert_allclose
 
 from gtsjax import InputError
 from gtsjax.io import ScanLog, from_scans, load_log, save_log, to_scans
@@ -179,7 +180,7 @@ def test_to_scans_pads_masks_and_round_trips(tmp_path):
                 assert scans.ranges[t, i] == r[t, i]
             else:
                 assert scans.ranges[t, i] == 0 and scans.intensities[t, i] == 0
-    np.testing.assert_allclose(np.asarray(scans.dt), np.r_[0.0, np.full(4, 0.1)], atol=1e-6)
+    assert_allclose(np.asarray(scans.dt), np.r_[0.0, np.full(4, 0.1)])
     back = from_scans(scans, log.stamps, 600, angle_min=log.angle_min, angle_increment=log.angle_increment,
                       range_min=log.range_min, range_max=log.range_max, sensor_model=log.sensor_model)
     np.testing.assert_array_equal(back.ranges, np.where(log.valid(), log.ranges, 0))
@@ -190,7 +191,7 @@ def test_to_scans_pads_masks_and_round_trips(tmp_path):
     again = from_scans(to_scans(clean), clean.stamps, 600, angle_min=clean.angle_min,
                        angle_increment=clean.angle_increment, with_intensities=False)
     np.testing.assert_array_equal(again.ranges, clean.ranges)
-    np.testing.assert_allclose(np.asarray(scans.angles()[0, :600]), log.angles(), atol=1e-6)
+    assert_allclose(np.asarray(scans.angles()[0, :600]), log.angles())
 
 
 def test_to_scans_refuses_too_many_beams(tmp_path):

@@ -3,13 +3,12 @@ and the replay command's contract (CSV per spec; bad input is one line and exit 
 
 import csv
 import dataclasses
-import subprocess
-import sys
 
 import equinox as eqx
 import jax
 import numpy as np
 import pytest
+from _utils import run_cli
 
 from gtsjax import InputError
 from gtsjax.cli import main
@@ -24,12 +23,22 @@ from gtsjax.sim import simulate
 
 
 def test_training_report_is_complete(tiny):
+    """The small model's held-out figures, against what guessing gives and what the README reports for
+    the shipped model (98.9 % accuracy, 1.8 cm; this one sees 60 examples a class and 80 poses):
+    accuracy ≥ 95 %, well above always answering the commonest class; every class found in ≥ 85 % of its
+    examples; position RMSE ≤ 5 cm (the README's target for a moving robot); a heading median under
+    45°, where a guessed heading's is 90°."""
     rep = tiny["report"]
     assert rep["classes"] == ["background", "post", "robot"]
     assert all(rep["examples_used"][c] > 0 for c in rep["classes"])
     held = rep["heldout"]
-    assert held["n"] > 0 and 0.0 <= held["accuracy"] <= 1.0
-    assert np.isfinite(held["pose"]["robot"]["rmse_xy_m"])
+    per_class = held["per_class"]
+    assert sum(per_class[c]["n"] for c in rep["classes"]) == held["n"] > 100
+    commonest = max(per_class[c]["n"] for c in rep["classes"]) / held["n"]
+    assert held["accuracy"] >= max(0.95, commonest + 0.5 * (1 - commonest)), held
+    assert all(per_class[c]["recall"] >= 0.85 for c in rep["classes"]), per_class
+    pose = held["pose"]["robot"]
+    assert pose["n"] > 20 and pose["rmse_xy_m"] <= 0.05 and pose["median_theta_deg"] < 45.0, pose
 
 
 def test_model_file_round_trip(tiny):
@@ -99,11 +108,6 @@ def test_step_traced_once_per_model_shape_and_replay_equals_stepping(tiny):
     np.testing.assert_array_equal(np.asarray(state.tracker.track_id), np.asarray(final.tracker.track_id))
 
 
-def run_cli(*args):
-    return subprocess.run([sys.executable, "-m", "gtsjax", *map(str, args)], capture_output=True, text=True,
-                          timeout=600)
-
-
 def test_replay_writes_spec_csv(tiny, tmp_path):
     log, site = simulate("spl-trajectory", seed=31, n_scans=60)
     save_log(log, tmp_path / "log.npz")
@@ -119,6 +123,18 @@ def test_replay_writes_spec_csv(tiny, tmp_path):
     assert all(-np.pi < float(r[5]) <= np.pi for r in rows[1:])
     sensor = np.loadtxt(tmp_path / "sensor.csv", delimiter=",", skiprows=1)
     assert sensor.shape == (60, 6)
+    # The robot walks in every scan: against its true poses (README: recall 99.7 % after the first
+    # second, 0.9 cm, 2.7°, no id switch), one track, in ≥ 90 % of the scans after the first second,
+    # within the README's targets for a moving robot (5 cm, 6°), the position within 3 cm.
+    assert len(rows) > 1, "no track reported"
+    assert {(r[1], r[2]) for r in rows[1:]} == {(rows[1][1], "robot")}
+    t = np.searchsorted(log.stamps, stamps)
+    assert np.sum(t >= 10) >= 0.9 * (log.n_scans - 10)
+    truth = log.truth_poses[t, 0]
+    est = np.array([[float(r[3]), float(r[4]), float(r[5])] for r in rows[1:]])
+    e_pos = np.linalg.norm(est[:, :2] - truth[:, :2], axis=1)
+    e_th = np.angle(np.exp(1j * (est[:, 2] - truth[:, 2])))
+    assert np.sqrt(np.mean(e_pos**2)) <= 0.03 and np.degrees(np.sqrt(np.mean(e_th**2))) <= 6.0, (e_pos, e_th)
 
 
 def test_replay_confirm_scans_delays_the_first_row_only(tiny, tmp_path):
@@ -161,12 +177,12 @@ def test_replay_bad_inputs_exit_2_with_one_line(tiny, tmp_path):
     save_log(simulate("lab-eval", n_scans=3)[0], utm_log)
     garbage = tmp_path / "garbage.npz"
     garbage.write_bytes(b"PK\x03\x04 truncated zip")
+    # One case per input replay reads, and per check between them; the loaders' other messages are
+    # tested once, through their functions (test_io_logs.py, test_io_site.py, test_bad_model_files_...).
     cases = [
-        (tmp_path / "missing.npz", good_site, tiny["path"], "no such file"),
         (garbage, good_site, tiny["path"], "not a NumPy .npz archive"),
         (good_log, bad_site, tiny["path"], "at least 3 landmarks"),
         (good_log, other_site, tiny["path"], "unknown to the model"),
-        (good_log, good_site, good_log, "no model header"),
         (utm_log, good_site, tiny["path"], "trained for sensor URG-04LX"),
     ]
     for log_p, site_p, model_p, match in cases:

@@ -11,6 +11,7 @@ import time
 
 import numpy as np
 import pytest
+from _utils import cli_env, run_cli
 
 from gtsjax.errors import InputError
 from gtsjax.io.logs import load_log
@@ -92,13 +93,15 @@ CHILD = textwrap.dedent(
 )
 
 
-def test_sigkill_loses_at_most_the_last_second(tmp_path):
-    out = tmp_path / "raw.npz"
-    proc = subprocess.Popen([sys.executable, "-c", CHILD, str(out)], stdout=subprocess.PIPE, text=True, bufsize=1)
+def record_then_sigkill(out, n_scans):
+    """Run the recording child until it has appended ``n_scans`` scans, SIGKILL it; the last scan it
+    reported appended."""
+    proc = subprocess.Popen([sys.executable, "-c", CHILD, str(out)], stdout=subprocess.PIPE, text=True, bufsize=1,
+                            env=cli_env())
     last = -1
-    deadline = time.monotonic() + 20.0
+    deadline = time.monotonic() + 60.0  # against a child that never starts, not a measurement
     try:
-        while last < 40 and time.monotonic() < deadline:  # about a second of scans at 40 Hz
+        while last < n_scans - 1 and time.monotonic() < deadline:
             ready, _, _ = select.select([proc.stdout], [], [], 0.5)
             if ready:
                 line = proc.stdout.readline()
@@ -109,8 +112,14 @@ def test_sigkill_loses_at_most_the_last_second(tmp_path):
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait(timeout=5)
         proc.stdout.close()
-    assert last >= 40, "the recording child did not get going"
+    assert last >= n_scans - 1, "the recording child did not get going"
     assert proc.returncode == -signal.SIGKILL and not out.exists()
+    return last
+
+
+def test_sigkill_loses_at_most_the_last_second(tmp_path):
+    out = tmp_path / "raw.npz"
+    last = record_then_sigkill(out, 41)  # about a second of scans at 40 Hz
     log = recover(journal_path(out))  # the one documented command, as a function
     assert log is not None and out.exists()
     n_scans = load_log(out).n_scans
@@ -150,18 +159,26 @@ def test_recover_cuts_a_torn_record_and_skips_a_damaged_one(tmp_path):
 
 
 def test_recovery_command_line(tmp_path, capsys):
-    out, rec = _journal_with(tmp_path, 3)
-    rec._closed = True  # as if killed: the journal stays, no log
-    rec._stop.set()
-    os.close(rec._fd)
+    """A recording killed with SIGKILL, recovered by ``gtsjax recover`` and by ``python -m
+    gtsjax.io.record``: every scan the child had reported appended is there, as it was recorded."""
+    out = tmp_path / "raw.npz"
+    last = record_then_sigkill(out, 10)
+    journal = journal_path(out)
     target = tmp_path / "recovered.npz"
-    cmd = [sys.executable, "-m", "gtsjax.io.record", str(rec.journal), str(target)]
-    done = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
+    done = run_cli("recover", journal, target, timeout=120)
     assert done.returncode == 0, done.stderr
-    assert "recovered 3 scans" in done.stdout
-    assert load_log(target).n_scans == 3
+    n = load_log(target).n_scans
+    assert f"recovered {n} scans" in done.stdout and last + 1 <= n <= last + 2  # none of those reported is lost
+    log = load_log(target)
+    for k in range(n):
+        np.testing.assert_array_equal(log.ranges[k], _scan(k, UTM_30LX.n_beams))
+        assert log.intensities[k, 0] == k and log.stamps[k] == 1000.0 + 0.025 * k
+    cmd = [sys.executable, "-m", "gtsjax.io.record", str(journal), str(tmp_path / "again.npz")]
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=60, env=cli_env())
+    assert done.returncode == 0, done.stderr
+    assert load_log(tmp_path / "again.npz").n_scans == n
     # The same entry point in-process: default output is the journal's name without .journal.
-    assert main([str(rec.journal)]) == 0 and load_log(out).n_scans == 3
+    assert main([str(journal)]) == 0 and load_log(out).n_scans == n
     bad = tmp_path / "bad.journal"
     bad.write_bytes(b"not a journal")
     capsys.readouterr()
@@ -179,14 +196,14 @@ def test_records_a_live_link(tmp_path):
     with SensorEmulator(UTM_30LX) as emu, Link(emu.path, intensity=True) as link:
         rec = Recorder(out, link.model, intensities=True)
         frames = []
-        deadline = time.monotonic() + 0.5
-        while time.monotonic() < deadline:
+        deadline = time.monotonic() + 30.0  # against a link that never delivers, not a measurement
+        while len(frames) < 10 and time.monotonic() < deadline:
             f = link.get(timeout=0.1)
             if f is not None:
                 rec.append_frame(f)
                 frames.append(f)
         rec.close()
     log = load_log(out)
-    assert log.n_scans == len(frames) >= 10
+    assert log.n_scans == len(frames) == 10
     np.testing.assert_array_equal(log.ranges[-1], frames[-1].ranges_m)
     np.testing.assert_array_equal(log.stamps, [f.stamp for f in frames])

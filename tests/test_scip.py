@@ -23,11 +23,8 @@ FUZZ = settings(
 
 
 @pytest.fixture(scope="module")
-def scip_dir(shared_dir):
-    d = shared_dir / "data" / "scip"
-    if not d.is_dir():
-        pytest.skip(f"no SCIP captures at {d}")
-    return d
+def scip_dir(shared_file):
+    return shared_file("data", "scip")
 
 
 @pytest.fixture(scope="module")

@@ -1,5 +1,7 @@
 """The serial link end to end against the pty emulator (real pyserial, no mocks), and ClockSync
-against a synthetic clock. Every wait is bounded by a deadline."""
+against a synthetic clock. Every wait is bounded by a deadline, and no assertion is on the wall clock:
+what the link delivered is counted against what the emulator sent (a busy machine delivers later,
+not differently)."""
 
 import os
 import time
@@ -7,47 +9,48 @@ import tty
 
 import numpy as np
 import pytest
+from _utils import assert_allclose, frame_source
 
 from gtsjax.io import scip
 from gtsjax.io.serial import ClockSync, Link, LinkError
 from gtsjax.sensors import URG_04LX, UTM_30LX
 from gtsjax.sim.emulator import Faults, SensorEmulator
 
-
-def _source(model):
-    """Scan i: beam b at 500 + (7 b + 13 i) % 3000 mm, every 50th beam no return; beam 0 holds i."""
-    b = np.arange(model.n_beams)
-
-    def source(i):
-        r = 500 + (7 * b + 13 * i) % 3000
-        r = np.where(b % 50 == 49, 0, r)
-        r[0] = 1000 + i % 1000
-        inten = (b * 3 + i) % 4000 if model.has_intensity else None
-        return r, inten
-
-    return source
+# Time allowed for a wanted number of frames to arrive: a bound against hanging, never a measurement.
+PATIENCE_S = 30.0
 
 
-def collect(link, seconds, max_frames=10_000):
+def collect(link, n, timeout=PATIENCE_S):
+    """The next ``n`` frames the link delivers (fewer only if ``timeout`` seconds pass first)."""
     out = []
-    deadline = time.monotonic() + seconds
-    while time.monotonic() < deadline and len(out) < max_frames:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline and len(out) < n:
         f = link.get(timeout=max(0.0, min(0.1, deadline - time.monotonic())))
         if f is not None:
             out.append(f)
     return out
 
 
+def scan_index(f):
+    return int(f.frame.ranges_mm[0]) - 1000  # the source writes 1000 + i into beam 0 of scan i
+
+
 def check_frames(frames, model):
     """Every delivered frame must be exactly what the source gave for its scan: no damage slips through."""
-    src = _source(model)
+    src = frame_source(model)
     for f in frames:
-        i = int(f.frame.ranges_mm[0]) - 1000
-        r, inten = src(i)
+        r, inten = src(scan_index(f))
         np.testing.assert_array_equal(f.frame.ranges_mm, r)
         if f.frame.intensities is not None:
             np.testing.assert_array_equal(f.frame.intensities, inten)
-        np.testing.assert_allclose(f.ranges_m, r / 1000.0, rtol=1e-6)
+        assert_allclose(f.ranges_m, r / 1000.0)
+
+
+def lost_between(frames):
+    """Scans the source produced between the first and the last delivered frame that were not delivered."""
+    idx = np.array([scan_index(f) for f in frames])
+    assert np.all(np.diff(idx) >= 1), idx  # in order, no frame twice
+    return int(np.sum(np.diff(idx) - 1))
 
 
 def assert_sensor_spacing(stamps, period):
@@ -66,30 +69,31 @@ def wait_until(cond, timeout):
 
 
 def test_link_streams_urg04lx_at_10hz_with_correct_ranges_and_stamps():
-    with SensorEmulator(URG_04LX, _source(URG_04LX)) as emu, Link(emu.path) as link:
+    # A queue that holds every frame of the test: none is dropped however late the test thread runs.
+    with SensorEmulator(URG_04LX, frame_source(URG_04LX)) as emu, Link(emu.path, queue_size=64) as link:
         assert link.model == URG_04LX
         assert link.version["PROT"] == "SCIP 2.0"
         assert link.command == scip.md_command(44, 725)
-        frames = collect(link, 1.05)
-        assert 9 <= len(frames) <= 12
+        frames = collect(link, 10)
+        assert len(frames) == 10
         check_frames(frames, URG_04LX)
-        idx = [int(f.frame.ranges_mm[0]) for f in frames]
-        assert np.all(np.diff(idx) == 1)  # nothing lost
+        assert lost_between(frames) == 0
+        # What the link delivered is exactly what the emulator sent, block for block from the first.
+        sent = list(emu.sent_log)
+        assert [f.frame.timestamp_ms for f in frames] == [ms for ms, _ in sent[: len(frames)]]
         stamps = np.array([f.stamp for f in frames])
         assert_sensor_spacing(stamps, 0.1)
         recv = np.array([f.recv_time for f in frames])
-        assert np.all(recv - stamps >= -1e-9) and np.median(recv - stamps) < 0.05
-        # Latency from the emulator handing a block to the pty to the frame being in our hands.
-        sent = dict(emu.sent_log)
-        lat = [f.recv_perf - sent[f.frame.timestamp_ms] for f in frames if f.frame.timestamp_ms in sent]
-        assert len(lat) >= 9 and np.median(lat) < 0.05
+        assert np.all(recv - stamps >= -1e-9)  # a stamp is never later than the frame's arrival
+        # Each frame was in our hands after the emulator handed its block to the pty, not before.
+        assert all(f.recv_perf >= t for f, (_, t) in zip(frames, sent, strict=False))
         s = link.stats
-        assert s.frames == len(frames) and s.dropped == s.bad_frames == s.reconnects == s.timeouts == 0
+        assert s.frames >= len(frames) and s.dropped == s.bad_frames == s.reconnects == s.timeouts == 0
     assert emu.commands[:5] == ["QT", "SCIP2.0", "VV", "PP", "MD0044072501000"]
 
 
 def test_stop_sends_qt_and_the_sensor_stops_streaming():
-    with SensorEmulator(URG_04LX, _source(URG_04LX)) as emu:
+    with SensorEmulator(URG_04LX, frame_source(URG_04LX)) as emu:
         link = Link(emu.path).start()
         assert link.get(timeout=1.0) is not None
         link.stop()
@@ -98,10 +102,11 @@ def test_stop_sends_qt_and_the_sensor_stops_streaming():
 
 
 def test_me_with_intensity_on_utm30lx_at_40hz():
-    with SensorEmulator(UTM_30LX, _source(UTM_30LX)) as emu, Link(emu.path, intensity=True) as link:
+    with SensorEmulator(UTM_30LX, frame_source(UTM_30LX)) as emu, Link(emu.path, intensity=True, queue_size=64) as link:
         assert link.command == scip.me_command(0, 1080)
-        frames = collect(link, 0.55)
-        assert 15 <= len(frames) <= 24
+        frames = collect(link, 20)
+        assert len(frames) == 20 and lost_between(frames) == 0
+        assert [f.frame.timestamp_ms for f in frames] == [ms for ms, _ in list(emu.sent_log)[:20]]
         check_frames(frames, UTM_30LX)
         assert frames[0].intensities is not None and frames[0].intensities.dtype == np.float32
         assert_sensor_spacing([f.stamp for f in frames], 0.025)
@@ -109,62 +114,69 @@ def test_me_with_intensity_on_utm30lx_at_40hz():
 
 def test_checksum_errors_are_dropped_counted_and_never_delivered():
     faults = Faults(checksum_p=0.3, seed=1)
-    with SensorEmulator(UTM_30LX, _source(UTM_30LX), faults=faults) as emu, Link(emu.path) as link:
-        frames = collect(link, 0.8)
+    with SensorEmulator(UTM_30LX, frame_source(UTM_30LX), faults=faults) as emu, Link(emu.path) as link:
+        frames = collect(link, 20)
         link_stats = link.stats
+        sent, injected = emu.frames_sent, emu.faults.checksum  # read after the link's: the emulator is ahead
         check_frames(frames, UTM_30LX)
-        assert emu.faults.checksum > 0
-        assert link_stats.checksum_errors > 0 and abs(link_stats.checksum_errors - emu.faults.checksum) <= 1
-        assert link_stats.reconnects == 0 and len(frames) >= 15
+        assert len(frames) == 20
+        # Every scan missing between the delivered ones was a damaged block, counted; the link counts no
+        # more than the emulator damaged, and no block twice.
+        lost = lost_between(frames)
+        assert 0 < lost <= link_stats.checksum_errors <= injected
+        assert link_stats.frames + link_stats.checksum_errors <= sent
+        assert link_stats.reconnects == 0
 
 
 def test_dropped_bytes_resynchronise_and_frames_keep_flowing():
     faults = Faults(drop_p=0.3, seed=2)
-    with SensorEmulator(UTM_30LX, _source(UTM_30LX), faults=faults) as emu, Link(emu.path) as link:
-        frames = collect(link, 0.8)
+    with SensorEmulator(UTM_30LX, frame_source(UTM_30LX), faults=faults) as emu, Link(emu.path) as link:
+        frames = collect(link, 20)
         s = link.stats
+        damaged = emu.faults.dropped
         check_frames(frames, UTM_30LX)  # a damaged block is never handed on
-        assert emu.faults.dropped > 0
+        assert len(frames) == 20 and damaged > 0
         assert s.bad_frames + (s.garbage_bytes > 0) > 0
-        assert len(frames) >= emu.frames_sent - emu.faults.dropped - 3
+        # A scan goes missing only where bytes were dropped (a cut may spoil the next block's start too).
+        assert lost_between(frames) <= 2 * damaged
         assert s.reconnects == 0
 
 
 def test_stall_longer_than_the_timeout_reconnects_and_frames_resume():
     with (
-        SensorEmulator(URG_04LX, _source(URG_04LX)) as emu,
+        SensorEmulator(URG_04LX, frame_source(URG_04LX)) as emu,
         Link(emu.path, timeout_periods=3, reply_timeout_s=0.3, backoff_s=0.05) as link,
     ):
-        assert len(collect(link, 0.3)) >= 2
+        assert len(collect(link, 2)) == 2
         emu.inject_stall(0.8)
-        assert wait_until(lambda: link.stats.timeouts >= 1, 1.0)
-        assert wait_until(lambda: link.stats.reconnects >= 1, 3.0)
-        after = collect(link, 0.5)
-        assert len(after) >= 3
+        assert wait_until(lambda: link.stats.timeouts >= 1, PATIENCE_S)
+        assert wait_until(lambda: link.stats.reconnects >= 1, PATIENCE_S)
+        after = collect(link, 3)
+        assert len(after) == 3
         check_frames(after, URG_04LX)
         assert emu.faults.stalls == 1
 
 
 def test_short_stall_is_ridden_out_without_reconnecting():
-    with SensorEmulator(URG_04LX, _source(URG_04LX)) as emu, Link(emu.path, timeout_periods=10) as link:
-        assert link.get(timeout=1.0) is not None
-        emu.inject_stall(0.3)
-        time.sleep(0.35)
-        assert len(collect(link, 0.4)) >= 2
+    with SensorEmulator(URG_04LX, frame_source(URG_04LX)) as emu, Link(emu.path, timeout_periods=10) as link:
+        assert link.get(timeout=PATIENCE_S) is not None
+        emu.inject_stall(0.3)  # against a timeout of 10 periods, 1 s
+        assert wait_until(lambda: emu.faults.stalls == 1, PATIENCE_S)
+        assert len(collect(link, 2)) == 2
         assert link.stats.timeouts == link.stats.reconnects == 0
 
 
 def test_disconnect_reconnects_with_backoff_and_frames_resume():
     with (
-        SensorEmulator(UTM_30LX, _source(UTM_30LX)) as emu,
+        SensorEmulator(UTM_30LX, frame_source(UTM_30LX)) as emu,
         Link(emu.path, reply_timeout_s=0.3, backoff_s=0.05, backoff_max_s=0.2) as link,
     ):
-        assert len(collect(link, 0.2)) >= 3
+        assert len(collect(link, 3)) == 3
         emu.inject_disconnect(reopen_after_s=0.4)
-        assert wait_until(lambda: link.stats.io_errors >= 1, 1.0)
-        assert wait_until(lambda: link.stats.reconnects >= 1, 3.0)
-        after = collect(link, 0.3)
-        assert len(after) >= 5
+        assert wait_until(lambda: link.stats.io_errors >= 1, PATIENCE_S)
+        assert wait_until(lambda: link.stats.reconnects >= 1, PATIENCE_S)
+        after = collect(link, 5)
+        assert len(after) == 5
         check_frames(after, UTM_30LX)
         assert emu.faults.disconnects == 1 and link.model == UTM_30LX
 
@@ -174,37 +186,42 @@ def test_random_faults_all_at_once_are_survived():
         checksum_p=0.1, drop_p=0.1, stall_p=0.02, stall_s=0.4, disconnect_p=0.02, reopen_after_s=0.2, seed=7
     )
     with (
-        SensorEmulator(UTM_30LX, _source(UTM_30LX), faults=faults) as emu,
+        SensorEmulator(UTM_30LX, frame_source(UTM_30LX), faults=faults) as emu,
         Link(emu.path, timeout_periods=8, reply_timeout_s=0.3, backoff_s=0.05, backoff_max_s=0.2) as link,
     ):
-        frames = collect(link, 2.5)
+        frames = collect(link, 40)
         check_frames(frames, UTM_30LX)
-        assert emu.faults.total > 0 and len(frames) > 20
+        assert emu.faults.total > 0 and len(frames) == 40
         s = link.stats
         assert s.frames == len(frames) + link.queue.qsize()
         assert s.reconnects >= emu.faults.disconnects - 1
 
 
 def test_full_queue_drops_the_oldest_frames():
-    with SensorEmulator(UTM_30LX, _source(UTM_30LX)) as emu, Link(emu.path, queue_size=4) as link:
-        time.sleep(0.6)  # the consumer is busy: ~24 frames arrive, only the newest 4 are kept
-        kept = [link.get(timeout=0.01) for _ in range(4)]
+    with SensorEmulator(UTM_30LX, frame_source(UTM_30LX)) as emu, Link(emu.path, queue_size=4) as link:
+        # The consumer is busy: 20 frames arrive, only the newest 4 are kept.
+        assert wait_until(lambda: link.stats.frames >= 20, PATIENCE_S)
         s = link.stats
+        kept = [link.get(timeout=0.01) for _ in range(4)]
         assert all(f is not None for f in kept)
         seqs = [f.seq for f in kept]
         assert seqs == list(range(seqs[0], seqs[0] + 4))
-        assert s.dropped >= 15 and s.frames - s.dropped <= 4 + link.queue.maxsize
-        fresh = link.get(timeout=0.2)
+        assert s.dropped >= s.frames - link.queue.maxsize >= 16
+        assert emu.frames_sent >= s.frames
+        fresh = link.get(timeout=PATIENCE_S)
         assert fresh is not None and fresh.seq > seqs[-1]
 
 
 def test_timestamps_wrapping_past_24_bits_stay_monotonic():
-    offset = scip.TIMESTAMP_MODULUS - 250  # the sensor clock wraps ~0.25 s into the stream
+    offset = scip.TIMESTAMP_MODULUS - 2000  # the sensor clock wraps 2 s after power-up
     with (
-        SensorEmulator(URG_04LX, _source(URG_04LX), timestamp_offset_ms=offset) as emu,
+        SensorEmulator(URG_04LX, frame_source(URG_04LX), timestamp_offset_ms=offset) as emu,
         Link(emu.path) as link,
     ):
-        frames = collect(link, 0.8)
+        frames = collect(link, 1)
+        while frames and frames[-1].frame.timestamp_ms > offset and len(frames) < 100:  # on to past the wrap
+            frames += collect(link, 1)
+        frames += collect(link, 3)
         raw = [f.frame.timestamp_ms for f in frames]
         assert any(r < 1000 for r in raw) and any(r > offset for r in raw)  # it did wrap
         assert np.allclose(np.diff([f.sensor_ms for f in frames]), 100, atol=1)
@@ -217,10 +234,8 @@ def test_start_fails_cleanly_on_a_missing_port_or_a_silent_one(tmp_path):
     master, slave = os.openpty()
     tty.setraw(slave)
     try:
-        t0 = time.monotonic()
         with pytest.raises(LinkError, match="no reply to QT"):
-            Link(os.ttyname(slave), reply_timeout_s=0.2).start()
-        assert time.monotonic() - t0 < 2.0
+            Link(os.ttyname(slave), reply_timeout_s=0.2).start()  # gives up, rather than waiting for ever
     finally:
         os.close(master)
         os.close(slave)

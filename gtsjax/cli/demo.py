@@ -3,9 +3,11 @@
 An emulated URG-04LX on a pseudo-terminal serves the paper's SPL field with a robot walking a path;
 ``gtsjax run``'s loop reads it over pyserial with the model shipped in the package, shows the live
 view for about 20 s, then writes ``demo-out/`` (the GTD CSV, the site file, and a PNG of the field,
-true and estimated trajectories and the error over time) and says where they are.
+true and estimated trajectories and the error over time) and says where they are. No confirmed track
+at all is a failure: one line on stderr and exit status 1.
 """
 
+import sys
 import time
 from importlib import resources
 from pathlib import Path
@@ -94,3 +96,7 @@ def demo_cmd(
     console.print(f"tracked {stats.frames} frames in {seconds:.0f} s: {summary}; latency median {med:.2f} ms, "
                   f"p99 {p99:.2f} ms; {link_stats.bad_frames} bad frames")
     console.print(f"wrote {gtd}, {site_path} and {png} ({time.perf_counter() - t0:.0f} s in all)")
+    if not rows:  # the demo's one promise is a tracked robot: without one it failed, whatever it wrote
+        print(f"gtsjax: demo: no track was confirmed in {stats.frames} frames over {seconds:g} s "
+              f"({link_stats.bad_frames} bad frames)", file=sys.stderr)
+        raise typer.Exit(1)

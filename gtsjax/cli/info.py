@@ -97,7 +97,7 @@ def sensors():
         table.add_column(escape(col))  # units in [] are not Rich markup
     for m in MODELS.values():
         n = m.noise
-        far = f"{100 * n.frac_far:.0f}%" if n.frac_far else f"{1000 * n.sigma_far:.0f} mm"
+        far = f"{100 * n.frac_far:.2g} %" if n.frac_far else f"{1000 * n.sigma_far:.0f} mm"
         noise = f"{1000 * n.sigma:.0f} mm" + ("" if n.knee == float("inf") else f" ≤ {n.knee:g} m, then {far}")
         table.add_row(m.name, str(m.n_beams), f"{m.amin}–{m.amax}/{m.ares}", str(m.afrt),
                       f"{np.degrees(m.angle_max - m.angle_min):.1f}", f"{m.range_min:g}–{m.range_max:g}",

@@ -1,0 +1,86 @@
+"""Helpers shared by the test modules (imported as ``from _utils import ...``; pytest puts ``tests/`` on
+the path): dtype-aware tolerances, the emulator's test frame source, and the command line run as a
+user runs it, importing this tree."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+# Default tolerances by dtype, as tinygp's ``test_utils.assert_allclose``: what the arithmetic of the
+# compared values keeps over the few dozen operations that separate two ways of computing them (float32:
+# eps 1.2e-7, held to 1e-5 relative and 1e-6 absolute; float64: eps 2.2e-16, held to 1e-10 and 1e-12).
+TOLERANCES = {
+    np.dtype(np.float16): (1e-3, 1e-3),
+    np.dtype(np.float32): (1e-5, 1e-6),
+    np.dtype(np.float64): (1e-10, 1e-12),
+}
+
+
+def tolerance(*arrays) -> tuple[float, float]:
+    """``(rtol, atol)`` for the least precise floating dtype among ``arrays`` (float64 when none is
+    floating)."""
+    dtypes = [np.asarray(a).dtype for a in arrays]
+    floats = [d for d in dtypes if np.issubdtype(d, np.floating)]
+    worst = min(floats, key=lambda d: np.finfo(d).bits) if floats else np.dtype(np.float64)
+    return TOLERANCES.get(np.dtype(worst), TOLERANCES[np.dtype(np.float32)])
+
+
+def assert_allclose(actual, desired, *, rtol: float | None = None, atol: float | None = None, err_msg: str = ""):
+    """``np.testing.assert_allclose`` with default tolerances from the dtypes compared: the least precise
+    of the two decides (a float32 result against a float64 reference is held to float32's)."""
+    r, a = tolerance(actual, desired)
+    np.testing.assert_allclose(
+        np.asarray(actual),
+        np.asarray(desired),
+        rtol=r if rtol is None else rtol,
+        atol=a if atol is None else atol,
+        err_msg=err_msg,
+    )
+
+
+def frame_source(model):
+    """An emulator frame source whose frames can be checked one by one: scan i has beam b at
+    500 + (7 b + 13 i) % 3000 mm, every 50th beam no return, and beam 0 holds 1000 + i % 1000."""
+    b = np.arange(model.n_beams)
+
+    def source(i):
+        r = 500 + (7 * b + 13 * i) % 3000
+        r = np.where(b % 50 == 49, 0, r)
+        r[0] = 1000 + i % 1000
+        inten = (b * 3 + i) % 4000 if model.has_intensity else None
+        return r, inten
+
+    return source
+
+
+def cli_env() -> dict:
+    """The environment for ``python -m gtsjax``: this tree first on the path, whatever is installed."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT), *filter(None, [env.get("PYTHONPATH")])])
+    return env
+
+
+def run_cli(*args, timeout: float = 600, **kwargs) -> subprocess.CompletedProcess:
+    """``python -m gtsjax ARGS`` in a child process, as a user runs it; stdout and stderr captured."""
+    return subprocess.run(
+        [sys.executable, "-m", "gtsjax", *map(str, args)],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env=cli_env(),
+        **kwargs,
+    )
+
+
+def popen_cli(*args, **kwargs) -> subprocess.Popen:
+    """``python -m gtsjax ARGS`` started in the background (stdout a pipe of text lines)."""
+    kwargs.setdefault("stdout", subprocess.PIPE)
+    kwargs.setdefault("stderr", subprocess.PIPE)
+    return subprocess.Popen(
+        [sys.executable, "-m", "gtsjax", *map(str, args)], text=True, bufsize=1, env=cli_env(), **kwargs
+    )

@@ -1,0 +1,456 @@
+"""The commands end to end, as a user runs them (``python -m gtsjax`` importing this tree): ``demo``,
+``train`` on several logs, ``run`` with ``--json``, ``--udp``, ``--duration`` and ``--record`` killed with
+SIGKILL then ``recover``, ``emulate``'s fault options, ``evaluate LOG --site`` with its error map, and
+the exit status 2 of ``run``, ``train``, ``evaluate``, ``plot`` and ``emulate`` for a bad site or model.
+
+Kept small: short simulated logs, the shipped model wherever a model is only used, training capped to
+a few dozen examples. No assertion is on the wall clock; deadlines only stop a test that would hang."""
+
+import dataclasses
+import json
+import os
+import re
+import select
+import signal
+import socket
+import threading
+import time
+
+import matplotlib.image
+import numpy as np
+import pytest
+from _utils import popen_cli, run_cli
+
+from gtsjax.cli import main
+from gtsjax.cli.demo import DEMO_SCENARIO, DEMO_SEED, demo_model_path
+from gtsjax.io import load_log, save_log, save_site
+from gtsjax.io.gtd import read_gtd
+from gtsjax.io.modelfile import read_header
+from gtsjax.io.record import journal_path
+from gtsjax.io.serial import Link
+from gtsjax.sensors import URG_04LX
+from gtsjax.sim import simulate
+from gtsjax.sim.emulator import SensorEmulator, log_source
+
+DEMO_MODEL = demo_model_path()
+PATIENCE_S = 300.0  # a child that compiles the step on a loaded 2-core machine; never a measurement
+
+
+def a_picture(png):
+    img = matplotlib.image.imread(png)
+    return img.ndim == 3 and min(img.shape[:2]) > 300 and img[..., :3].std() > 0.05
+
+
+def wrap(a):
+    return np.angle(np.exp(1j * np.asarray(a)))
+
+
+def read_lines(proc, n, timeout=PATIENCE_S):
+    """Up to ``n`` lines of a child's stdout, until it ends or ``timeout`` passes."""
+    lines, deadline = [], time.monotonic() + timeout
+    while len(lines) < n and time.monotonic() < deadline:
+        ready, _, _ = select.select([proc.stdout], [], [], 0.5)
+        if ready:
+            line = proc.stdout.readline()
+            if not line:
+                break
+            lines.append(line)
+    return lines
+
+
+# ------------------------------------------------------------------------------------------ demo
+
+
+def test_demo_tracks_the_walking_robot(tmp_path):
+    """``gtsjax demo`` for 6 s: exit 0, the three files, and rows on the simulated robot's path (found
+    here by hand from the scenario, whatever the timing), within the README's figures for the demo (1.0 cm,
+    2.9° over its rows) with margins: the position within 2 cm of the path, the reported RMSE within the
+    README's targets for a moving robot (5 cm, 6°)."""
+    out = tmp_path / "demo-out"
+    res = run_cli("demo", "--seconds", "6", "--quiet", "--out-dir", out, timeout=PATIENCE_S)
+    assert res.returncode == 0, res.stderr
+    assert not [line for line in res.stderr.splitlines() if line.startswith("gtsjax: ")]
+    rows = read_gtd(out / "gtd.csv")
+    assert len(rows) >= 10 and {r.cls for r in rows} == {"robot"}
+    assert (out / "site.json").exists() and a_picture(out / "demo.png")
+    log, _ = simulate(DEMO_SCENARIO, seed=DEMO_SEED)
+    path = log.truth_poses[:, 0, :2]
+    path = path[~np.isnan(path[:, 0])]
+    fine = np.concatenate([path[:-1] + f * (path[1:] - path[:-1]) for f in np.linspace(0, 1, 10, endpoint=False)])
+    xy = np.array([[r.x, r.y] for r in rows])
+    off_path = np.min(np.linalg.norm(xy[:, None, :] - fine[None, :, :], axis=2), axis=1)
+    assert np.median(off_path) < 0.02 and np.max(off_path) < 0.10, np.round(off_path, 3)
+    m = re.search(r"position RMSE ([\d.]+) cm, heading RMSE ([\d.]+)° over (\d+) rows", " ".join(res.stderr.split()))
+    assert m, res.stderr
+    assert float(m[1]) <= 5.0 and float(m[2]) <= 6.0 and int(m[3]) == len(rows)
+
+
+def test_demo_without_a_confirmed_track_fails(tmp_path, capsys):
+    """A demo too short for a track to be confirmed (0.3 s: 3 scans at 10 Hz, confirmation takes half a
+    second of them) fails: one line on stderr and exit status 1, not a success with an empty CSV."""
+    out = tmp_path / "demo-out"
+    code = main(["demo", "--seconds", "0.3", "--quiet", "--out-dir", str(out)])
+    err = [line for line in capsys.readouterr().err.splitlines() if line.startswith("gtsjax: ")]
+    assert code == 1
+    assert len(err) == 1 and "no track was confirmed" in err[0], err
+    assert read_gtd(out / "gtd.csv") == []
+
+
+# ------------------------------------------------------------------------------------------ train
+
+
+def test_train_command_line_takes_several_logs_and_caps(tmp_path):
+    """``gtsjax train A.npz B.npz ... --max-pose N``: both logs' scans are used, the pose GPs hold the
+    N examples asked for, the classifier and landmark GPs their caps, and the model names the scanner."""
+    a, site = simulate("spl-train", seed=21, n_scans=250)
+    b, _ = simulate("spl-legs", seed=22, n_scans=100)
+    save_log(a, tmp_path / "a.npz")
+    save_log(b, tmp_path / "b.npz")
+    save_site(site, tmp_path / "site.json")
+    res = run_cli(
+        "train",
+        tmp_path / "a.npz",
+        tmp_path / "b.npz",
+        "--site",
+        tmp_path / "site.json",
+        "--out",
+        tmp_path / "m.npz",
+        "--report",
+        tmp_path / "r.json",
+        "--max-per-class",
+        "40",
+        "--max-pose",
+        "50",
+        "--max-landmark",
+        "100",
+        "--inducing",
+        "32",
+        "--restarts",
+        "1",
+        timeout=PATIENCE_S,
+    )
+    assert res.returncode == 0, res.stderr
+    assert "training on 350 scans from 2 log(s)" in " ".join(res.stderr.split())
+    rep = json.loads((tmp_path / "r.json").read_text())
+    assert rep["scans"] == a.n_scans + b.n_scans
+    n = {f["gp"]: f["n"] for f in rep["fits"]}
+    assert {n[f"robot.{k}"] for k in ("x", "y", "sin", "cos")} == {50}
+    assert {n["post.x"], n["post.y"]} == {100}
+    assert all(n[f"class.{c}"] == 40 * len(rep["classes"]) for c in rep["classes"])  # 40 of each class
+    header = read_header(tmp_path / "m.npz")
+    assert header["sensor_model"] == "URG-04LX"
+
+
+# ------------------------------------------------------------------------------------------ run, recover
+
+
+@pytest.fixture()
+def field(tmp_path):
+    """A robot walking on the SPL field (present from the first scan), its site file, served in a loop."""
+    log, site = simulate("spl-trajectory", seed=41, n_scans=150)
+    save_site(site, tmp_path / "site.json")
+    return log, tmp_path / "site.json"
+
+
+def test_run_json_udp_and_duration(field, tmp_path):
+    """``run --json --udp HOST:PORT --duration 3``: stops by itself, one JSON line per frame on stdout
+    and the same one per UDP datagram, holding exactly the GTD CSV's rows; the frames' stamps span no
+    more than the duration."""
+    log, site = field
+    receiver = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    receiver.bind(("127.0.0.1", 0))
+    receiver.settimeout(0.2)
+    datagrams, stop = [], threading.Event()
+
+    def receive():
+        while not stop.is_set():
+            try:
+                datagrams.append(receiver.recv(65536).decode())
+            except TimeoutError:
+                pass
+
+    thread = threading.Thread(target=receive, daemon=True)
+    thread.start()
+    try:
+        with SensorEmulator(URG_04LX, log) as emu:
+            res = run_cli(
+                "run",
+                "--port",
+                emu.path,
+                "--site",
+                site,
+                "--model",
+                DEMO_MODEL,
+                "--out",
+                tmp_path / "gtd.csv",
+                "--json",
+                "--udp",
+                f"127.0.0.1:{receiver.getsockname()[1]}",
+                "--duration",
+                "3",
+                "--quiet",
+                timeout=PATIENCE_S,
+            )
+            sent = emu.frames_sent
+        time.sleep(0.5)  # the last datagrams on their way through the loopback
+    finally:
+        stop.set()
+        thread.join(timeout=5)
+        receiver.close()
+    assert res.returncode == 0, res.stderr
+    lines = [json.loads(line) for line in res.stdout.splitlines()]
+    m = re.search(r"(\d+) frames, (\d+) rows", res.stderr)
+    assert m and int(m[1]) == len(lines) > 0 and len(lines) <= sent, res.stderr
+    assert [json.loads(d) for d in datagrams] == lines
+    stamps = np.array([line["stamp"] for line in lines])
+    assert np.all(np.diff(stamps) > 0) and stamps[-1] - stamps[0] <= 3.0 + 0.5
+    from_json = [
+        (line["stamp"], t["track_id"], t["class"], t["x"], t["y"], t["theta"]) for line in lines for t in line["tracks"]
+    ]
+    csv_rows = [(r.stamp, r.track_id, r.cls, r.x, r.y, r.theta) for r in read_gtd(tmp_path / "gtd.csv")]
+    assert len(from_json) == len(csv_rows) == int(m[2]) > 0  # the robot was tracked within the 3 s
+    for j, c in zip(from_json, csv_rows, strict=True):
+        assert j[:3] == c[:3]
+        np.testing.assert_allclose(j[3:], c[3:], rtol=0, atol=1e-6)  # the CSV keeps 6 decimals
+
+
+def test_run_record_killed_with_sigkill_then_recovered(field, tmp_path):
+    """``run --record RAW.npz`` killed with SIGKILL mid-stream leaves a journal; ``gtsjax recover`` turns
+    it into a log holding every frame the run had reported (by its JSON stamps) as the emulator served it."""
+    log, site = field
+    raw = tmp_path / "raw.npz"
+    served = {np.asarray(log_source(log)(i)[0], np.int64).tobytes(): i for i in range(log.n_scans)}
+    with SensorEmulator(URG_04LX, log) as emu, open(tmp_path / "stderr.txt", "w") as err:
+        proc = popen_cli(
+            "run",
+            "--port",
+            emu.path,
+            "--site",
+            site,
+            "--model",
+            DEMO_MODEL,
+            "--out",
+            tmp_path / "gtd.csv",
+            "--record",
+            raw,
+            "--json",
+            "--quiet",
+            "--duration",
+            "600",
+            stderr=err,
+        )
+        try:
+            lines = read_lines(proc, 20)
+        finally:
+            os.kill(proc.pid, signal.SIGKILL)
+            proc.wait(timeout=30)
+            proc.stdout.close()
+    assert len(lines) == 20, (tmp_path / "stderr.txt").read_text()
+    assert proc.returncode == -signal.SIGKILL and not raw.exists() and journal_path(raw).exists()
+    res = run_cli("recover", journal_path(raw), timeout=PATIENCE_S)
+    assert res.returncode == 0, res.stderr
+    rec = load_log(raw)
+    reported = [json.loads(line)["stamp"] for line in lines]
+    # A frame's JSON line goes out before it is appended: all but the last reported are in the journal.
+    assert rec.n_scans >= len(reported) - 1
+    np.testing.assert_array_equal(rec.stamps[: len(reported) - 1], reported[:-1])
+    mm = np.rint(rec.ranges.astype(np.float64) * 1000).astype(np.int64)
+    index = [served.get(row.tobytes()) for row in mm]
+    assert None not in index  # every recorded scan is one the emulator served, to the millimetre
+    assert rec.sensor_model == "URG-04LX" and rec.n_beams == URG_04LX.n_beams
+
+
+# ------------------------------------------------------------------------------------------ emulate
+
+
+@pytest.mark.parametrize(
+    "option,value,fault",
+    [
+        ("--checksum-errors", "0.3", "checksum"),
+        ("--drop-bytes", "0.3", "damaged"),
+        ("--stalls", "0.2", "stall"),
+        ("--disconnects", "0.1", "disconnect"),
+    ],
+)
+def test_emulate_fault_options(tmp_path, option, value, fault):
+    """``gtsjax emulate LOG OPTION P``: the fault the option names reaches a client (the serial link,
+    whose counters tell the faults apart), no damaged frame is delivered, and Ctrl-C ends it (status 0)."""
+    log, _ = simulate("spl-trajectory", seed=43, n_scans=30)
+    save_log(log, tmp_path / "scene.npz")
+    served = {np.asarray(log_source(log)(i)[0], np.int64).tobytes() for i in range(log.n_scans)}
+    proc = popen_cli("emulate", tmp_path / "scene.npz", "--seed", "5", option, value)
+    try:
+        first = read_lines(proc, 1, timeout=60)
+        assert first, proc.stderr.read() if proc.poll() is not None else "no path printed"
+        path = re.search(r" on (\S+) \(pty", first[0])[1]
+        seen = {
+            "checksum": lambda s: s.checksum_errors > 0,
+            "damaged": lambda s: s.truncated + s.malformed + s.garbage_bytes > 0,  # never from a bad sum alone
+            "stall": lambda s: s.timeouts > 0,
+            "disconnect": lambda s: s.io_errors > 0 and s.reconnects > 0,
+        }[fault]
+        frames = []
+        # A stall (0.5 s) outlasts the stall test's link timeout (3 periods, at least 0.2 s): seen as one.
+        # The others keep the default timeout (10 periods), which a run of damaged blocks does not reach.
+        quick = {"timeout_periods": 3, "min_timeout_s": 0.2} if fault == "stall" else {}
+        with Link(path, reply_timeout_s=0.3, backoff_s=0.05, backoff_max_s=0.2, **quick) as link:
+            deadline = time.monotonic() + 60.0
+            while not (seen(link.stats) and len(frames) >= 10) and time.monotonic() < deadline:
+                f = link.get(timeout=0.1)
+                if f is not None:
+                    frames.append(f)
+            stats = link.stats
+        assert seen(stats), stats
+        assert len(frames) >= 10 and all(f.frame.ranges_mm.astype(np.int64).tobytes() in served for f in frames)
+        if fault in ("checksum", "damaged"):
+            assert stats.timeouts == stats.reconnects == 0, stats  # only the fault asked for
+        if fault == "checksum":
+            assert stats.truncated == stats.malformed == stats.garbage_bytes == 0, stats
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=30)
+        finally:
+            proc.stdout.close()
+            proc.stderr.close()
+    assert proc.returncode == 0
+
+
+# ------------------------------------------------------------------------------------------ evaluate
+
+
+def test_evaluate_labelled_log_with_site_and_error_map(tmp_path):
+    """``evaluate LOG --site``: the labelled log's own point, found by hand from its truth, in the per-point
+    table, with the README's static figures (1.0 cm position RMSE, 1.0–6.4° heading RMSE per point) held to
+    the static targets with margin (≤ 3 cm, ≤ 10°), and the error map drawn."""
+    log, site = simulate("spl-eval", seed=61)  # 8 points × 8 headings × (1 s away + 3 s put down): 2 points
+    n = 2 * 8 * 40
+    log = dataclasses.replace(
+        log,
+        ranges=log.ranges[:n],
+        stamps=log.stamps[:n],
+        truth_poses=log.truth_poses[:n],
+        extra={k: v[:n] for k, v in log.extra.items()},
+    )
+    save_log(log, tmp_path / "eval.npz")
+    save_site(site, tmp_path / "site.json")
+    out = tmp_path / "eval-out"
+    res = run_cli(
+        "evaluate",
+        "--model",
+        DEMO_MODEL,
+        tmp_path / "eval.npz",
+        "--site",
+        tmp_path / "site.json",
+        "--out-dir",
+        out,
+        timeout=PATIENCE_S,
+    )
+    assert res.returncode == 0, res.stderr
+    result = json.loads((out / "results.json").read_text())[str(tmp_path / "eval.npz")]
+    assert "points" in result, result  # a per-point table and an error map for a static log
+    truth = log.truth_poses[:, 0]
+    points = np.unique(np.round(truth[~np.isnan(truth[:, 0]), :2], 6), axis=0)
+    got = np.array([[p["x"], p["y"]] for p in result["points"]])
+    np.testing.assert_allclose(got[np.lexsort(got.T[::-1])], points, atol=1e-6)
+    assert sum(p["n"] for p in result["points"]) == result["n_errors"] > 0
+    for p in result["points"]:
+        assert p["position_rmse_m"] <= 0.03 and p["heading_rmse_deg"] <= 10.0, p
+    assert result["recall"] >= 0.97 and result["false_tracks_per_scan"] <= 0.02, result
+    png = out / f"{str(tmp_path / 'eval.npz').replace('/', '_').replace(':', '_')}-errors.png"
+    assert result["figure"] == str(png) and a_picture(png)
+    assert str(tmp_path / "eval.npz") in (out / "results.md").read_text()
+
+
+# ------------------------------------------------------------------------------------------ exit status 2
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory):
+    d = tmp_path_factory.mktemp("inputs")
+    log, site = simulate("spl-eval", seed=1, n_scans=5)
+    save_log(log, d / "log.npz")
+    save_site(site, d / "site.json")
+    (d / "bad_site.json").write_text(
+        '{"landmarks": [{"class": "post", "x": 0, "y": 0}, {"class": "post", "x": 1, '
+        '"y": 0}], "sensor_pose": [0, 0, 0]}'
+    )
+    (d / "bad_model.npz").write_text("not a model")
+    (d / "gtd.csv").write_text("stamp,track_id,class,x,y,theta,var_x,var_y,var_theta\n")
+    (d / "a_folder.npz").mkdir()
+    return d
+
+
+SITE, MODEL = "at least 3 landmarks", "not a gtsjax model file"
+EXIT_2 = {
+    "run, bad site": (
+        [
+            "run",
+            "--port",
+            "{d}/no-tty",
+            "--site",
+            "{d}/bad_site.json",
+            "--model",
+            str(DEMO_MODEL),
+            "--out",
+            "{o}/o.csv",
+        ],
+        "bad_site.json",
+        SITE,
+    ),
+    "run, bad model": (
+        [
+            "run",
+            "--port",
+            "{d}/no-tty",
+            "--site",
+            "{d}/site.json",
+            "--model",
+            "{d}/bad_model.npz",
+            "--out",
+            "{o}/o.csv",
+        ],
+        "bad_model.npz",
+        MODEL,
+    ),
+    "train, bad site": (
+        ["train", "{d}/log.npz", "--site", "{d}/bad_site.json", "--out", "{o}/m.npz"],
+        "bad_site.json",
+        SITE,
+    ),
+    "train, model path a folder": (
+        ["train", "{d}/log.npz", "--site", "{d}/site.json", "--out", "{d}/a_folder.npz"],
+        "a_folder.npz",
+        "is a directory",
+    ),
+    "evaluate, bad site": (
+        ["evaluate", "--model", str(DEMO_MODEL), "{d}/log.npz", "--site", "{d}/bad_site.json", "--out-dir", "{o}/ev"],
+        "bad_site.json",
+        SITE,
+    ),
+    "evaluate, bad model": (
+        ["evaluate", "--model", "{d}/bad_model.npz", "{d}/log.npz", "--site", "{d}/site.json", "--out-dir", "{o}/ev"],
+        "bad_model.npz",
+        MODEL,
+    ),
+    "plot, bad site": (
+        ["plot", "{d}/gtd.csv", "--site", "{d}/bad_site.json", "--out", "{o}/o.png"],
+        "bad_site.json",
+        SITE,
+    ),
+    "emulate, unknown scanner": (["emulate", "{d}/log.npz", "--model", "LMS-100"], "LMS-100", "unknown sensor model"),
+    "emulate, bad log": (["emulate", "{d}/bad_model.npz"], "bad_model.npz", "not a NumPy .npz archive"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(EXIT_2))
+def test_bad_site_or_model_is_one_line_and_exit_2(inputs, tmp_path, capsys, case):
+    """Inputs in a shared folder ({d}), outputs asked for in this test's own ({o}), which stays empty."""
+    args, names, fragment = EXIT_2[case]
+    before = sorted(p.name for p in inputs.iterdir())
+    capsys.readouterr()
+    code = main([a.format(d=inputs, o=tmp_path) for a in args])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2, err
+    assert len(err) == 1 and err[0].startswith("gtsjax: ") and names in err[0] and fragment in err[0], err
+    assert sorted(p.name for p in inputs.iterdir()) == before and list(tmp_path.iterdir()) == []  # nothing written
