@@ -1,5 +1,4 @@
-"""Helpers shared by the test modules (imported as ``from _utils import ...``; pytest puts ``tests/`` on
-the path): dtype-aware tolerances, the emulator's test frame source, and the command line run as a
+"""Helpers shared by the test modules (``from tests._utils import ...``): dtype-aware tolerances, the emulator's test frame source, and the command line run as a
 user runs it, importing this tree."""
 
 import os

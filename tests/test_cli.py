@@ -4,9 +4,9 @@ import re
 
 import numpy as np
 import pytest
-from _utils import run_cli
 
 from gtsjax.cli import main
+from tests._utils import run_cli
 
 
 def run(*args):

@@ -19,7 +19,6 @@ import time
 import matplotlib.image
 import numpy as np
 import pytest
-from _utils import popen_cli, run_cli
 
 from gtsjax.cli import main
 from gtsjax.cli.demo import DEMO_SCENARIO, DEMO_SEED, demo_model_path
@@ -31,6 +30,7 @@ from gtsjax.io.serial import Link
 from gtsjax.sensors import URG_04LX
 from gtsjax.sim import simulate
 from gtsjax.sim.emulator import SensorEmulator, log_source
+from tests._utils import popen_cli, run_cli
 
 DEMO_MODEL = demo_model_path()
 PATIENCE_S = 300.0  # a child that compiles the step on a loaded 2-core machine; never a measurement

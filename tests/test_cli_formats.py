@@ -12,13 +12,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from _utils import run_cli
 
 from gtsjax.cli import main
 from gtsjax.core.geometry import wrap as wrap_angle
 from gtsjax.io import ScanLog, load_log, save_log
 from gtsjax.io.gtd import GTDWriter, TrackRow, read_gtd
 from gtsjax.io.importers import import_log
+from tests._utils import run_cli
 
 LEG_BAG = "leg_tracker_positive_1.bag"
 CARMEN = "carmen_intel-corrected.log.gz"

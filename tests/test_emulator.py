@@ -6,12 +6,12 @@ import time
 import numpy as np
 import pytest
 import serial
-from _utils import frame_source
 
 from gtsjax.io import scip
 from gtsjax.io.logs import ScanLog
 from gtsjax.sensors import URG_04LX, UTM_30LX
 from gtsjax.sim.emulator import Faults, SensorEmulator, log_source
+from tests._utils import frame_source
 
 
 class Client:

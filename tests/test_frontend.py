@@ -9,7 +9,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from _utils import assert_allclose
 
 from gtsjax.core.b_features import characterise
 from gtsjax.core.frontend import FrontEndConfig, front_end_batch
@@ -17,6 +16,7 @@ from gtsjax.core.frontend import front_end as front_end_pure
 from gtsjax.core.scan import Scan
 from gtsjax.io.logs import ScanLog, to_scans
 from gtsjax.sensors import URG_04LX, UTM_30LX
+from tests._utils import assert_allclose
 
 TOL = dict(rtol=1e-5, atol=1e-5)
 

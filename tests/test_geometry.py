@@ -10,12 +10,12 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from _utils import run_cli
 
 from gtsjax import InputError
 from gtsjax.io import ScanLog, save_log
 from gtsjax.io.logs import fit_geometry, fit_to_model
 from gtsjax.sensors import URG_04LX
+from tests._utils import run_cli
 
 DEMO_MODEL = Path(__file__).resolve().parents[1] / "gtsjax" / "data" / "demo-model.npz"
 SPL_SITE = ('{"landmarks": [{"class": "post", "x": 0.0, "y": 1.3}, {"class": "post", "x": 0.0, "y": 2.7},'

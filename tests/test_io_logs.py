@@ -5,11 +5,11 @@ import zipfile
 
 import numpy as np
 import pytest
-from _utils import assert_allclose
 
 from gtsjax import InputError
 from gtsjax.io import ScanLog, from_scans, load_log, save_log, to_scans
 from gtsjax.sensors import URG_04LX
+from tests._utils import assert_allclose
 
 
 def good_log(t=5, n=682, labelled=True, intensities=False, seed=0) -> dict[str, np.ndarray]:

@@ -8,7 +8,6 @@ import equinox as eqx
 import jax
 import numpy as np
 import pytest
-from _utils import run_cli
 
 from gtsjax import InputError
 from gtsjax.cli import main
@@ -20,6 +19,7 @@ from gtsjax.io.logs import ScanLog, fit_to_model
 from gtsjax.io.modelfile import load_model, read_header
 from gtsjax.sensors import UTM_30LX
 from gtsjax.sim import simulate
+from tests._utils import run_cli
 
 
 def test_training_report_is_complete(tiny):

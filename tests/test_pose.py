@@ -3,11 +3,11 @@
 import jax
 import jax.numpy as jnp
 import numpy as np
-from _utils import assert_allclose
 
 from gtsjax import gp
 from gtsjax.core.e_pose import PoseRegressor, regress, regress_one_class
 from gtsjax.train.calibrate import calibrate
+from tests._utils import assert_allclose
 
 
 def _regressor(rng):

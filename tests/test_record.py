@@ -11,12 +11,12 @@ import time
 
 import numpy as np
 import pytest
-from _utils import cli_env, run_cli
 
 from gtsjax.errors import InputError
 from gtsjax.io.logs import load_log
 from gtsjax.io.record import Recorder, journal_path, main, read_journal, recover
 from gtsjax.sensors import URG_04LX, UTM_30LX
+from tests._utils import cli_env, run_cli
 
 
 def _scan(k, n):

@@ -9,12 +9,12 @@ import tty
 
 import numpy as np
 import pytest
-from _utils import assert_allclose, frame_source
 
 from gtsjax.io import scip
 from gtsjax.io.serial import ClockSync, Link, LinkError
 from gtsjax.sensors import URG_04LX, UTM_30LX
 from gtsjax.sim.emulator import Faults, SensorEmulator
+from tests._utils import assert_allclose, frame_source
 
 # Time allowed for a wanted number of frames to arrive: a bound against hanging, never a measurement.
 PATIENCE_S = 30.0
