@@ -80,6 +80,12 @@ def popen_cli(*args, **kwargs) -> subprocess.Popen:
     """``python -m gtsjax ARGS`` started in the background (stdout a pipe of text lines)."""
     kwargs.setdefault("stdout", subprocess.PIPE)
     kwargs.setdefault("stderr", subprocess.PIPE)
-    return subprocess.Popen(
-        [sys.executable, "-m", "gtsjax", *map(str, args)], text=True, bufsize=1, env=cli_env(), **kwargs
-    )
+    # Ctrl-C as a user's terminal delivers it: a shell that starts the tests in the background (a CI
+    # script's ``&``, ``nohup``) leaves SIGINT ignored, and a child that inherits that never sees one.
+    # The child restores it itself (a ``preexec_fn`` would fork a process that runs JAX's threads).
+    return subprocess.Popen([sys.executable, "-c", _RUN_WITH_SIGINT, *map(str, args)], text=True, bufsize=1,
+                            env=cli_env(), **kwargs)
+
+
+_RUN_WITH_SIGINT = ("import runpy, signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
+                    "sys.argv[0] = 'gtsjax'; runpy.run_module('gtsjax', run_name='__main__', alter_sys=True)")
