@@ -13,6 +13,7 @@ import re
 import select
 import signal
 import socket
+import subprocess
 import threading
 import time
 
@@ -310,6 +311,9 @@ def test_emulate_fault_options(tmp_path, option, value, fault):
         proc.send_signal(signal.SIGINT)
         try:
             proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()  # no emulator outlives a failed test
+            raise
         finally:
             proc.stdout.close()
             proc.stderr.close()
