@@ -22,11 +22,21 @@ updates the track's position only, and its heading neither supports nor rejects 
 a partial view (below) it may start and confirm a track.
 
 Gating alone cannot undo a wrong start: a track born on a misread heading rejects every right one.
-So each track also keeps a *rival* heading, the running mean of the rejected headings that agree
-with one another, and for the track's heading and its rival a support, the number of detections
-that agreed with each, fading with a time constant ``heading_memory``. When the rival's support
-exceeds the heading's by half a detection, the two swap. Whatever the track was born on, the heading that most scans
-agree on wins within about ``heading_memory``; scattered misreads never build up a rival.
+So the heading is a **mixture over side hypotheses** (Rao–Blackwellised: position and velocity are
+shared, the heading is not). Each track keeps ``SIDES`` heading hypotheses, each with a variance and a
+log-weight: at birth, its first detection's sides (stage e′: the refined poses from the GP's heading
+and from it turned to the outline's other sides, each with a posterior probability). Each scan the
+hypotheses turn with the track's turn rate and grow as uncertain as its heading; an assigned
+detection's evidence for hypothesis ``j`` is ``log Σ_h p(h) N(z_h; φ_j, σ_j² + r)`` over its sides,
+with a floor for a heading none of them explains (:func:`side_evidence`); the log-weights fade
+towards uniform with the time constant ``heading_memory`` and add the evidence; each hypothesis
+takes its nearest detection side as a one-dimensional Kalman update where it passes the heading gate.
+The state's heading is one of the hypotheses, its *main* one; where another becomes three times as
+probable, the state's heading becomes that hypothesis (its variance, no correlation with the rest of
+the state), and the state's update then uses the detection side nearest it. So a static robot whose
+scans disagree converges to the side the evidence favours, summed over the last second, not to the
+last scan's or the majority's; a robot that turns turns all its hypotheses. Detections without sides
+(a class without an outline) have one, and the mixture is then a single hypothesis.
 
 Track life cycle (the paper leaves it open): an unassigned detection of a tracked class starts a
 tentative track in a free slot unless a live track of its class, or an earlier detection of its
@@ -85,6 +95,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
+from .e_refine import SIDES
 from .geometry import wrap
 
 _F32 = jnp.float32
@@ -116,7 +127,7 @@ class TrackerParams(eqx.Module):
     omega_var0: Float[Array, ""]  # initial turn-rate variance, (rad/s)²
     gate: Float[Array, " classes"]  # per-class Mahalanobis gate on position (χ², 2 dof)
     heading_gate: Float[Array, ""]  # gate on an assigned detection's heading innovation (χ², 1 dof)
-    heading_memory: Float[Array, ""]  # s: time constant over which heading support fades
+    heading_memory: Float[Array, ""]  # s: time constant over which the heading hypotheses' evidence fades
     max_speed: Float[Array, " classes"]  # m/s: a track faster than its class's is implausible
     max_turn_rate: Float[Array, " classes"]  # rad/s: |ω| is kept below its class's; faster is implausible
     tracked: Bool[Array, " classes"]  # which classes are mobile (tracked); landmarks and background are not
@@ -135,7 +146,7 @@ class TrackerParams(eqx.Module):
         strides, does not make a track), deletion of a confirmed
         track after 1 s without detections, of a tentative one after 0.3 s, reported while it has
         missed less than 0.3 s; position gate
-        χ²₂(0.999) = 13.82, heading gate χ²₁(0.999) = 10.83, heading support fading over 1 s (a wrong
+        χ²₂(0.999) = 13.82, heading gate χ²₁(0.999) = 10.83, heading evidence fading over 1 s (a wrong
         heading is given up within about a second); turn-rate noise ``q_theta`` 0.02 rad²/s³ (the turn
         rate of a robot changes slowly: with the 0.5 of before, a few scans without a detection left a
         heading so uncertain that a misread passed its gate and took it; chosen on simulated seeds
@@ -182,13 +193,14 @@ class TrackerState(eqx.Module):
     hits: Int[Array, " tracks"]  # detections since birth or since the last implausible scan
     misses: Int[Array, " tracks"]  # consecutive scans without a detection
     contrary: Int[Array, " tracks"]  # while tentative: scans with no detection but an ``other`` candidate near
-    rival: Float[Array, " tracks"]  # the rival heading (see the module docstring)
-    support: Float[Array, " tracks"]  # fading count of detections that agreed with the heading
-    rival_support: Float[Array, " tracks"]  # ... and with the rival
+    side_heading: Float[Array, "tracks sides"]  # the heading hypotheses (see the module docstring)
+    side_var: Float[Array, "tracks sides"]  # their variances
+    side_logw: Float[Array, "tracks sides"]  # their log-weights, normalised; -inf: unused
+    main: Int[Array, " tracks"]  # the hypothesis the state's heading is
     next_id: Int[Array, ""]
 
     @classmethod
-    def empty(cls, max_tracks: int) -> "TrackerState":
+    def empty(cls, max_tracks: int, sides: int = SIDES) -> "TrackerState":
         m = max_tracks
         return cls(
             mean=jnp.zeros((m, NX), _F32),
@@ -200,9 +212,10 @@ class TrackerState(eqx.Module):
             hits=jnp.zeros(m, jnp.int32),
             misses=jnp.zeros(m, jnp.int32),
             contrary=jnp.zeros(m, jnp.int32),
-            rival=jnp.zeros(m, _F32),
-            support=jnp.zeros(m, _F32),
-            rival_support=jnp.zeros(m, _F32),
+            side_heading=jnp.zeros((m, sides), _F32),
+            side_var=jnp.ones((m, sides), _F32),
+            side_logw=jnp.full((m, sides), -jnp.inf, _F32).at[:, 0].set(0.0),
+            main=jnp.zeros(m, jnp.int32),
             next_id=jnp.asarray(0, jnp.int32),
         )
 
@@ -225,6 +238,10 @@ class Detections(eqx.Module):
     other: Bool[Array, " dets"] | None = None
     partial: Bool[Array, " dets"] | None = None
     vague: Bool[Array, " dets"] | None = None
+    # The side hypotheses of each detection (stage e′): pose in O and log-probability per side (-inf
+    # where unused). ``None``: one side, ``pose``.
+    side_pose: Float[Array, "dets sides 3"] | None = None
+    side_logp: Float[Array, "dets sides"] | None = None
 
 
 def motion_model(dt: Float[Array, ""], params: TrackerParams) -> tuple[Float[Array, "6 6"], Float[Array, "6 6"]]:
@@ -252,7 +269,12 @@ def predict(state: TrackerState, dt: Float[Array, ""], params: TrackerParams) ->
     mean = jnp.einsum("ij,mj->mi", F, state.mean)
     mean = mean.at[:, 2].set(wrap(mean[:, 2]))
     cov = jnp.einsum("ij,mjk,lk->mil", F, state.cov, F) + Q[None]
-    return eqx.tree_at(lambda s: (s.mean, s.cov), state, (mean, cov))
+    # The heading hypotheses turn with the state's heading, and grow as uncertain as it does.
+    turn = mean[:, 2:3] - state.mean[:, 2:3]
+    side_heading = wrap(state.side_heading + wrap(turn))
+    side_var = state.side_var + (cov[:, 2:3, 2] - state.cov[:, 2:3, 2])
+    return eqx.tree_at(lambda s: (s.mean, s.cov, s.side_heading, s.side_var), state,
+                       (mean, cov, side_heading, side_var))
 
 
 def innovation(mean: Float[Array, "6"], cov: Float[Array, "6 6"], z: Float[Array, "3"], R: Float[Array, "3 3"]):
@@ -337,37 +359,69 @@ def assign(cost: Float[Array, "dets tracks"]) -> tuple[Int[Array, " tracks"], Bo
     return det_of_track, has
 
 
-# How much more support the rival needs to take over: half a detection, so that a tie (a newborn
-# track's one detection against one that disagrees) keeps the heading.
-_SWAP_MARGIN = 0.5
+# A detection's heading that none of its sides explains (a side the refinement did not try): its
+# likelihood under any hypothesis is at least that of a uniform heading with this weight.
+_OUTLIER_P = 0.01
+# The weight a new hypothesis starts with (see :func:`heading_mixture`).
+_NEW_P = 0.1
+# How much more weight another hypothesis needs before the state's heading becomes it: odds of 3 to 1.
+_SWITCH_ODDS = 3.0
 
 
-def rival_heading(state: TrackerState, mean, cov, z_theta, r_theta, has, head_ok, dt, params: TrackerParams):
-    """The heading's rival and the two supports after this scan's detections (see the module
-    docstring); where the rival wins, it becomes the heading (with the detection's variance and no
-    correlation to the rest of the state) and the heading becomes the rival.
+def detection_sides(det: "Detections", sides: int) -> tuple[Float[Array, "dets sides 3"], Float[Array, "dets sides"]]:
+    """A detection's side poses and log-probabilities; a detection without them has one side, its pose.
+    (The tracker reads the sides' headings; their positions are the detection's, ``e_refine.refine``.)"""
+    if det.side_pose is not None and det.side_logp is not None:
+        return det.side_pose, det.side_logp
+    k = det.pose.shape[0]
+    logp = jnp.full((k, sides), -jnp.inf, det.pose.dtype).at[:, 0].set(0.0)
+    return jnp.broadcast_to(det.pose[:, None, :], (k, sides, 3)), logp
 
-    A rejected heading joins the rival if it agrees with it (the heading gate, with twice the
-    detection's variance for the rival's own uncertainty), moving the rival to the support-weighted
-    mean; else it replaces a rival whose support has faded below one detection."""
+
+def side_evidence(heading: Float[Array, "tracks sides"], var: Float[Array, "tracks sides"],
+                  z: Float[Array, "tracks zsides"], z_logp: Float[Array, "tracks zsides"], r: Float[Array, " tracks"]):
+    """The evidence of one detection per track for each of its heading hypotheses, ``log p(z | j) =
+    log Σ_h p(h) N(z_h; φ_j, σ_j² + r)`` over the detection's sides ``h`` (with a floor, ``_OUTLIER_P``
+    of a uniform heading); for each hypothesis the detection side nearest it, the innovation and its
+    variance, and the squared normalised innovation."""
+    nu = wrap(z[:, None, :] - heading[:, :, None])  # [M, j, h]
+    S = var[:, :, None] + r[:, None, None]
+    d2 = nu**2 / S
+    usable = jnp.isfinite(z_logp)[:, None, :]
+    ll = jnp.where(usable, z_logp[:, None, :] - 0.5 * d2 - 0.5 * jnp.log(2 * jnp.pi * S), -jnp.inf)
+    ev = jnp.logaddexp(jax.nn.logsumexp(ll, axis=-1), jnp.log(_OUTLIER_P / (2 * jnp.pi)))
+    near = jnp.argmin(jnp.where(usable, d2, jnp.inf), axis=-1).astype(jnp.int32)  # [M, j]
+    pick = lambda a: jnp.take_along_axis(a, near[..., None], -1)[..., 0]  # noqa: E731
+    return ev, near, pick(nu), S[..., 0], pick(d2)  # S is the same for every side h
+
+
+def heading_mixture(state: TrackerState, ev, near, nu, S, d2, seen, z_best, r, dt, params: TrackerParams):
+    """Weights and headings of every track's hypotheses after this scan's evidence (see the module
+    docstring): the log-weights fade towards uniform over ``heading_memory`` and add the evidence; each
+    hypothesis within the heading gate of its nearest detection side takes it as a one-dimensional
+    Kalman update. Returns the new headings, variances, log-weights and the hypothesis the state's
+    heading becomes (the most probable one, where its odds over the present one exceed ``_SWITCH_ODDS``)."""
+    used = jnp.isfinite(state.side_logw)
     fade = jnp.exp(-dt / params.heading_memory)
-    sup = state.support * fade
-    rsup = state.rival_support * fade
-    rej = has & ~head_ok
-    nu = wrap(z_theta - state.rival)
-    agree = nu**2 <= params.heading_gate * 2.0 * r_theta
-    join = rej & agree
-    fresh = rej & ~agree & (rsup < 1.0)
-    rsup = jnp.where(join, rsup + 1.0, jnp.where(fresh, 1.0, rsup))
-    rival = jnp.where(join, wrap(state.rival + nu / rsup), jnp.where(fresh, z_theta, state.rival))
-    sup = jnp.where(has & head_ok, sup + 1.0, sup)
-    swap = rsup > sup + _SWAP_MARGIN
-    theta = mean[:, 2]
-    mean = mean.at[:, 2].set(jnp.where(swap, rival, theta))
-    cross = jnp.where(swap[:, None], 0.0, cov[:, 2, :])
-    cov = cov.at[:, 2, :].set(cross).at[:, :, 2].set(cross)
-    cov = cov.at[:, 2, 2].set(jnp.where(swap, r_theta, cov[:, 2, 2]))
-    return mean, cov, (jnp.where(swap, theta, rival), jnp.where(swap, rsup, sup), jnp.where(swap, sup, rsup))
+    lw = jnp.where(used, fade * jnp.where(used, state.side_logw, 0.0) + jnp.where(seen[:, None], ev, 0.0), -jnp.inf)
+    lw = lw - jax.nn.logsumexp(lw, axis=-1, keepdims=True)
+    upd = seen[:, None] & used & (d2 <= params.heading_gate)
+    gain = state.side_var / S
+    heading = jnp.where(upd, wrap(state.side_heading + gain * nu), state.side_heading)
+    var = jnp.where(upd, (1.0 - gain) * state.side_var, state.side_var)
+    side = jnp.arange(lw.shape[1], dtype=jnp.int32)[None, :]
+    d2_best = wrap(z_best[:, None] - heading) ** 2 / (var + r[:, None])
+    explained = jnp.any(used & (d2_best <= params.heading_gate), axis=-1)
+    weakest = jnp.argmin(jnp.where(side == state.main[:, None], jnp.inf, lw), axis=-1).astype(jnp.int32)
+    new = (side == weakest[:, None]) & (seen & ~explained)[:, None]
+    heading = jnp.where(new, z_best[:, None], heading)
+    var = jnp.where(new, r[:, None], var)
+    lw = jnp.where(new, jnp.log(_NEW_P), lw)
+    lw = lw - jax.nn.logsumexp(lw, axis=-1, keepdims=True)
+    best = jnp.argmax(lw, axis=-1).astype(jnp.int32)
+    at = lambda a, i: jnp.take_along_axis(a, i[:, None], -1)[:, 0]  # noqa: E731
+    switch = at(lw, best) - at(lw, state.main) > jnp.log(_SWITCH_ODDS)
+    return heading, var, lw, jnp.where(switch, best, state.main), switch
 
 
 def plausible(mean: Float[Array, "tracks 6"], cov: Float[Array, "tracks 6 6"], omega: Float[Array, " tracks"],
@@ -443,36 +497,55 @@ def track_step(
     det_of_track = jnp.where(has, det_of_track, det2)
     has = has | has2
 
-    z, R = det.pose[det_of_track], det.cov[det_of_track]
-    head_ok = jax.vmap(heading_consistent, in_axes=(0, 0, 0, 0, None))(state.mean, state.cov, z, R, params.heading_gate)
+    side_pose, side_logp = detection_sides(det, state.side_heading.shape[1])
+    R = det.cov[det_of_track]
+    zs, zlp = side_pose[det_of_track], side_logp[det_of_track]  # [M, sides, 3], [M, sides]
     # A partial view's heading comes from a cut outline: it updates the position only, and neither
     # supports nor rejects the track's heading.
     seen = has if det.partial is None else has & ~det.partial[det_of_track]
     # So does a vague one: a heading read with a variance that good reads of the class almost never
     # have is more often a misread than not.
     seen = seen if det.vague is None else seen & ~det.vague[det_of_track]
+    # The heading hypotheses: evidence, weights, their own updates; the state's heading becomes the
+    # most probable one where it wins clearly (its variance, no correlation with the rest of the state).
+    ev, near, nu_h, S_h, d2_h = side_evidence(state.side_heading, state.side_var, zs[..., 2], zlp, R[:, 2, 2])
+    side_heading, side_var, side_logw, main, switch = heading_mixture(
+        state, ev, near, nu_h, S_h, d2_h, seen, det.pose[det_of_track, 2], R[:, 2, 2], dt, params)
+    at = lambda a, i: jnp.take_along_axis(a, i[:, None], 1)[:, 0]  # noqa: E731
+    theta0 = jnp.where(switch, at(state.side_heading, main), state.mean[:, 2])
+    cross = jnp.where(switch[:, None], 0.0, state.cov[:, 2, :])
+    cov0 = state.cov.at[:, 2, :].set(cross).at[:, :, 2].set(cross)
+    cov0 = cov0.at[:, 2, 2].set(jnp.where(switch, at(state.side_var, main), state.cov[:, 2, 2]))
+    mean0 = state.mean.at[:, 2].set(theta0)
+    # The measurement: the detection's position, and the heading of its side nearest the state's.
+    h = at(near, main)
+    z = jnp.concatenate([det.pose[det_of_track, :2], at(zs[..., 2], h)[:, None]], -1)
+    head_ok = jax.vmap(heading_consistent, in_axes=(0, 0, 0, 0, None))(mean0, cov0, z, R, params.heading_gate)
     # A confirmed track's heading that would turn it faster than its class can (``plausible``'s
     # turn-rate test on the updated estimate) is a misread, most often after a few scans without a
     # detection have widened the heading's gate: rejected like one that fails the gate.
-    upd_mean, upd_cov = jax.vmap(kalman_update)(state.mean, state.cov, z, R, head_ok & seen)
+    upd_mean, upd_cov = jax.vmap(kalman_update)(mean0, cov0, z, R, head_ok & seen)
     turn_ok = plausible_turn(upd_mean[:, 5], upd_cov, state.class_id, params)
     head_ok = head_ok & (turn_ok | ~state.confirmed)
-    upd_mean, upd_cov = jax.vmap(kalman_update)(state.mean, state.cov, z, R, head_ok & seen)
+    upd_mean, upd_cov = jax.vmap(kalman_update)(mean0, cov0, z, R, head_ok & seen)
     # A rejected heading discards a turn rate learnt from headings (see the module docstring). One
     # already discarded (its variance back at omega_var0 or above) is left as it is, with its
     # correlation to the heading: over consecutive rejections the heading's variance then grows with
     # the square of the time, as a turn at up to that rate would move it, not linearly, and a robot
     # that really turns is taken back within a few scans instead of being coasted past.
-    forget = (seen & ~head_ok & (state.cov[:, 5, 5] < params.omega_var0))[:, None]
+    forget = (seen & ~head_ok & (cov0[:, 5, 5] < params.omega_var0))[:, None]
     upd_cov = upd_cov.at[:, 5, :].set(jnp.where(forget, 0.0, upd_cov[:, 5, :]))
     upd_cov = upd_cov.at[:, :, 5].set(jnp.where(forget, 0.0, upd_cov[:, :, 5]))
     upd_cov = upd_cov.at[:, 5, 5].set(jnp.where(forget[:, 0], params.omega_var0, upd_cov[:, 5, 5]))
     omega_raw = jnp.where(forget[:, 0], 0.0, upd_mean[:, 5])  # the turn rate before clipping, for plausible()
     turn_max = params.max_turn_rate[state.class_id]
     upd_mean = upd_mean.at[:, 5].set(jnp.clip(omega_raw, -turn_max, turn_max))
-    upd_mean, upd_cov, rivals = rival_heading(state, upd_mean, upd_cov, z[:, 2], R[:, 2, 2], seen, head_ok, dt, params)
-    mean = jnp.where(has[:, None], upd_mean, state.mean)
-    cov = jnp.where(has[:, None, None], upd_cov, state.cov)
+    mean = jnp.where(has[:, None], upd_mean, mean0)
+    cov = jnp.where(has[:, None, None], upd_cov, cov0)
+    # The state's heading is its main hypothesis: the hypothesis takes the state's update.
+    onehot = jnp.arange(side_heading.shape[1], dtype=jnp.int32)[None, :] == main[:, None]
+    side_heading = jnp.where(onehot, mean[:, 2:3], side_heading)
+    side_var = jnp.where(onehot, cov[:, 2:3, 2], side_var)
     hits = state.hits + has.astype(jnp.int32)
     misses = jnp.where(has, 0, state.misses + 1)
     contrary = state.contrary + (~has & ~state.confirmed & other_near).astype(jnp.int32)
@@ -522,9 +595,10 @@ def track_step(
         hits=jnp.where(born, 1, jnp.where(live, hits, 0)),
         misses=jnp.where(born | ~live, 0, misses),
         contrary=jnp.where(born | ~live, 0, contrary),
-        rival=jnp.where(born, 0.0, rivals[0]),
-        support=jnp.where(born, 1.0, rivals[1]),
-        rival_support=jnp.where(born, 0.0, rivals[2]),
+        side_heading=jnp.where(born[:, None], side_pose[src, :, 2], side_heading),
+        side_var=jnp.where(born[:, None], det.cov[src, 2:3, 2], side_var),
+        side_logw=jnp.where(born[:, None], side_logp[src], side_logw),
+        main=jnp.where(born, jnp.argmax(side_logp[src], axis=-1).astype(jnp.int32), main),
         next_id=state.next_id + n_born,
     )
     used_by_track = used

@@ -1,5 +1,6 @@
 """Stage g, tracking: one filterpy ``KalmanFilter`` per track with gtsjax's motion model and track life
-cycle, written out plainly from the module docstring of ``gtsjax.core.g_track``."""
+cycle, and per track a mixture over heading side hypotheses, written out plainly from the module
+docstring of ``gtsjax.core.g_track``."""
 
 import dataclasses
 import math
@@ -8,11 +9,27 @@ import numpy as np
 from filterpy.kalman import KalmanFilter
 
 NX = 6
+SIDES = 4  # heading hypotheses per track (gtsjax: ``e_refine.SIDES``)
+
+# The heading mixture's constants (gtsjax: ``g_track._OUTLIER_P``, ``_NEW_P``, ``_SWITCH_ODDS``): a
+# detection's heading that none of its sides explains is at least this likely under a uniform heading;
+# a new hypothesis starts with this weight; another hypothesis becomes the state's heading at these odds.
+OUTLIER_P = 0.01
+NEW_P = 0.1
+SWITCH_ODDS = 3.0
 
 
 def wrap(a):
     """Angle to (−π, π]."""
     return np.pi - np.mod(np.pi - a, 2 * np.pi)
+
+
+def logsumexp(values) -> float:
+    """``log Σ exp`` of a list of floats, some of them maybe ``-inf``."""
+    top = max(values)
+    if top == -math.inf:
+        return -math.inf
+    return top + math.log(sum(math.exp(v - top) for v in values))
 
 
 @dataclasses.dataclass
@@ -21,12 +38,13 @@ class Track:
     cls: int
     track_id: int
     confirmed: bool
+    heading: np.ndarray  # [SIDES] heading hypotheses
+    var: np.ndarray  # [SIDES] their variances
+    logw: np.ndarray  # [SIDES] their log-weights, normalised; -inf: unused
+    main: int  # the hypothesis the filter's heading is
     hits: int = 1
     misses: int = 0
     contrary: int = 0
-    rival: float = 0.0
-    support: float = 1.0
-    rival_support: float = 0.0
 
 
 class Tracker:
@@ -34,18 +52,32 @@ class Tracker:
 
     Gating follows the model's tracker: on position (2 dof), with an assigned detection's heading used
     only if its own innovation passes ``heading_gate`` (otherwise a position-only update, and the
-    turn rate is forgotten); ``|ω| ≤ max_turn_rate`` of the track's class; a rival heading with fading
-    support that takes over when more detections agree with it; leftover detections within
-    ``birth_exclusion`` of a leftover track recaptured by it; confirmation after ``n_confirm`` hits, if
-    more than the tentative scans with no detection but an "other" candidate within
-    ``birth_exclusion`` of the prediction (``contrary``), and if the motion is plausible: speed at most
-    ``max_speed + 2 σ_v`` (``σ_v²`` the largest eigenvalue of the velocity covariance, from
-    ``eigvalsh``), turn rate before clipping at most ``max_turn_rate + 2 σ_ω``; an implausible scan
-    takes the confirmation away and restarts ``hits`` and ``contrary`` at 0; tracks reported while
-    confirmed and missed fewer than ``m_report`` scans (written out plainly from the module docstring
-    of ``gtsjax.core.g_track``)."""
+    turn rate is forgotten); ``|ω| ≤ max_turn_rate`` of the track's class; the heading a mixture over
+    side hypotheses (below); leftover detections within ``birth_exclusion`` of a leftover track
+    recaptured by it; confirmation after ``n_confirm`` hits, if more than the tentative scans with no
+    detection but an "other" candidate within ``birth_exclusion`` of the prediction (``contrary``), and
+    if the motion is plausible: speed at most ``max_speed + 2 σ_v`` (``σ_v²`` the largest eigenvalue of
+    the velocity covariance, from ``eigvalsh``), turn rate before clipping at most ``max_turn_rate +
+    2 σ_ω``; an implausible scan takes the confirmation away and restarts ``hits`` and ``contrary`` at
+    0; tracks reported while confirmed and missed fewer than ``m_report`` scans.
 
-    def __init__(self, params, max_tracks: int):
+    The heading mixture, per track and hypothesis ``j`` (heading ``φ_j``, variance ``σ_j²``, log-weight
+    ``w_j``): the prediction turns ``φ_j`` by the filter's heading change and adds to ``σ_j²`` what the
+    filter's heading variance gained. An assigned detection (neither partial nor vague) with sides ``h``
+    (headings ``z_h``, log-probabilities ``log p_h``; one side, its heading, by default) and heading
+    variance ``r`` has the evidence ``e_j = log(Σ_h p_h N(z_h; φ_j, σ_j² + r) + OUTLIER_P / 2π)``;
+    every scan ``w_j ← exp(−dt / heading_memory) w_j + e_j`` (no ``e_j`` without such a detection),
+    normalised. Each hypothesis whose nearest side passes ``heading_gate`` takes it as a scalar Kalman
+    update. Where no hypothesis (updated) has the detection's most probable side within the gate, that
+    side replaces the weakest hypothesis other than the filter's (``main``): heading ``z``, variance
+    ``r``, weight ``NEW_P`` before normalising. Where the most probable hypothesis has more than
+    ``SWITCH_ODDS`` times the weight of ``main``, it becomes ``main``: the filter's heading is set to
+    that hypothesis's predicted heading and variance, uncorrelated with the rest of the state. The
+    filter's update then uses the side nearest ``main``'s predicted heading; after it, ``main`` is the
+    filter's heading and variance. A new track's hypotheses are its detection's sides (variance ``r``,
+    log-weights ``log p_h``), ``main`` the most probable."""
+
+    def __init__(self, params, max_tracks: int, sides: int = SIDES):
         g = {f.name: np.asarray(getattr(params, f.name)) for f in dataclasses.fields(params)}
         self.q_pos, self.q_theta = float(g["q_pos"]), float(g["q_theta"])
         self.vel_var0, self.omega_var0 = float(g["vel_var0"]), float(g["omega_var0"])
@@ -60,6 +92,7 @@ class Tracker:
         self.birth_exclusion = float(g["birth_exclusion"])
         self.constant_velocity = bool(g["constant_velocity"])
         self.max_tracks = max_tracks
+        self.sides = sides
         self.H = np.hstack([np.eye(3), np.zeros((3, 3))])
         self.reset()
 
@@ -91,6 +124,54 @@ class Tracker:
             and abs(omega) <= self.max_turn_rate[t.cls] + 2.0 * sigma_w
         )
 
+    def mixture(self, t: Track, zh, zlp, r: float, seen: bool, dt: float) -> tuple[int, int | None]:
+        """This scan's weights and updates of the track's (predicted) heading hypotheses, for a
+        detection with side headings ``zh`` and log-probabilities ``zlp`` (``None``: no detection) and
+        heading variance ``r``, whose heading is used where ``seen``. Returns the hypothesis the filter's
+        heading is to be and the index of the detection's side nearest that hypothesis's prediction."""
+        n = len(t.logw)
+        phi, var = t.heading.copy(), t.var.copy()  # the predicted hypotheses
+        used = [j for j in range(n) if np.isfinite(t.logw[j])]
+        sides = [] if zh is None else [h for h in range(len(zh)) if np.isfinite(zlp[h])]
+
+        def nearest(j):  # the detection's side nearest hypothesis j's prediction
+            return min(sides, key=lambda h: abs(wrap(zh[h] - phi[j])))
+
+        fade = math.exp(-dt / self.heading_memory)
+        logw = np.full(n, -np.inf)
+        for j in used:
+            logw[j] = fade * t.logw[j]
+            if seen:
+                s = var[j] + r
+                terms = [zlp[h] - 0.5 * wrap(zh[h] - phi[j]) ** 2 / s - 0.5 * math.log(2 * math.pi * s) for h in sides]
+                logw[j] += logsumexp([logsumexp(terms), math.log(OUTLIER_P / (2 * math.pi))])
+        logw -= logsumexp(list(logw))
+        if seen:
+            for j in used:  # each hypothesis takes its nearest side where that passes the heading gate
+                h = nearest(j)
+                nu = wrap(zh[h] - phi[j])
+                s = var[j] + r
+                if nu**2 / s <= self.heading_gate:
+                    t.heading[j] = wrap(phi[j] + var[j] / s * nu)
+                    t.var[j] = (1.0 - var[j] / s) * var[j]
+            # the detection's most probable side, if no hypothesis explains it, replaces the weakest one
+            best_side = max(sides, key=lambda h: zlp[h])
+            z = zh[best_side]
+            if not any(wrap(z - t.heading[j]) ** 2 / (t.var[j] + r) <= self.heading_gate for j in used):
+                weakest = min((j for j in range(n) if j != t.main), key=lambda j: logw[j])
+                t.heading[weakest], t.var[weakest], logw[weakest] = z, r, math.log(NEW_P)
+                logw -= logsumexp(list(logw))
+        t.logw = logw
+        best = max(range(n), key=lambda j: logw[j])
+        main = best if logw[best] - logw[t.main] > math.log(SWITCH_ODDS) else t.main
+        if main != t.main:  # the filter's heading becomes that hypothesis (as predicted)
+            t.kf.x[2] = phi[main]
+            t.kf.P[2, :] = 0.0
+            t.kf.P[:, 2] = 0.0
+            t.kf.P[2, 2] = var[main]
+            t.main = main
+        return main, (nearest(main) if sides else None)
+
     def step(
         self,
         z: np.ndarray,
@@ -100,22 +181,39 @@ class Tracker:
         other: np.ndarray | None = None,
         partial: np.ndarray | None = None,
         vague: np.ndarray | None = None,
+        side_heading: np.ndarray | None = None,
+        side_logp: np.ndarray | None = None,
     ) -> None:
         """Predict, gate, assign, update, and start, confirm and end tracks, for detections ``z`` [n, 3]
         with covariances ``R`` [n, 3, 3] and classes ``cls`` [n] (all of tracked classes); ``other``
         [n_o, 2]: positions of the scan's other candidates (not detections of a tracked class);
         ``partial`` [n]: occluded views of a class seen whole, which only a confirmed track may take;
         ``vague`` [n]: headings read with a variance above the class's ``heading_var_max``. Neither
-        kind's heading is used or rejected: the track takes its position only."""
+        kind's heading is used or rejected: the track takes its position only. ``side_heading``,
+        ``side_logp`` [n, sides]: each detection's side headings and their log-probabilities (-inf:
+        unused; the most probable side's heading is ``z[:, 2]``); ``None``: one side, ``z[:, 2]``."""
         other = np.zeros((0, 2)) if other is None else np.asarray(other, np.float64).reshape(-1, 2)
         partial = np.zeros(len(z), bool) if partial is None else np.asarray(partial, bool)
         vague = np.zeros(len(z), bool) if vague is None else np.asarray(vague, bool)
+        if side_heading is None or side_logp is None:
+            side_heading = np.repeat(np.asarray(z, np.float64)[:, 2:3], self.sides, axis=1)
+            side_logp = np.full((len(z), self.sides), -np.inf)
+            side_logp[:, 0] = 0.0
+        side_heading = np.asarray(side_heading, np.float64)
+        side_logp = np.asarray(side_logp, np.float64)
         F, Q = self.motion_model(dt)
         live = [i for i, t in enumerate(self.slots) if t is not None]
         for i in live:
-            kf = self.slots[i].kf
+            t = self.slots[i]
+            kf = t.kf
+            theta, var = kf.x[2, 0], kf.P[2, 2]
             kf.predict(F=F, Q=Q)
             kf.x[2] = wrap(kf.x[2])
+            # the hypotheses turn with the filter's heading and grow as uncertain as it does
+            turn = wrap(kf.x[2, 0] - theta)
+            for j in range(len(t.heading)):
+                t.heading[j] = wrap(t.heading[j] + turn)
+                t.var[j] += kf.P[2, 2] - var
         # whether an "other" candidate lies near each track's prediction
         other_near = {
             i: bool(
@@ -162,20 +260,22 @@ class Tracker:
             det_of[i] = j
             near[j, :] = np.inf
             near[:, i] = np.inf
-        fade = math.exp(-dt / self.heading_memory)
         for i in live:
             t = self.slots[i]
-            t.support *= fade
-            t.rival_support *= fade
+            j = det_of.get(i)
+            position_only = j is not None and bool(partial[j] or vague[j])
+            if j is None:
+                self.mixture(t, None, None, 0.0, False, dt)
+            else:
+                _, h = self.mixture(t, side_heading[j], side_logp[j], R[j][2, 2], not position_only, dt)
             omega = t.kf.x[5, 0]  # a coasting track's turn rate: clipped at its last update
-            if i in det_of:
-                j = det_of[i]
+            if j is not None:
                 zj = z[j].copy()
+                zj[2] = side_heading[j, h]  # the side nearest the filter's heading
                 zj[2] = t.kf.x[2, 0] + wrap(zj[2] - t.kf.x[2, 0])  # innovation wrapped
                 r_theta = R[j][2, 2]
                 head_ok = (zj[2] - t.kf.x[2, 0]) ** 2 <= self.heading_gate * (t.kf.P[2, 2] + r_theta)
                 w_max = self.max_turn_rate[t.cls]
-                position_only = partial[j] or vague[j]
                 if head_ok and t.confirmed and not position_only:
                     # a heading that would turn a confirmed track faster than its class can is a misread
                     x0, P0 = t.kf.x.copy(), t.kf.P.copy()
@@ -192,7 +292,6 @@ class Tracker:
                     t.kf.update(zj, R=R[j])
                     omega = t.kf.x[5, 0]
                     t.kf.x[5] = min(max(omega, -w_max), w_max)
-                    t.support += 1.0
                 else:  # position-only update; a turn rate learnt from headings is forgotten
                     learnt = t.kf.P[5, 5] < self.omega_var0  # predicted covariance, before this update
                     t.kf.update(zj[:2, None], R=R[j][:2, :2], H=self.H[:2])
@@ -204,28 +303,16 @@ class Tracker:
                     else:
                         omega = t.kf.x[5, 0]
                         t.kf.x[5] = min(max(omega, -w_max), w_max)
-                    # the rejected heading joins an agreeing rival, or replaces a faded one
-                    nu = wrap(z[j, 2] - t.rival)
-                    if nu**2 <= self.heading_gate * 2.0 * r_theta:
-                        t.rival_support += 1.0
-                        t.rival = wrap(t.rival + nu / t.rival_support)
-                    elif t.rival_support < 1.0:
-                        t.rival, t.rival_support = z[j, 2], 1.0
                 t.kf.x[2] = wrap(t.kf.x[2])
                 t.kf.P = 0.5 * (t.kf.P + t.kf.P.T)
-                if t.rival_support > t.support + 0.5:  # the rival takes over
-                    theta = t.kf.x[2, 0]
-                    t.kf.x[2] = t.rival
-                    t.kf.P[2, :] = 0.0
-                    t.kf.P[:, 2] = 0.0
-                    t.kf.P[2, 2] = r_theta
-                    t.rival, t.support, t.rival_support = theta, t.rival_support, t.support
                 t.hits += 1
                 t.misses = 0
             else:
                 t.misses += 1
                 if not t.confirmed and other_near[i]:
                     t.contrary += 1
+            # the filter's heading is its main hypothesis
+            t.heading[t.main], t.var[t.main] = t.kf.x[2, 0], t.kf.P[2, 2]
             if self.plausible(t, omega):
                 t.confirmed = t.confirmed or (t.hits >= self.n_confirm and t.hits > t.contrary)
             else:  # confirmation restarts, as for a new track
@@ -265,5 +352,9 @@ class Tracker:
             P[3, 3] = P[4, 4] = self.vel_var0
             P[5, 5] = self.omega_var0
             kf.P = P
-            self.slots[i] = Track(kf, int(cls[j]), self.next_id + rank, self.n_confirm <= 1)
+            self.slots[i] = Track(
+                kf, int(cls[j]), self.next_id + rank, self.n_confirm <= 1,
+                heading=side_heading[j].copy(), var=np.full(len(side_heading[j]), R[j][2, 2]),
+                logw=side_logp[j].copy(), main=int(np.argmax(side_logp[j])),
+            )
         self.next_id += min(len(free), len(born))
