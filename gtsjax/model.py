@@ -15,6 +15,7 @@ from jaxtyping import Array, Bool, Float, Int
 from .core.c_filters import Envelope
 from .core.d_classify import Classifier
 from .core.e_pose import PoseRegressor
+from .core.e_refine import Outline
 from .core.frontend import FrontEndConfig
 from .core.g_track import TrackerParams
 from .errors import InputError
@@ -70,6 +71,9 @@ class Model(eqx.Module):
     angle_increment: float = eqx.field(static=True, default=float("nan"))
     range_min: float = eqx.field(static=True, default=0.0)
     range_max: float = eqx.field(static=True, default=float("inf"))
+    # The mobile classes' learnt outlines and side hypotheses (stage e′); None: a model trained before
+    # them, whose poses are the GP's.
+    outline: Outline | None = None
 
     @property
     def n_classes(self) -> int:
@@ -88,6 +92,12 @@ class Model(eqx.Module):
         if n_scans < 1:
             raise InputError("--confirm-scans", f"must be at least 1, not {n_scans}")
         return eqx.tree_at(lambda m: m.tracker.n_confirm, self, jnp.asarray(n_scans, jnp.int32))
+
+    def without_outline(self) -> "Model":
+        """The model without its learnt outlines: no outline refinement (stage e′), every candidate's
+        pose the GP's, its side hypotheses the GP's heading turned by quarter turns
+        (``e_refine.DEFAULT_SIDES``). For comparison (``gtsjax evaluate --without-outline``)."""
+        return eqx.tree_at(lambda m: m.outline, self, None, is_leaf=lambda x: x is None)
 
     def with_site(self, site, *, where: str = "site") -> "Model":
         """Attach a :class:`~gtsjax.io.site.Site`. Every landmark class must be one the model knows

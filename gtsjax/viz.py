@@ -114,3 +114,44 @@ def error_map_figure(site, points, pos_rmse, head_rmse, title: str = ""):
         ax.set_title(label)
     fig.suptitle(title)
     return fig
+
+
+def outline_figure(model, title: str = ""):
+    """What the model learnt each mobile class looks like at the laser's height (stage e′): the outline
+    (zero level of its signed distance field) in the object's own frame, its heading (x) axis, and the
+    outline turned to each of its side hypotheses (faint: the sides a partial view may be taken for)."""
+    out = model.outline
+    ks = [k for k in range(len(model.classes)) if out is not None and bool(out.has[k])]
+    fig, axes = plt.subplots(1, max(len(ks), 1), figsize=(4.6 * max(len(ks), 1), 4.6), constrained_layout=True,
+                             squeeze=False)
+    if not ks:
+        axes[0, 0].text(0.5, 0.5, "no learnt outline", ha="center", va="center")
+        axes[0, 0].set_axis_off()
+        return fig
+    for ax, k in zip(axes[0], ks, strict=True):
+        field = np.asarray(out.field[k, :, :, 0])
+        lo, cell = np.asarray(out.lo[k], float), float(out.cell[k])
+        g = field.shape[0]
+        ax_x = lo[0] + cell * np.arange(g)
+        ax_y = lo[1] + cell * np.arange(g)
+        ax.contourf(ax_x, ax_y, field.T, levels=[-1.0, 0.0], colors=["#cfe0f5"])
+        ax.contour(ax_x, ax_y, field.T, levels=[0.0], colors=["#1f5fa8"], linewidths=2)
+        sides = np.asarray(out.sides[k])[np.asarray(out.side_mask[k])][1:]
+        for a in sides:
+            c, s = math.cos(a), math.sin(a)
+            xx, yy = np.meshgrid(ax_x, ax_y, indexing="ij")
+            ax.contour(c * xx - s * yy, s * xx + c * yy, field, levels=[0.0], colors=["#999"], linewidths=0.8,
+                       linestyles="dashed")
+        r = float(np.max(np.abs(lo)))
+        ax.arrow(0, 0, 0.6 * r, 0, width=0.004 * r / 0.2, color="#c33", zorder=4, length_includes_head=True)
+        ax.plot([0], [0], "k+", ms=10)
+        ax.set_xlim(lo[0], -lo[0])
+        ax.set_ylim(lo[1], -lo[1])
+        ax.set_aspect("equal")
+        ax.set_xlabel("x [m] (heading)")
+        ax.set_ylabel("y [m]")
+        turns = ", ".join(f"{math.degrees(a):+.0f}°" for a in sides) or "none"
+        ax.set_title(f"{model.classes[k]}: learnt outline\nside hypotheses (dashed): {turns}", fontsize=10)
+    if title:
+        fig.suptitle(title)
+    return fig

@@ -82,10 +82,25 @@ def train_cmd(
                        background=bg, background_names=[str(p) for p in background])
     save_model(model, out, summary=rep)
     _summary(Console(), rep, out)
+    if model.outline is not None:
+        import matplotlib.pyplot as plt
+
+        from ..viz import outline_figure
+
+        figure = outline_path(out)
+        fig = outline_figure(model, title=f"{out.name}: what the model learnt the robots look like")
+        fig.savefig(figure, dpi=100)
+        plt.close(fig)
+        console.print(f"wrote {figure} (the learnt outline of each mobile class)")
     for w in rep.get("warnings", []):
         console.print(f"warning: {w}", soft_wrap=True)
     if report is not None:
         report.write_text(json.dumps(rep, indent=2) + "\n")
+
+
+def outline_path(model_path: Path) -> Path:
+    """Where ``train`` draws a model's learnt outlines: beside it, ``NAME-outline.png``."""
+    return model_path.with_name(model_path.stem + "-outline.png")
 
 
 def _is_bag(p: Path) -> bool:

@@ -36,6 +36,7 @@ from jaxtyping import AbstractArray
 from ..core.c_filters import Envelope
 from ..core.d_classify import Classifier, Support
 from ..core.e_pose import PoseRegressor
+from ..core.e_refine import Outline
 from ..core.frontend import FrontEndConfig
 from ..core.g_track import TrackerParams
 from ..errors import InputError
@@ -54,6 +55,7 @@ _TYPES = {
         Support,
         Envelope,
         PoseRegressor,
+        Outline,
         TrackerParams,
         SparseGP,
         GP,

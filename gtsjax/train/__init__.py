@@ -9,6 +9,8 @@ One module per step, in the order :func:`train` takes them (the paper's stages i
 - :mod:`.classifier`: shape envelopes (c), the open-set test and the classifier's GPs (d, eq. 13–14).
 - :mod:`.pose`: the landmark classes' position GPs and the mobile classes' pose GPs (e, eq. 15–17),
   with :mod:`.calibrate` scaling their variances on held-out examples.
+- :mod:`.outline`: each mobile class's learnt outline, its side hypotheses and the calibration of the
+  outline refinement (e′) on held-out examples.
 - :mod:`.motion`: each tracked class's motion limits and the scanner's rate (g).
 - :mod:`.report`: held-out classification as the step decides it, and pose errors.
 - :mod:`.config`: :class:`TrainConfig`.
@@ -38,6 +40,7 @@ from .labels import label_log as label_log
 from .labels import run_front_end as run_front_end
 from .motion import motion_limits as motion_limits
 from .motion import scan_rate, tracker_limits
+from .outline import fit_outlines
 from .pose import fit_landmark_positions, fit_pose_regressors
 from .report import evaluate_examples as evaluate_examples
 
@@ -95,6 +98,7 @@ def train(logs: Sequence[ScanLog], site: Site, cfg: TrainConfig = TrainConfig(),
     mobile_pose, calibration = fit_pose_regressors(ex, is_held, classes, mobiles, cfg, rng, gps)
     for k, reg in mobile_pose.items():
         pose[k] = reg
+    outline, outline_report = fit_outlines(logs, ex, is_held, classes, mobiles, pose, cfg.frontend.window, rng)
     speed, turn, motion = tracker_limits(logs, classes, mobiles, cfg)
 
     model = Model(
@@ -118,6 +122,7 @@ def train(logs: Sequence[ScanLog], site: Site, cfg: TrainConfig = TrainConfig(),
         angle_increment=float(first.angle_increment),
         range_min=float(first.range_min),
         range_max=float(first.range_max),
+        outline=outline,
     )
     report = {
         "classes": list(classes),
@@ -130,6 +135,7 @@ def train(logs: Sequence[ScanLog], site: Site, cfg: TrainConfig = TrainConfig(),
         "envelopes": {classes[k]: v for k, v in env_report.items()},
         "open_set": {classes[k]: v for k, v in sup_report.items()},
         "motion_limits": motion,
+        "outlines": outline_report,
         "scans": n_scans,
         "degraded_scans": degraded,
         "warnings": warnings,

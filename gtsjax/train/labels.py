@@ -58,13 +58,21 @@ class Examples:
     shape: np.ndarray  # [E, 3] width, depth, n_points · range (what the shape envelopes bound)
     rng: np.ndarray  # [E] range of the ORS origin
     occluded: np.ndarray  # [E] a nearer return beside either end (``Candidates.occluded``)
+    # [E, 4] where each example's points are: log index (among the labelled logs; -1: not kept), scan,
+    # first beam and beam count of its segment (the outline's training data, ``train.outline``).
+    where: np.ndarray | None = None
 
     def take(self, idx) -> "Examples":
-        return Examples(*(getattr(self, f.name)[idx] for f in dataclasses.fields(self)))
+        return Examples(*(None if getattr(self, f.name) is None else getattr(self, f.name)[idx]
+                          for f in dataclasses.fields(self)))
 
     @staticmethod
     def concat(exs: "Sequence[Examples]") -> "Examples":
-        return Examples(*(np.concatenate([getattr(e, f.name) for e in exs]) for f in dataclasses.fields(Examples)))
+        def field(e, name):
+            v = getattr(e, name)
+            return np.full((len(e.cls), 4), -1, np.int64) if v is None and name == "where" else v
+
+        return Examples(*(np.concatenate([field(e, f.name) for e in exs]) for f in dataclasses.fields(Examples)))
 
 
 # ------------------------------------------------------------------------------------------ the logs
@@ -133,8 +141,9 @@ def run_front_end(log: ScanLog, cfg: FrontEndConfig, n_beams: int, chunk: int = 
     """Stages a–c over a log, chunk by chunk; returns host arrays ``[T, K, …]``: origin, heading,
     keep, ``vector`` (the GP inputs of each candidate, :func:`~gtsjax.core.d_classify.gp_inputs`),
     ``shape`` (:func:`~gtsjax.core.c_filters.shape_quantities`), ``rng`` (the ORS origin's range) and
-    ``occluded``."""
-    outs = {"origin": [], "heading": [], "vector": [], "keep": [], "shape": [], "rng": [], "occluded": []}
+    ``occluded``, and each candidate's ``start`` beam and ``length``."""
+    outs = {"origin": [], "heading": [], "vector": [], "keep": [], "shape": [], "rng": [], "occluded": [],
+            "start": [], "length": []}
     for start in range(0, log.n_scans, chunk):
         scans = to_scans(log.slice(start, start + chunk), n_beams)
         fe = _front_end_batch(cfg, scans)
@@ -147,6 +156,8 @@ def run_front_end(log: ScanLog, cfg: FrontEndConfig, n_beams: int, chunk: int = 
         outs["shape"].append(np.asarray(shape_quantities(f.width, f.height, f.n_points, rng), np.float64))
         outs["rng"].append(np.asarray(rng, np.float64))
         outs["occluded"].append(np.asarray(fe.candidates.occluded))
+        outs["start"].append(np.asarray(fe.candidates.start))
+        outs["length"].append(np.asarray(fe.candidates.length))
     return {k: np.concatenate(v) for k, v in outs.items()}
 
 
@@ -214,9 +225,10 @@ def _ors(origin, heading):
 
 
 def label_log(log: ScanLog, fe: dict, tf: dict, site: Site, classes: tuple[str, ...], cfg: TrainConfig,
-              group_offset: int) -> tuple[Examples, np.ndarray]:
+              group_offset: int, log_index: int = -1) -> tuple[Examples, np.ndarray]:
     """Label one log's candidates (spec rules) and compute their ORS-relative pose targets. Also
-    returns the class of every candidate slot ``[T, K]`` (0 where not an example or background)."""
+    returns the class of every candidate slot ``[T, K]`` (0 where not an example or background).
+    ``log_index``: the log's place among the labelled logs, recorded in ``Examples.where``."""
     T, K = fe["keep"].shape
     origin, heading = fe["origin"], fe["heading"]
     origin_o = sensor_to_field(*_per_scan(tf), origin)  # [T, K, 2]
@@ -275,6 +287,8 @@ def label_log(log: ScanLog, fe: dict, tf: dict, site: Site, classes: tuple[str, 
         shape=fe["shape"][t_idx, k_idx],
         rng=fe["rng"][t_idx, k_idx],
         occluded=fe["occluded"][t_idx, k_idx],
+        where=np.stack([np.full(t_idx.shape, log_index), t_idx, fe["start"][t_idx, k_idx],
+                        fe["length"][t_idx, k_idx]], -1).astype(np.int64),
     ), np.where(use, cls, 0)
 
 
@@ -298,7 +312,7 @@ def _relabel(logs, per_log, cls_slots, pose, site, classes, landmarks, cfg) -> t
     n_scans = 0
     offset = 0
     exs = []
-    for log, fe, cls_tk in zip(logs, per_log, cls_slots, strict=True):
+    for i, (log, fe, cls_tk) in enumerate(zip(logs, per_log, cls_slots, strict=True)):
         det_s = fe["origin"].copy()
         T, K, D = fe["vector"].shape
         for name in landmarks:
@@ -310,7 +324,7 @@ def _relabel(logs, per_log, cls_slots, pose, site, classes, landmarks, cfg) -> t
         tf = estimate_transforms(det_s, fe["keep"], site, cfg)
         degraded += int(tf["degraded"].sum())
         n_scans += log.n_scans
-        ex, _ = label_log(log, fe, tf, site, classes, cfg, offset)
+        ex, _ = label_log(log, fe, tf, site, classes, cfg, offset, log_index=i)
         offset = int(ex.group.max(initial=offset)) + 1
         exs.append(ex)
     return Examples.concat(exs), degraded, n_scans

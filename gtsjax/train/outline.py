@@ -1,0 +1,413 @@
+"""The learnt outline of each mobile class (stage e′'s data), its side hypotheses and the calibration
+of the refinement on held-out examples.
+
+**The outline.** Every labelled training example's points, moved into the object's own frame by its
+truth pose, land on the object's outline at the laser's height. They are summarised as a closed
+polyline, dense and star-shaped about the object's centre: in each of ``BEARING_BINS`` bearing bins
+about the centre, the median range of the points that fall in it (bins no view reached are
+interpolated from their neighbours). The step needs a signed distance, so the polyline becomes a
+signed distance field (and its gradient) on a ``GRID × GRID`` grid around it.
+
+Why a polyline of medians and not an occupancy grid accumulated directly: the median sits on the
+surface whatever the range noise and the label's error, where an accumulated band of hits is as
+thick as the noise and its edge (where a grid's inside would end) lies outside the true surface by
+half that thickness, a centimetre of bias in every refined position. The price is the star shape:
+an outline that a ray from the centre crosses twice (a deep notch) is filled in; a robot's body at
+the height of a laser, a convex or nearly convex shape, is not affected.
+
+**Side hypotheses.** The outline turned by α is compared with itself (the mean distance of the
+turned polyline from the outline, the best translation within ±6 cm): the turns where that is a local
+minimum, at least 30° from 0 and from one another, up to three, are the sides a partial view may
+be taken for, and the hypotheses stage e′ tests besides the GP's heading.
+
+**Calibration** (held-out examples of the class, refined from the GP's poses as the step does):
+``max_rms`` (a fit with a larger residual fails: 1.5 × the 99th percentile of the right side's
+residual), the temperature and the prior of the side posterior (maximum likelihood of the true side),
+and the factors that calibrate the covariance ``s² H⁻¹`` (as the GP variances are calibrated).
+"""
+
+import math
+from collections.abc import Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..core.e_pose import PoseRegressor, regress_one_class, to_sensor_frame
+from ..core.e_refine import DEFAULT_PRIOR_RIGHT, DEFAULT_SIDES, SIDES, Outline, fit
+from ..core.geometry import compose, relative, wrap
+from ..io.logs import ScanLog
+from .calibrate import robust_variance_scale
+from .labels import Examples
+
+BEARING_BINS = 128
+GRID = 64
+MIN_POINTS = 5
+ROBUST = 0.015  # m: Cauchy scale of the residuals (a URG-04LX's range noise is about 1 cm)
+FREE_GAP = 0.03  # m
+_F32 = jnp.float32
+
+
+def candidate_points(logs: Sequence[ScanLog], ex: Examples, window: int) -> tuple[np.ndarray, np.ndarray]:
+    """The points in S ``[n, window, 2]`` (float32) and their mask of the examples ``ex`` (all from the
+    labelled logs: ``ex.where[:, 0] >= 0``), as the step's candidate windows hold them."""
+    n = len(ex.cls)
+    pts = np.zeros((n, window, 2), np.float32)
+    mask = np.zeros((n, window), bool)
+    lane = np.arange(window)
+    for li, log in enumerate(logs):
+        rows = np.flatnonzero(ex.where[:, 0] == li)
+        if rows.size == 0:
+            continue
+        scan, start, length = ex.where[rows, 1], ex.where[rows, 2], ex.where[rows, 3]
+        beam = start[:, None] + lane[None, :]
+        inside = (lane[None, :] < np.minimum(length, window)[:, None]) & (beam < log.n_beams)
+        beam = np.minimum(beam, log.n_beams - 1)
+        valid = log.valid()[scan[:, None], beam] & inside
+        r = np.where(valid, log.ranges[scan[:, None], beam], 0.0).astype(np.float32)
+        a = (np.float32(log.angle_min) + beam.astype(np.float32) * np.float32(log.angle_increment)).astype(np.float32)
+        pts[rows] = np.stack([r * np.cos(a), r * np.sin(a)], -1)
+        mask[rows] = valid
+    return pts, mask
+
+
+def truth_in_sensor(ex: Examples) -> np.ndarray:
+    """Each example's object pose in S ``[n, 3]`` from its ORS and its ORS-relative target."""
+    return compose(np.concatenate([ex.origin, ex.heading[:, None]], -1), ex.target)
+
+
+def object_points(pts: np.ndarray, mask: np.ndarray, pose_s: np.ndarray) -> np.ndarray:
+    """The masked points of every example in its object's frame, stacked ``[m, 2]``."""
+    rel = relative(np.broadcast_to(pose_s[:, None, :], pts.shape[:2] + (3,)), pts.astype(np.float64))
+    return rel[mask]
+
+
+def outline_radii(points: np.ndarray, bins: int = BEARING_BINS) -> np.ndarray:
+    """The star-shaped outline: the median range of the points in each bearing bin (bin ``i`` centred
+    on ``2π (i + ½) / bins − π``), empty bins interpolated around the circle."""
+    bearing = np.arctan2(points[:, 1], points[:, 0])
+    rho = np.hypot(points[:, 0], points[:, 1])
+    b = np.clip(((bearing + math.pi) / (2 * math.pi) * bins).astype(int), 0, bins - 1)
+    radii = np.full(bins, np.nan)
+    for i in range(bins):
+        sel = rho[b == i]
+        if sel.size >= 3:
+            radii[i] = np.median(sel)
+    ok = np.isfinite(radii)
+    if ok.sum() < 3:
+        raise ValueError("too few views of the object for an outline")
+    centres = np.arange(bins)
+    return np.interp(centres, centres[ok], radii[ok], period=bins)
+
+
+def polyline(radii: np.ndarray) -> np.ndarray:
+    """The outline's vertices ``[bins, 2]`` in the object's frame."""
+    phi = 2 * math.pi * (np.arange(radii.size) + 0.5) / radii.size - math.pi
+    return np.stack([radii * np.cos(phi), radii * np.sin(phi)], -1)
+
+
+def _segment_distance(p: np.ndarray, verts: np.ndarray) -> np.ndarray:
+    a, b = verts, np.roll(verts, -1, axis=0)
+    ab = b - a
+    t = np.clip(np.einsum("pvi,vi->pv", p[:, None, :] - a[None], ab) / np.sum(ab**2, -1)[None], 0.0, 1.0)
+    closest = a[None] + t[..., None] * ab[None]
+    return np.min(np.linalg.norm(p[:, None, :] - closest, axis=-1), axis=1)
+
+
+def _inside(p: np.ndarray, radii: np.ndarray) -> np.ndarray:
+    bins = radii.size
+    phi = np.arctan2(p[:, 1], p[:, 0])
+    pos = (phi + math.pi) / (2 * math.pi) * bins - 0.5
+    r_at = np.interp(pos, np.arange(bins), radii, period=bins)
+    return np.hypot(p[:, 0], p[:, 1]) < r_at
+
+
+def distance_field(radii: np.ndarray, grid: int = GRID, margin: float = 0.12) -> tuple[np.ndarray, np.ndarray, float]:
+    """The signed distance (negative inside) of the outline and its gradient on a ``grid × grid`` grid
+    ``[grid, grid, 3]``, its lower corner and cell size."""
+    half = float(np.max(radii)) + margin
+    cell = 2 * half / (grid - 1)
+    lo = np.array([-half, -half])
+    ax = lo[0] + cell * np.arange(grid)
+    gx, gy = np.meshgrid(ax, ax, indexing="ij")
+    p = np.stack([gx.ravel(), gy.ravel()], -1)
+    d = _segment_distance(p, polyline(radii))
+    sdf = np.where(_inside(p, radii), -d, d).reshape(grid, grid)
+    ddx, ddy = np.gradient(sdf, cell)
+    return np.stack([sdf, ddx, ddy], -1), lo, cell
+
+
+def _lookup_np(field, lo, cell, m):
+    g = field.shape[0]
+    u = np.clip((m - lo) / cell, 0, g - 1)
+    i0 = np.clip(np.floor(u).astype(int), 0, g - 2)
+    f = u - i0
+    v = lambda di, dj: field[i0[..., 0] + di, i0[..., 1] + dj, 0]  # noqa: E731
+    fx, fy = f[..., 0], f[..., 1]
+    return (1 - fx) * ((1 - fy) * v(0, 0) + fy * v(0, 1)) + fx * ((1 - fy) * v(1, 0) + fy * v(1, 1))
+
+
+def self_match(radii: np.ndarray, field, lo, cell, step_deg: float = 1.0, shift: float = 0.06) -> np.ndarray:
+    """For each turn ``α = 0, 1, …, 359°``: the mean |distance| from the outline of the outline turned
+    by α, at the best translation within ±``shift`` (1 cm grid)."""
+    verts = polyline(radii)
+    ts = np.arange(-shift, shift + 1e-9, 0.01)
+    tx, ty = np.meshgrid(ts, ts, indexing="ij")
+    t = np.stack([tx.ravel(), ty.ravel()], -1)  # [T, 2]
+    out = []
+    for a in np.radians(np.arange(0.0, 360.0, step_deg)):
+        c, s = math.cos(a), math.sin(a)
+        turned = verts @ np.array([[c, s], [-s, c]])  # rows: Rot(a) v
+        m = turned[None] + t[:, None]  # [T, V, 2]
+        out.append(np.min(np.mean(np.abs(_lookup_np(field, lo, cell, m)), -1)))
+    return np.asarray(out)
+
+
+def side_offsets(match: np.ndarray, most: int = SIDES - 1, apart_deg: float = 30.0) -> list[float]:
+    """The turns (degrees, in (−180, 180]) of the ``most`` lowest local minima of ``match`` (one value
+    per degree), at least ``apart_deg`` from 0 and from one another."""
+    n = match.size
+    minima = [i for i in range(n) if match[i] <= match[(i - 1) % n] and match[i] <= match[(i + 1) % n]]
+    chosen: list[int] = []
+    for i in sorted(minima, key=lambda i: match[i]):
+        deg = ((i + 180) % 360) - 180
+        if abs(deg) < apart_deg or any(abs(((i - j + 180) % 360) - 180) < apart_deg for j in chosen):
+            continue
+        chosen.append(i)
+        if len(chosen) == most:
+            break
+    return [float(((i + 180) % 360) - 180) for i in chosen]
+
+
+_fit = jax.jit(fit)
+
+
+def _single_outline(radii: np.ndarray) -> Outline:
+    """One class's outline (class 0) with nothing calibrated: what the fits of :func:`learn_outline`
+    run against."""
+    f, lo, cell = distance_field(radii)
+    one = lambda v, dt=_F32: jnp.asarray(np.asarray(v)[None], dt)  # noqa: E731
+    return Outline(field=one(f), lo=one(lo), cell=one(cell), has=jnp.ones(1, bool), sides=jnp.zeros((1, SIDES), _F32),
+                   side_mask=jnp.zeros((1, SIDES), bool).at[0, 0].set(True), temperature=jnp.zeros(1, _F32),
+                   prior_right=jnp.ones(1, _F32), max_rms=jnp.full(1, 1.0, _F32), cov_scale=jnp.ones((1, 3), _F32),
+                   robust=jnp.asarray(ROBUST, _F32), free_gap=jnp.asarray(FREE_GAP, _F32),
+                   min_points=jnp.asarray(MIN_POINTS, jnp.int32))
+
+
+def learn_outline(pts: np.ndarray, mask: np.ndarray, truth: np.ndarray, iterations: int = 2) -> np.ndarray:
+    """The outline's radii from views ``pts``/``mask`` of the object at poses ``truth`` (in S).
+
+    The labels' poses in S come through the scan's estimated map transformation, whose errors move the
+    object by a centimetre or more, more with range: points accumulated in those frames blur the
+    outline (by 2–3 cm on the SPL field). So the outline is re-estimated ``iterations`` times with each
+    view aligned to the previous outline (stage e′'s own fit, started from the label), the views that
+    converge within 5 cm and 10° of their label only, in the frame of their mean label (the
+    alignment's own drift taken out)."""
+    radii = outline_radii(object_points(pts, mask, truth))
+    for _ in range(iterations):
+        outline = _single_outline(radii)
+        start = np.concatenate([truth[:, None, :], np.repeat(truth[:, None, :], SIDES - 1, 1)], 1)
+        poses, _, _ = refine_examples(outline, 0, pts, mask, start[:, 0], offsets=np.zeros(SIDES))
+        fitted = poses[:, 0]
+        off = relative(truth, fitted)  # the fit in the label's frame
+        ok = (np.hypot(off[:, 0], off[:, 1]) < 0.05) & (np.abs(off[:, 2]) < math.radians(10))
+        if ok.sum() < 50:
+            break
+        drift = np.mean(off[ok], 0)
+        frame = compose(fitted[ok], relative(drift, np.zeros(3)))  # the fit, less the mean drift
+        radii = outline_radii(object_points(pts[ok], mask[ok], frame))
+    return radii
+
+
+def misread_modes(err: np.ndarray, most: int = SIDES - 1, apart_deg: float = 30.0, width_deg: float = 15.0,
+                  min_count: int = 5) -> list[float]:
+    """The headings (degrees) that the GP's misreads cluster at: up to ``most`` peaks of the held-out
+    heading errors beyond ``apart_deg``, each the mean of the errors within ``width_deg`` of the densest
+    1°-spaced window, at least ``apart_deg`` from 0 and the others, with ``min_count`` errors or more."""
+    deg = np.degrees(wrap(np.asarray(err, np.float64)))
+    deg = deg[np.abs(deg) > apart_deg]
+    chosen: list[float] = []
+    for _ in range(most):
+        centres = np.arange(-180.0, 180.0, 1.0)
+        dist = np.abs(((deg[None, :] - centres[:, None]) + 180) % 360 - 180)
+        count = np.sum(dist <= width_deg, 1)
+        for c in chosen:
+            count[np.abs(((centres - c) + 180) % 360 - 180) < apart_deg] = 0
+        count[np.abs(centres) < apart_deg] = 0
+        i = int(np.argmax(count))
+        if count[i] < min_count:
+            break
+        near = deg[dist[i] <= width_deg]
+        chosen.append(float(np.degrees(np.angle(np.mean(np.exp(1j * np.radians(near)))))))
+    return chosen
+
+
+
+
+def refine_examples(outline: Outline, k: int, pts, mask, pose_gp, chunk: int = 1024, offsets=None):
+    """Stage e′'s fit on examples of class ``k`` from their GP poses turned by ``offsets`` (default:
+    the class's sides): every side's pose, cost and Hessian (host arrays)."""
+    offsets = np.asarray(outline.sides[k]) if offsets is None else np.asarray(offsets)
+    starts = np.concatenate([np.broadcast_to(pose_gp[:, None, :2], (len(pose_gp), SIDES, 2)),
+                             (pose_gp[:, 2:3] + offsets[None, :])[..., None]], -1)
+    poses, costs, hs = [], [], []
+    for i in range(0, len(pts), chunk):
+        sl = slice(i, i + chunk)
+        n = len(pts[sl])
+        pad = chunk - n
+        args = [np.pad(a, [(0, pad)] + [(0, 0)] * (a.ndim - 1)) for a in (pts[sl], mask[sl], starts[sl])]
+        p, c, h = _fit(outline, jnp.full((chunk,), k, jnp.int32), jnp.asarray(args[0]), jnp.asarray(args[1]),
+                       jnp.asarray(args[2], _F32))
+        poses.append(np.asarray(p, np.float64)[:n])
+        costs.append(np.asarray(c, np.float64)[:n])
+        hs.append(np.asarray(h, np.float64)[:n])
+    return np.concatenate(poses), np.concatenate(costs), np.concatenate(hs)
+
+
+def side_logp(cost, usable, temperature, prior_right):
+    """The side posterior ``[n, sides]`` of :func:`gtsjax.core.e_refine.refine` (NumPy)."""
+    k = max(int(usable.sum()) - 1, 1)
+    prior = np.where(np.arange(cost.shape[1]) == 0, math.log(prior_right), math.log((1 - prior_right) / k))
+    ll = np.where(usable[None], prior[None] - temperature * cost, -np.inf)
+    ll = ll - ll.max(1, keepdims=True)
+    return ll - np.log(np.sum(np.exp(ll), 1, keepdims=True))
+
+
+def _side_nll(cost, right, usable, temperature, prior_right):
+    """Mean negative log-probability of the right heading: of the sides whose fit lands on it."""
+    p = np.exp(side_logp(cost, usable, temperature, prior_right))
+    return -np.mean(np.log(np.maximum(np.sum(np.where(right, p, 0.0), 1), 1e-12)))
+
+
+def calibrate_outline(outline: Outline, k: int, pts, mask, pose_gp, truth, right_deg: float = 20.0) -> tuple[Outline, dict]:
+    """Calibrate class ``k``'s refinement on held-out examples (see the module docstring); returns the
+    outline and a summary: GP and refined errors side by side."""
+    poses, cost, H = refine_examples(outline, k, pts, mask, pose_gp)
+    usable = np.asarray(outline.side_mask[k])
+    n_pts = mask.sum(1).astype(float)
+    err_th = np.abs(wrap(poses[..., 2] - truth[:, None, 2]))  # [n, sides]
+    err_th = np.where(usable[None], err_th, np.inf)
+    label = np.argmin(err_th, 1)
+    has_right = (err_th[np.arange(len(label)), label] < math.radians(right_deg)) & (n_pts >= MIN_POINTS)
+    rms = np.sqrt(cost / np.maximum(n_pts, 1)[:, None])
+    rms_right = rms[np.arange(len(label)), label][has_right]
+    max_rms = 1.5 * float(np.quantile(rms_right, 0.99)) if rms_right.size >= 20 else 0.05
+    good = has_right & (rms[np.arange(len(label)), label] <= max_rms)
+    right = (err_th < math.radians(right_deg)) & (rms <= max_rms)
+    best = (math.inf, 1.0, 0.9)
+    for temp in np.geomspace(1.0, 1e6, 61):
+        for pr in (0.3, 0.5, 0.7, 0.8, 0.9, 0.95, 0.98, 0.99):
+            nll = _side_nll(np.where(rms <= max_rms, cost, 1e3)[good], right[good], usable, temp, pr) if good.any() else 0.0
+            if nll < best[0]:
+                best = (nll, float(temp), pr)
+    _, temperature, prior_right = best
+    # The side each example would get, its pose and covariance factor s² H⁻¹.
+    kk = max(int(usable.sum()) - 1, 1)
+    prior = np.where(np.arange(SIDES) == 0, math.log(prior_right), math.log((1 - prior_right) / kk))
+    score = np.where(usable[None] & (rms <= max_rms), prior[None] - temperature * cost, -np.inf)
+    fitted = np.isfinite(score).any(1) & (n_pts >= MIN_POINTS)
+    chosen = np.argmax(score, 1)
+    idx = np.arange(len(chosen))
+    pose_r = np.concatenate([pose_gp[:, :2], np.where(fitted, poses[idx, chosen, 2], pose_gp[:, 2])[:, None]], -1)
+    s2 = cost[idx, chosen] / np.maximum(n_pts - 3, 1)
+    cov = s2[:, None, None] * np.linalg.inv(H[idx, chosen] + 1e-9 * np.eye(3))
+    err = pose_r - truth
+    err[:, 2] = wrap(err[:, 2])
+    right = fitted & (np.abs(err[:, 2]) < math.radians(right_deg))
+    scale = np.ones(3)
+    v = cov[right, 2, 2]
+    ok = v > 0
+    if ok.sum() >= 20:
+        scale[2] = robust_variance_scale(err[right][ok, 2] ** 2 / v[ok])
+    upd = lambda a, v: a.at[k].set(v)  # noqa: E731
+    outline = Outline(
+        field=outline.field, lo=outline.lo, cell=outline.cell, has=outline.has, sides=outline.sides,
+        side_mask=outline.side_mask, temperature=upd(outline.temperature, temperature),
+        prior_right=upd(outline.prior_right, prior_right), max_rms=upd(outline.max_rms, max_rms),
+        cov_scale=upd(outline.cov_scale, jnp.asarray(scale, _F32)), robust=outline.robust,
+        free_gap=outline.free_gap, min_points=outline.min_points)
+    e_gp = pose_gp - truth
+    e_gp[:, 2] = wrap(e_gp[:, 2])
+
+    def summary(e):
+        th = np.degrees(np.abs(e[:, 2]))
+        return {"position_rmse_cm": round(100 * float(np.sqrt(np.mean(np.sum(e[:, :2] ** 2, 1)))), 2),
+                "heading_median_deg": round(float(np.median(th)), 2),
+                "heading_rmse_deg": round(float(np.sqrt(np.mean(th**2))), 2),
+                "misread_fraction": round(float(np.mean(th > 30)), 4)}
+
+    return outline, {"examples": int(len(truth)), "fitted_fraction": round(float(fitted.mean()), 4),
+                     "max_rms_mm": round(1000 * max_rms, 2), "temperature": round(temperature, 1),
+                     "prior_right": prior_right, "cov_scale": [round(float(v), 3) for v in scale],
+                     "gp": summary(e_gp), "refined": summary(err)}
+
+
+def fit_outlines(logs: Sequence[ScanLog], ex: Examples, is_held: np.ndarray, classes: tuple[str, ...],
+                 mobiles: tuple[str, ...], pose: Sequence[PoseRegressor | None], window: int,
+                 rng: np.random.Generator, *, max_examples: int = 6000,
+                 max_calibration: int = 4000) -> tuple[Outline | None, dict]:
+    """Outline, side hypotheses and calibration of each mobile class (see the module docstring).
+    Returns the :class:`Outline` (``None`` if no class has enough views) and a summary per class. A
+    mobile class without an outline gets the default side hypotheses (the GP's heading's quarter
+    turns, ``e_refine.DEFAULT_SIDES``).
+
+    The side hypotheses of a class are the headings its GP's held-out misreads cluster at
+    (:func:`misread_modes`): the sides a view is taken for in fact. With fewer than five misreads to
+    go by, the outline's own near-symmetries (:func:`self_match`) stand in."""
+    n_c = len(classes)
+    field = np.zeros((n_c, GRID, GRID, 3), np.float32)
+    field[..., 0] = 1.0
+    lo = np.zeros((n_c, 2), np.float32)
+    cell = np.full(n_c, 0.01, np.float32)
+    has = np.zeros(n_c, bool)
+    sides = np.zeros((n_c, SIDES), np.float32)
+    side_mask = np.zeros((n_c, SIDES), bool)
+    side_mask[:, 0] = True
+    prior_right = np.full(n_c, DEFAULT_PRIOR_RIGHT, np.float32)
+    report, held = {}, {}
+    own = ex.where[:, 0] >= 0
+    for name in mobiles:
+        k = classes.index(name)
+        sides[k], side_mask[k] = DEFAULT_SIDES, True
+        idx = np.flatnonzero((ex.cls == k) & ~is_held & own)
+        if idx.size < 50 or pose[k] is None:
+            report[name] = {"outline": False, "why": f"only {idx.size} labelled views"}
+            continue
+        sub = ex.take(rng.choice(idx, min(idx.size, max_examples), replace=False))
+        pts, mask = candidate_points(logs, sub, window)
+        radii = learn_outline(pts, mask, truth_in_sensor(sub))
+        f, lo_k, cell_k = distance_field(radii)
+        # Held-out views (the training ones if fewer than 20 are held out) for the sides and calibration.
+        cal = np.flatnonzero((ex.cls == k) & is_held & own)
+        cal = cal if cal.size >= 20 else np.flatnonzero((ex.cls == k) & own)
+        csub = ex.take(rng.choice(cal, min(cal.size, max_calibration), replace=False))
+        rel, var = regress_one_class(pose[k], jnp.asarray(csub.vectors, _F32))
+        pose_gp, _ = to_sensor_frame(jnp.asarray(csub.origin, _F32), jnp.asarray(csub.heading, _F32), rel, var)
+        pose_gp = np.asarray(pose_gp, np.float64)
+        truth = truth_in_sensor(csub)
+        offs = misread_modes(pose_gp[:, 2] - truth[:, 2])
+        source = "misreads"
+        if not offs:
+            offs, source = side_offsets(self_match(radii, f, lo_k, cell_k)), "outline symmetry"
+        field[k], lo[k], cell[k], has[k] = f, lo_k, cell_k, True
+        sides[k], side_mask[k] = 0.0, False
+        sides[k, 1:1 + len(offs)] = np.radians(offs)
+        side_mask[k, :1 + len(offs)] = True
+        held[k] = (*candidate_points(logs, csub, window), pose_gp, truth)
+        verts = polyline(radii)
+        report[name] = {"outline": True, "views": int(len(sub.cls)),
+                        "size_m": [round(float(np.ptp(verts[:, j])), 3) for j in range(2)],
+                        "sides_deg": [round(o, 1) for o in offs], "sides_from": source}
+    if not has.any():
+        return None, report
+    outline = Outline(
+        field=jnp.asarray(field), lo=jnp.asarray(lo), cell=jnp.asarray(cell), has=jnp.asarray(has),
+        sides=jnp.asarray(sides), side_mask=jnp.asarray(side_mask),
+        temperature=jnp.zeros(n_c, _F32), prior_right=jnp.asarray(prior_right),
+        max_rms=jnp.full(n_c, 0.05, _F32), cov_scale=jnp.ones((n_c, 3), _F32),
+        robust=jnp.asarray(ROBUST, _F32), free_gap=jnp.asarray(FREE_GAP, _F32),
+        min_points=jnp.asarray(MIN_POINTS, jnp.int32))
+    for k, (pts, mask, pose_gp, truth) in held.items():
+        outline, rep = calibrate_outline(outline, k, pts, mask, pose_gp, truth)
+        report[classes[k]]["calibration"] = rep
+    return outline, report
