@@ -3,6 +3,7 @@ reference of ``tests/reference/`` against gtsjax's step, on the same simulated l
 shipped model. The reference runs in float64 and the step in float32, so ids and counts must be
 identical and poses equal to rounding (micrometres; the tolerances leave room for a retrained model)."""
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -11,6 +12,7 @@ pytest.importorskip("filterpy")
 pytest.importorskip("sklearn")
 
 from gtsjax.cli.demo import demo_model_path  # noqa: E402
+from gtsjax.core.pipeline import perceive  # noqa: E402
 from gtsjax.drivers.replay import process_log  # noqa: E402
 from gtsjax.gp import predict_mean  # noqa: E402
 from gtsjax.io import to_scans  # noqa: E402
@@ -18,6 +20,7 @@ from gtsjax.io.modelfile import load_model  # noqa: E402
 from gtsjax.sim import simulate  # noqa: E402
 from tests.reference.gp import sklearn_gp  # noqa: E402
 from tests.reference.pipeline import ReferencePipeline, compare_tracks, scans_to_numpy  # noqa: E402
+from tests.reference.track import wrap  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -114,3 +117,39 @@ def test_reference_rejects_what_the_model_rejects(tiny):
     assert agree["track_scans_gtsjax"] > 0
     assert agree["scans_same_ids"] == log.n_scans
     assert agree["track_ids_gtsjax"] == agree["track_ids_reference"]
+
+
+def test_reference_refines_what_the_model_refines(tiny):
+    """Stage e′ scan by scan with a model that has a learnt outline (the tiny one), three robots
+    crossing: the same candidates refined, the same refined headings, covariances and side
+    probabilities as the reference's, and every candidate's side hypotheses the same."""
+    log, site = simulate("spl-crossing", seed=3, n_scans=40)
+    model = tiny["model"].with_site(site)
+    assert model.outline is not None and bool(np.any(np.asarray(model.outline.has)))
+    scans = to_scans(log, model.n_beams)
+    arrays = scans_to_numpy(scans)
+    reference = ReferencePipeline(model)
+    step = jax.jit(lambda scan: perceive(model, scan))
+    refined = 0
+    for t in range(log.n_scans):
+        p = step(jax.tree.map(lambda a, t=t: a[t], scans))
+        r = reference.perceive(*(a[t] for a in arrays[:5]))
+        kept = np.asarray(p.kept)  # the reference's candidates are the kept ones, in beam order
+        np.testing.assert_array_equal(np.asarray(p.cls)[kept], r.cls)
+        np.testing.assert_array_equal(np.asarray(p.ok)[kept], r.ok)
+        done = np.asarray(p.refined)[kept]
+        np.testing.assert_array_equal(done, r.sides.refined)
+        np.testing.assert_array_equal(np.asarray(p.vague)[kept], r.vague)
+        refined += int(done.sum())
+        ok = r.ok
+        pose = np.asarray(p.pose_s, np.float64)[kept]
+        np.testing.assert_allclose(pose[ok, :2], r.pose_s[ok, :2], rtol=0, atol=2e-5)  # the GP's positions
+        np.testing.assert_allclose(wrap(pose[ok, 2] - r.pose_s[ok, 2]), 0.0, atol=5e-4)
+        np.testing.assert_allclose(wrap(pose[done, 2] - r.pose_s[done, 2]), 0.0, atol=2e-4)  # the fits' headings
+        var = np.asarray(p.cov_s, np.float64)[kept][done, 2, 2]
+        np.testing.assert_allclose(var, r.cov_s[done, 2, 2], rtol=2e-2)
+        side = np.asarray(p.side_pose, np.float64)[kept][ok]
+        np.testing.assert_allclose(wrap(side[..., 2] - r.sides.side_pose[ok, :, 2]), 0.0, atol=1e-3)
+        np.testing.assert_allclose(np.exp(np.asarray(p.side_logp, np.float64)[kept][ok]), np.exp(r.sides.side_logp[ok]),
+                                   rtol=0, atol=2e-3)
+    assert refined >= log.n_scans  # the refinement is exercised: most robots in most scans

@@ -1,4 +1,4 @@
-"""Stages a–g in order, one scan at a time (:class:`ReferencePipeline`), and how its tracks are
+"""Stages a–g (with e′) in order, one scan at a time (:class:`ReferencePipeline`), and how its tracks are
 compared with gtsjax's (:func:`compare_tracks`)."""
 
 import dataclasses
@@ -11,7 +11,22 @@ from .features import FrontEnd
 from .gp import _f
 from .maptransform import MapTransform
 from .pose import PoseRegressors
+from .refine import Outline, Sides, refine_candidates
+from .segment import segments
 from .track import Tracker, wrap
+
+
+@dataclasses.dataclass
+class Perceived:
+    """Stages a–e′ of one scan, per candidate kept by the filters (stage c), in beam order."""
+
+    cls: np.ndarray  # [n]
+    ok: np.ndarray  # [n] an object of a known class, posed
+    partial: np.ndarray  # [n]
+    vague: np.ndarray  # [n]
+    pose_s: np.ndarray  # [n, 3] after e′
+    cov_s: np.ndarray  # [n, 3, 3] after e′
+    sides: Sides  # e′: side hypotheses (in S) and which candidates were refined
 
 
 @dataclasses.dataclass
@@ -27,10 +42,12 @@ class RefOutput:
     mu_o: np.ndarray
     degraded: bool
     n_detections: int
+    n_refined: int  # candidates whose pose came from the outline fit (stage e′)
 
 
 class ReferencePipeline:
-    """Stages a–g of one scan at a time, from a trained :class:`gtsjax.Model` with its site attached."""
+    """Stages a–g of one scan at a time (e′, the outline refinement, after e), from a trained
+    :class:`gtsjax.Model` with its site attached."""
 
     def __init__(self, model):
         if model.site is None:
@@ -48,6 +65,8 @@ class ReferencePipeline:
         self.sensor_pose = _f(s.sensor_pose)
         self.bounds = _f(s.bounds) if bool(s.has_bounds) else None
         self.tracker = Tracker(model.tracker, model.max_tracks)
+        self.outline = None if model.outline is None else Outline.of(model.outline)
+        self.max_objects = model.max_objects
         self.reset()
 
     def reset(self) -> None:
@@ -59,12 +78,28 @@ class ReferencePipeline:
         """Stages a–c (see :meth:`FrontEnd.candidates`)."""
         return self.frontend.candidates(ranges, intensities, valid, angles)
 
+    def windows(self, ranges, valid, angles, headings):
+        """The points in S ``[n, window, 2]`` and their mask of the candidates with ORS headings
+        ``headings`` (from :meth:`candidates`): each candidate is the segment whose angular middle is its
+        heading (segments are disjoint, so their middles differ)."""
+        fe = self.frontend
+        segs, _, px, py = segments(ranges, valid, angles, fe.fe["break_distance"], fe.fe["break_growth"], fe.K)
+        by_middle = {float(0.5 * (angles[s] + angles[e])): (s, e) for s, e in segs}
+        pts = np.zeros((len(headings), fe.L, 2))
+        mask = np.zeros((len(headings), fe.L), bool)
+        for i, th in enumerate(headings):
+            s, e = by_middle[float(th)]
+            n = e - s + 1
+            pts[i, :n, 0], pts[i, :n, 1] = px[s : e + 1], py[s : e + 1]
+            mask[i, :n] = True
+        return pts, mask
+
     def update_transform(self, det_s, det_cls) -> bool:
         """Stage f (see :meth:`MapTransform.update`)."""
         return self.transform.update(det_s, det_cls)
 
-    def step(self, ranges, intensities, valid, angle_min, angle_increment, dt) -> RefOutput:
-        """The whole pipeline for one scan (NumPy arrays of the padded scan, as gtsjax's ``Scan``)."""
+    def perceive(self, ranges, intensities, valid, angle_min, angle_increment) -> Perceived:
+        """Stages a–e′ for one scan (NumPy arrays of the padded scan, as gtsjax's ``Scan``)."""
         ranges, intensities = _f(ranges), _f(intensities)
         valid = np.asarray(valid, bool)
         angles = float(angle_min) + np.arange(ranges.shape[0]) * float(angle_increment)
@@ -89,6 +124,17 @@ class ReferencePipeline:
         cov_s[:, 1, 1] = s**2 * var[:, 0] + c**2 * var[:, 1]
         cov_s[:, 0, 1] = cov_s[:, 1, 0] = c * s * (var[:, 0] - var[:, 1])
         cov_s[:, 2, 2] = var[:, 2]
+        # e′: the outline refinement of the tracked classes' posed candidates, and every candidate's sides
+        pts, mask = self.windows(ranges, valid, angles, heading)
+        sides = refine_candidates(self.outline, self.max_objects, cls, ok & self.tracker.tracked[cls], scores, pts,
+                                  mask, pose_s, cov_s)
+        return Perceived(cls, ok, partial, vague & ~sides.refined, sides.pose, sides.cov, sides)
+
+    def step(self, ranges, intensities, valid, angle_min, angle_increment, dt) -> RefOutput:
+        """The whole pipeline for one scan (NumPy arrays of the padded scan, as gtsjax's ``Scan``)."""
+        p = self.perceive(ranges, intensities, valid, angle_min, angle_increment)
+        ranges, valid = _f(ranges), np.asarray(valid, bool)
+        cls, ok, partial, vague, pose_s, cov_s, sides = p.cls, p.ok, p.partial, p.vague, p.pose_s, p.cov_s, p.sides
         lm = ok & self.landmark_mask[cls]
         tf = self.transform
         degraded = not self.update_transform(pose_s[lm, :2], cls[lm])
@@ -98,6 +144,8 @@ class ReferencePipeline:
         ps, cs, kc = pose_s[trk], cov_s[trk], cls[trk]
         xy = tf.to_o(ps[:, :2])
         theta = wrap(ps[:, 2] + tf.rotation)
+        side_heading = wrap(sides.side_pose[trk, :, 2] + tf.rotation)
+        side_logp = sides.side_logp[trk]
         A3 = np.eye(3)
         A3[:2, :2] = tf.A
         cov_o = A3 @ cs @ A3.T + np.diag(self.meas_var_floor)
@@ -111,10 +159,11 @@ class ReferencePipeline:
         # tentative track it lies near: background, rejected, landmarks, objects outside the bounds
         # or without a pose, at its pose in O (its ORS origin where it got none: rel = 0).
         det_idx = np.flatnonzero(trk)[inside]
-        is_other = np.ones(len(x), bool)
+        is_other = np.ones(len(cls), bool)
         is_other[det_idx] = False
         other_xy = tf.to_o(pose_s[is_other, :2])
-        self.tracker.step(z, cov_o[inside], kc[inside], float(dt), other_xy, partial[trk][inside], vague[trk][inside])
+        self.tracker.step(z, cov_o[inside], kc[inside], float(dt), other_xy, partial[trk][inside], vague[trk][inside],
+                          side_heading[inside], side_logp[inside])
         b = self.bounds
         tracks = [
             t
@@ -135,6 +184,7 @@ class ReferencePipeline:
             mu_o=tf.mu_o.copy(),
             degraded=degraded,
             n_detections=int(len(z)),
+            n_refined=int(np.sum(sides.refined)),
         )
 
     def seen_through(self, xy_o, ranges, valid, angle_min, angle_increment, margin=0.3) -> bool:
