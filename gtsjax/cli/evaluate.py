@@ -16,7 +16,8 @@ from ._app import CONFIRM_HELP, app, fail
 COLUMNS = [("recall", "recall", "{:.1%}"), ("position_rmse_m", "pos RMSE [cm]", "{:.1f}"),
            ("heading_rmse_deg", "heading RMSE [°]", "{:.1f}"), ("heading_median_deg", "heading median [°]", "{:.1f}"),
            ("false_tracks_per_scan", "false tracks/scan", "{:.3f}"), ("id_switches", "id switches", "{}"),
-           ("degraded_scans", "degraded scans", "{}"), ("bump_recovered_after_s", "bump recovered [s]", "{:.1f}")]
+           ("degraded_scans", "degraded scans", "{}"), ("bump_recovered_after_s", "bump recovered [s]", "{:.1f}"),
+           ("appear_heading_ok_fraction", "heading ≤ 5° 0.5 s after put down", "{:.0%}")]
 DET_COLUMNS = [("det_recall", "detected", "{:.1%}"), ("det_position_rmse_m", "pos RMSE [cm]", "{:.1f}"),
                ("det_heading_rmse_deg", "heading RMSE [°]", "{:.1f}"),
                ("det_heading_median_deg", "heading median [°]", "{:.1f}"),
@@ -54,6 +55,9 @@ def evaluate_cmd(
     scenario: list[str] = typer.Option(None, "--scenario", help="Simulated scenario(s) instead of logs (NAME or NAME:SEED)."),
     out_dir: Path = typer.Option(Path("eval-out"), "--out-dir", help="Where to write results.md, results.json, PNGs."),
     confirm_scans: int | None = typer.Option(None, "--confirm-scans", min=1, help=CONFIRM_HELP),
+    without_outline: bool = typer.Option(False, "--without-outline",
+                                         help="Score the model with its learnt outlines left out (no stage e′: "
+                                              "headings as the GP reads them), to see what the refinement gains."),
 ):
     """Score a model against labelled logs or held-out simulated scenarios."""
     from ..drivers.evaluation import evaluate_log, per_point
@@ -68,6 +72,8 @@ def evaluate_cmd(
     if logs and site is None:
         raise fail("evaluate", "logs need --site SITE.json")
     base = load_model(model).with_confirmation(confirm_scans)
+    if without_outline:
+        base = base.without_outline()
     jobs = []
     for spec in scenario or []:
         name, _, seed = spec.partition(":")
@@ -102,7 +108,8 @@ def evaluate_cmd(
         results[label] = res
         del errors
     console = Console(width=140)
-    console.print(_table(f"ground truth (confirmed tracks) of {model}", COLUMNS, results))
+    what = f"{model}" + (" without its outlines" if without_outline else "")
+    console.print(_table(f"ground truth (confirmed tracks) of {what}", COLUMNS, results))
     console.print(_table("per scan, before tracking (the paper's per-sample errors)", DET_COLUMNS, results))
     (out_dir / "results.json").write_text(json.dumps(results, indent=1) + "\n")
     md = (["Ground truth (confirmed tracks):", ""] + _markdown(COLUMNS, results)

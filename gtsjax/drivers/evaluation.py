@@ -44,10 +44,12 @@ def match_scan(truth_xy, truth_ok, track_xy, track_ok, radius):
         d[:, j] = np.inf
 
 
-def evaluate_outputs(model: Model, log: ScanLog, out, *, match_radius: float = 0.3, settle_s: float = 1.0) -> dict:
+def evaluate_outputs(model: Model, log: ScanLog, out, *, match_radius: float = 0.3, settle_s: float = 1.0,
+                     appear_s: float = 0.5) -> dict:
     """Metrics from a replay's stacked outputs. The first ``settle_s`` seconds after an object
     appears are left out of the error statistics (the track is still being confirmed) but not out
-    of recall."""
+    of recall. Each appearance's heading ``appear_s`` seconds after it is scored on its own
+    (``appear_heading_*``: is the robot just put down reported, and with the right heading?)."""
     T = log.n_scans
     truth = log.truth_poses
     classes = [model.classes.index(str(c)) for c in log.truth_classes]
@@ -61,6 +63,9 @@ def evaluate_outputs(model: Model, log: ScanLog, out, *, match_radius: float = 0
     for t in range(1, T):
         since[t] = np.where(present[t] & present[t - 1], since[t - 1] + (log.stamps[t] - log.stamps[t - 1]), 0.0)
     e_pos, e_th, obj_of_err, scan_of_err = [], [], [], []
+    # Each appearance's heading error ``appear_s`` after it (NaN: no track reported for it yet).
+    crossed = (since >= appear_s) & np.vstack([np.zeros((1, present.shape[1]), bool), since[:-1] < appear_s])
+    e_appear = []
     matched = np.zeros_like(present)
     false_tracks = 0
     ids = {}
@@ -77,6 +82,8 @@ def evaluate_outputs(model: Model, log: ScanLog, out, *, match_radius: float = 0
         false_tracks += int(tr_ok.sum() - (m >= 0).sum())
         for i in np.flatnonzero(~present[t]):
             ids.pop(i, None)  # gone (picked up, left the field): a new track when it is back is no switch
+        for i in np.flatnonzero(crossed[t]):
+            e_appear.append(abs(wrap(float(out.track_pose[t, m[i], 2]) - truth[t, i, 2])) if m[i] >= 0 else np.nan)
         for i in np.flatnonzero(m >= 0):
             matched[t, i] = True
             tid = int(out.track_id[t, m[i]])
@@ -111,6 +118,13 @@ def evaluate_outputs(model: Model, log: ScanLog, out, *, match_radius: float = 0
         "det_heading_median_deg": float(np.degrees(np.median(np.abs(d_th)))) if d_th.size else float("nan"),
         "det_misread_fraction": float(np.mean(np.abs(d_th) > np.radians(30))) if d_th.size else float("nan"),
     }
+    e_appear = np.asarray(e_appear, float)
+    if e_appear.size:
+        # Of the objects that appeared (put down, walked in), the share reported with a heading within
+        # 5° of the truth ``appear_s`` after they appeared, and the worst such heading.
+        res["appear_heading_ok_fraction"] = float(np.mean(np.nan_to_num(e_appear, nan=np.inf) <= np.radians(5)))
+        res["appear_heading_max_deg"] = float(np.degrees(np.nanmax(e_appear))) if np.isfinite(e_appear).any() else float("nan")
+        res["appear_unreported"] = int(np.sum(np.isnan(e_appear)))
     sensor_truth = log.extra.get("truth_sensor_pose")
     if sensor_truth is not None:
         org, th = out.sensor_pose[:, :2], out.sensor_pose[:, 2]
