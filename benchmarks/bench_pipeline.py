@@ -22,9 +22,11 @@ from gtsjax.core.b_features import characterise_all
 from gtsjax.core.c_filters import binary_filter, envelope_pass, shape_quantities
 from gtsjax.core.d_classify import classify, gp_inputs
 from gtsjax.core.e_pose import regress, to_sensor_frame
+from gtsjax.core.e_refine import refine_candidates
 from gtsjax.core.f_maptransform import poses_to_field, update_transform
 from gtsjax.core.frontend import front_end, front_end_batch
 from gtsjax.core.g_track import Detections, track_step
+from gtsjax.core.geometry import wrap
 from gtsjax.core.pipeline import init_state, landmark_cap, perceive
 from gtsjax.drivers.replay import process_log
 from gtsjax.io import to_scans
@@ -66,6 +68,10 @@ def stage_functions(model):
                               model.max_objects, landmark_cap(model))
         return to_sensor_frame(feats.origin, feats.heading, rel, var)
 
+    def refine(cands, scores, c, ok, pose_s, cov_s):  # stage e′ on stage e's output, as perceive() runs it
+        return refine_candidates(model.outline, model.max_objects, c, ok & model.tracker.tracked[c], scores, cands.xy,
+                                 cands.mask, pose_s, cov_s)
+
     def mapf(tf, p):
         site = model.site
         is_landmark = p.ok & model.landmark_mask[p.cls]
@@ -76,7 +82,9 @@ def stage_functions(model):
         x, y = pose_o[:, 0], pose_o[:, 1]
         inside = ~site.has_bounds | ((x >= b[0]) & (y >= b[1]) & (x <= b[2]) & (y <= b[3]))
         mask = p.ok & model.tracker.tracked[p.cls] & inside
-        return tf, Detections(pose_o, cov_o + jnp.diag(model.meas_var_floor)[None], p.cls, mask)
+        side_o = jnp.concatenate([tf.apply(p.side_pose[..., :2]), wrap(p.side_pose[..., 2:] + tf.heading())], -1)
+        return tf, Detections(pose_o, cov_o + jnp.diag(model.meas_var_floor)[None], p.cls, mask,
+                              side_pose=side_o, side_logp=p.side_logp)
 
     def track(tracker, det, dt):
         return track_step(tracker, det, dt, model.tracker)
@@ -87,6 +95,7 @@ def stage_functions(model):
         "c_filters": jax.jit(filt),
         "d_classifier": jax.jit(cls),
         "e_pose_regression": jax.jit(pose),
+        "e2_outline_refinement": jax.jit(refine),
         "f_map_transformation": jax.jit(mapf),
         "g_tracking": jax.jit(track),
         "frontend_a_to_c": jax.jit(lambda scan: front_end(fe, scan)),
@@ -107,10 +116,11 @@ def record_inputs(model, scans, n: int):
         keep = st["c_filters"](cands, feats)
         dec = st["d_classifier"](feats, keep)
         scores, c, ok = dec.scores, dec.cls, dec.ok
+        pose_s, cov_s = st["e_pose_regression"](feats, scores, c, ok)
         p = perc(scan)
         _, det = st["f_map_transformation"](state.transform, p)
         rec.append({"scan": scan, "cands": cands, "feats": feats, "keep": keep, "cls": c, "scores": scores, "ok": ok,
-                    "perception": p,
+                    "pose_s": pose_s, "cov_s": cov_s, "perception": p,
                     "transform": state.transform, "tracker": state.tracker, "det": det})
         state, _ = step(state, scan)
     return jax.block_until_ready(rec), st, step
@@ -144,6 +154,7 @@ def bench_sensor(ctx, key: str, model, scans, n_pool: int, repeats: int, stage_r
         "c_filters": lambda r: st["c_filters"](r["cands"], r["feats"]),
         "d_classifier": lambda r: st["d_classifier"](r["feats"], r["keep"]),
         "e_pose_regression": lambda r: st["e_pose_regression"](r["feats"], r["scores"], r["cls"], r["ok"]),
+        "e2_outline_refinement": lambda r: st["e2_outline_refinement"](*_stage_args("e2_outline_refinement", r)),
         "f_map_transformation": lambda r: st["f_map_transformation"](r["transform"], r["perception"]),
         "g_tracking": lambda r: st["g_tracking"](r["tracker"], r["det"], r["scan"].dt),
         "frontend_a_to_c": lambda r: st["frontend_a_to_c"](r["scan"]),
@@ -161,6 +172,7 @@ def _stage_args(name: str, r: dict) -> tuple:
     return {
         "a_segmentation": (r["scan"],), "b_characterisation": (r["cands"],), "c_filters": (r["cands"], r["feats"]),
         "d_classifier": (r["feats"], r["keep"]), "e_pose_regression": (r["feats"], r["scores"], r["cls"], r["ok"]),
+        "e2_outline_refinement": (r["cands"], r["scores"], r["cls"], r["ok"], r["pose_s"], r["cov_s"]),
         "f_map_transformation": (r["transform"], r["perception"]),
         "g_tracking": (r["tracker"], r["det"], r["scan"].dt), "frontend_a_to_c": (r["scan"],),
     }[name]
@@ -213,6 +225,9 @@ def run(ctx) -> None:
     log, site = _data.scenario("spl-crossing", 3, n_pool)
     model = _data.demo_model(site)
     bench_sensor(ctx, "urg-04lx", model, to_scans(log, model.n_beams), n_pool, repeats, stage_repeats)
+    # The same step without stage e′ (the model's outlines left out): what the refinement costs.
+    bench_sensor(ctx, "urg-04lx-no-outline", model.without_outline(), to_scans(log, model.n_beams), n_pool, repeats,
+                 stage_repeats, stages=False)
     ulog, usite = _data.scenario("lab-trajectory", 5, n_pool)
     umodel = _data.utm_model(usite, ctx.log)
     # The smoke run times the UTM-30LX stages only end to end (the stage code is the URG-04LX's).

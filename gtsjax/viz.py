@@ -153,5 +153,5 @@ def outline_figure(model, title: str = ""):
         turns = ", ".join(f"{math.degrees(a):+.0f}°" for a in sides) or "none"
         ax.set_title(f"{model.classes[k]}: learnt outline\nside hypotheses (dashed): {turns}", fontsize=10)
     if title:
-        fig.suptitle(title)
+        fig.suptitle(title, fontsize=9 if len(ks) == 1 else 11)
     return fig

@@ -156,6 +156,7 @@ def random_views(rng, n, noise=0.005):
 def test_reference_constants_are_gtsjax_constants():
     """The reference is written out with the constants it mirrors: the same ones."""
     assert ref.ITERATIONS == e_refine.ITERATIONS
+    assert ref.POINTS == e_refine.POINTS
     assert ref.SIDES == e_refine.SIDES
     assert ref.MAX_STEP_XY == e_refine._MAX_STEP_XY
     assert ref.MAX_STEP_TH == e_refine._MAX_STEP_TH

@@ -166,6 +166,20 @@ def _summary(console: Console, rep: dict, out: Path) -> None:
                       f"(x̃, ỹ, θ̃; calibrated on {c['examples']} {'held-out' if c['held_out'] else 'training'} examples)"
                       + (f"; a heading read with σ above {c['vague_heading_sigma_deg']:.1f}° updates a track's "
                          "position only" if "vague_heading_sigma_deg" in c else ""))
+    for name, o in rep.get("outlines", {}).items():
+        if not o.get("outline"):
+            console.print(f"no outline of {name}: {o.get('why', '')}; its headings are the GP's")
+            continue
+        line = (f"outline of {name}: {o['size_m'][0]:.2f} × {o['size_m'][1]:.2f} m from {o['views']} views; side "
+                f"hypotheses {', '.join(f'{d:+.0f}°' for d in o['sides_deg']) or 'none'} (from {o['sides_from']})")
+        if (c := o.get("calibration")) is not None:
+            g, r = c["gp"], c["refined"]
+            line += (f"; held-out heading per scan, GP → outline: median {g['heading_median_deg']:.1f}° → "
+                     f"{r['heading_median_deg']:.1f}°, misread (> 30°) {100 * g['misread_fraction']:.1f} % → "
+                     f"{100 * r['misread_fraction']:.1f} %, on {c['examples']} views")
+        if o.get("used") is False:
+            line += f"; not used: {o['why']}"
+        console.print(line)
     _openset_tables(console, rep)
     console.print(f"{rep['degraded_scans']} of {rep['scans']} scans without a map transformation; model written to {out}")
 

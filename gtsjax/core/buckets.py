@@ -36,3 +36,19 @@ def bucketed(fn, v: Float[Array, "rows features"], n: Int[Array, ""], width: int
 
     which = jnp.searchsorted(jnp.asarray(bs, jnp.int32), jnp.asarray(n, jnp.int32), side="left")
     return jax.lax.switch(jnp.minimum(which, len(bs) - 1), [branch(b) for b in bs], v)
+
+
+def bucketed_rows(fn, args, n: Int[Array, ""]):
+    """:func:`bucketed` for a pytree: ``fn`` on the first ``b`` rows (leading axis) of every leaf of
+    ``args``; every leaf of its result padded with zeros (False) to ``args``' row count."""
+    cap = jax.tree.leaves(args)[0].shape[0]
+    bs = sizes(cap)
+
+    def branch(b):
+        def run(a):
+            out = fn(jax.tree.map(lambda x: x[:b], a))
+            return jax.tree.map(lambda o: jnp.zeros((cap,) + o.shape[1:], o.dtype).at[:b].set(o), out)
+        return run
+
+    which = jnp.searchsorted(jnp.asarray(bs, jnp.int32), jnp.asarray(n, jnp.int32), side="left")
+    return jax.lax.switch(jnp.minimum(which, len(bs) - 1), [branch(b) for b in bs], args)

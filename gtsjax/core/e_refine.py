@@ -31,8 +31,11 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
+from .buckets import bucketed_rows
 from .geometry import wrap
 
+POINTS = 32  # points per candidate the fit uses: a longer segment is thinned evenly (a robot at 1.5–3.6 m
+# from a URG-04LX has 12–30 points; a close one up to the window's 96)
 ITERATIONS = 6  # Gauss–Newton steps per hypothesis (from 5 cm / 10° off, 80 % of views are within 1 mm / 0.1° by the 6th)
 SIDES = 4  # side hypotheses per candidate (the GP's heading and up to three others)
 _MAX_STEP_XY = 0.05  # m per step
@@ -76,21 +79,37 @@ class Refined(eqx.Module):
     rms: Float[Array, " cands"]  # the chosen side's RMS residual (m)
 
 
-def lookup(outline: Outline, cls: Int[Array, "*n"], m: Float[Array, "*n 2"]) -> tuple[Float[Array, "*n"], Float[Array, "*n 2"]]:
+def compact(pts: Float[Array, "n window 2"], mask: Bool[Array, "n window"], size: int = POINTS
+            ) -> tuple[Float[Array, "n size 2"], Bool[Array, "n size"]]:
+    """At most ``size`` of each candidate's points, spread evenly over its segment (a candidate's
+    points are the first ``length`` of its window)."""
+    n_pts = jnp.sum(mask, -1, dtype=jnp.int32)
+    stride = jnp.maximum((n_pts + size - 1) // size, 1)
+    idx = jnp.minimum(jnp.arange(size, dtype=jnp.int32)[None, :] * stride[:, None], pts.shape[1] - 1)
+    take = jnp.take_along_axis
+    return take(pts, idx[..., None], 1), take(mask, idx, 1) & (idx < n_pts[:, None])
+
+
+def lookup(outline: Outline, cls: Int[Array, "*n"], m: Float[Array, "*n 2"], lo=None, cell=None
+           ) -> tuple[Float[Array, "*n"], Float[Array, "*n 2"]]:
     """Signed distance and its gradient at object-frame points ``m`` of classes ``cls`` (bilinear;
-    beyond the grid, the distance grows with the distance from its edge)."""
+    beyond the grid, the distance grows with the distance from its edge). ``lo``, ``cell``: the
+    classes' grid corners and cell sizes already gathered (broadcastable against ``m``)."""
     g = outline.field.shape[1]
-    u = (m - outline.lo[cls]) / outline.cell[cls][..., None]
+    lo = outline.lo[cls] if lo is None else lo
+    cell = outline.cell[cls][..., None] if cell is None else cell
+    u = (m - lo) / cell
     uc = jnp.clip(u, 0.0, g - 1.0)
     i0 = jnp.clip(jnp.floor(uc), 0, g - 2).astype(jnp.int32)
     f = uc - i0.astype(uc.dtype)
-    flat = outline.field.reshape(-1, 3)
-    base = cls * (g * g) + i0[..., 0] * g + i0[..., 1]
-    v00, v01 = flat[base], flat[base + 1]
-    v10, v11 = flat[base + g], flat[base + g + 1]
+    # One gather per point: each cell's four corners (distance and gradient at each) side by side.
+    fld = outline.field
+    corners = jnp.concatenate([fld[:, :-1, :-1], fld[:, :-1, 1:], fld[:, 1:, :-1], fld[:, 1:, 1:]], -1)
+    v = corners.reshape(-1, 12)[cls * (g - 1) ** 2 + i0[..., 0] * (g - 1) + i0[..., 1]]
+    v00, v01, v10, v11 = v[..., 0:3], v[..., 3:6], v[..., 6:9], v[..., 9:12]
     fx, fy = f[..., 0:1], f[..., 1:2]
     v = (1 - fx) * ((1 - fy) * v00 + fy * v01) + fx * ((1 - fy) * v10 + fy * v11)
-    out = (u - uc) * outline.cell[cls][..., None]  # metres beyond the grid, per axis
+    out = (u - uc) * cell  # metres beyond the grid, per axis
     beyond = jnp.sqrt(jnp.sum(out**2, -1))
     safe = jnp.where(beyond > 0, beyond, 1.0)
     grad = jnp.where((beyond > 0)[..., None], out / safe[..., None], v[..., 1:])
@@ -102,20 +121,23 @@ def _residuals(outline, cls, pose, pts, free, mask):
     signed distances, and the free-space points' distances where negative."""
     c, s = jnp.cos(pose[..., 2])[..., None], jnp.sin(pose[..., 2])[..., None]
     t = pose[..., None, :2]
+    cls_p = jnp.broadcast_to(cls[..., None], mask.shape[:-1] + (2 * mask.shape[-1],))
+    lo, cell = outline.lo[cls][..., None, :], outline.cell[cls][..., None, None]
 
     def terms(p):
         d = p - t
         mx = c * d[..., 0] + s * d[..., 1]
         my = -s * d[..., 0] + c * d[..., 1]
-        r, g = lookup(outline, jnp.broadcast_to(cls[..., None], mx.shape), jnp.stack([mx, my], -1))
+        r, g = lookup(outline, cls_p, jnp.stack([mx, my], -1), lo, cell)
         # ∂r/∂t = −(Rot g)ᵀ, ∂r/∂θ = g · (m_y, −m_x)
         jx = -(c * g[..., 0] - s * g[..., 1])
         jy = -(s * g[..., 0] + c * g[..., 1])
         jt = g[..., 0] * my - g[..., 1] * mx
         return r, jnp.stack([jx, jy, jt], -1)
 
-    r, J = terms(pts)
-    rf, Jf = terms(free)
+    n = pts.shape[-2]
+    both_r, both_J = terms(jnp.concatenate([pts, free], -2))  # one lookup for the points and the free space
+    r, J, rf, Jf = both_r[..., :n], both_J[..., :n, :], both_r[..., n:], both_J[..., n:, :]
     inside = mask & (rf < 0)
     w = jnp.where(mask, 1.0 / (1.0 + (r / outline.robust) ** 2), 0.0)
     wf = jnp.where(inside, 1.0, 0.0)
@@ -151,8 +173,10 @@ def _normal(robust, r, J, w, rf, Jf, wf, mask):
 def fit(outline: Outline, cls: Int[Array, " n"], pts: Float[Array, "n window 2"], mask: Bool[Array, "n window"],
         start: Float[Array, "n sides 3"]) -> tuple[Float[Array, "n sides 3"], Float[Array, "n sides"],
                                                     Float[Array, "n sides 3 3"]]:
-    """``ITERATIONS`` damped Gauss–Newton steps from each start. Returns the poses, their robust
-    costs (see :func:`_normal`) and their Hessians ``JᵀWJ``."""
+    """``ITERATIONS`` damped Gauss–Newton steps from each start, on at most ``POINTS`` of each
+    candidate's points (:func:`compact`). Returns the poses, their robust costs (see :func:`_normal`)
+    and their Hessians ``JᵀWJ``."""
+    pts, mask = compact(pts, mask)
     rho = jnp.sqrt(jnp.sum(pts**2, -1, keepdims=True))
     free = pts * (1.0 - outline.free_gap / jnp.where(rho > 0, rho, 1.0))
     pts_h, free_h = pts[:, None], free[:, None]
@@ -183,7 +207,7 @@ def refine(outline: Outline, cls: Int[Array, " n"], run: Bool[Array, " n"], pts:
     start = jnp.concatenate([jnp.broadcast_to(pose_gp[:, None, :2], offsets.shape + (2,)),
                              (pose_gp[:, 2:3] + offsets)[..., None]], -1)
     pose, cost, H = fit(outline, cls, pts, mask, start)
-    n_pts = jnp.sum(mask, -1).astype(dt)
+    n_pts = jnp.minimum(jnp.sum(mask, -1), POINTS).astype(dt)  # as many as the fit used (compact)
     # Side probabilities: the fit's evidence (calibrated temperature) and the prior that the GP was right.
     k_sides = jnp.maximum(jnp.sum(use_side, -1).astype(dt) - 1.0, 1.0)
     p_right = outline.prior_right[cls]
@@ -252,10 +276,13 @@ class Sides(eqx.Module):
 def refine_candidates(outline: "Outline | None", max_objects: int, cls: Int[Array, " cands"], ok: Bool[Array, " cands"],
                       scores: Float[Array, "cands classes"], xy: Float[Array, "cands window 2"],
                       mask: Bool[Array, "cands window"], pose: Float[Array, "cands 3"],
-                      cov: Float[Array, "cands 3 3"]) -> Sides:
+                      cov: Float[Array, "cands 3 3"], bucket: bool = False) -> Sides:
     """Stage e′ on a scan's candidates: the ``max_objects`` kept candidates of classes with an outline
     that score highest for their class are refined (:func:`refine`); every other candidate keeps its
-    GP pose and gets its class's side hypotheses from the GP's heading (:func:`prior_sides`)."""
+    GP pose and gets its class's side hypotheses from the GP's heading (:func:`prior_sides`). With
+    ``bucket``, the fits run on the smallest of a few fixed counts of candidates that holds those
+    present (:func:`~gtsjax.core.buckets.bucketed_rows`: a scan with one robot pays for one), as the
+    pose GPs do (``e_pose.regress``)."""
     n = cls.shape[0]
     dt = pose.dtype
     if outline is None:
@@ -269,7 +296,9 @@ def refine_candidates(outline: "Outline | None", max_objects: int, cls: Int[Arra
     k = min(max_objects, n)
     _, idx = jax.lax.top_k(jnp.where(sel, own, -jnp.inf), k)
     chosen = sel[idx]
-    r = refine(outline, cls[idx], chosen, xy[idx], mask[idx], pose[idx], cov[idx])
+    args = (cls[idx], chosen, xy[idx], mask[idx], pose[idx], cov[idx])
+    run = lambda a: refine(outline, *a)  # noqa: E731
+    r = bucketed_rows(run, args, jnp.sum(chosen, dtype=jnp.int32)) if bucket else run(args)
     done = chosen & r.fitted
     put = lambda full, part: full.at[idx].set(jnp.where(done.reshape((-1,) + (1,) * (part.ndim - 1)), part, full[idx]))  # noqa: E731
     return Sides(put(pose, r.pose), put(cov, r.cov), put(side_pose, r.side_pose), put(side_logp, r.side_logp),

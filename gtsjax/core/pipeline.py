@@ -122,7 +122,7 @@ def perceive(model: Model, scan: Scan, *, bucket: bool | None = None) -> Percept
     pose_s, cov_s = to_sensor_frame(f.origin, f.heading, rel, var)
     c = fe.candidates
     sides = refine_candidates(model.outline, model.max_objects, cls, ok & posed & model.tracker.tracked[cls], scores,
-                              c.xy, c.mask, pose_s, cov_s)
+                              c.xy, c.mask, pose_s, cov_s, bucket)
     d = fe.diagnostics
     unposed = jnp.sum(ok & ~posed, dtype=jnp.int32)
     count = lambda m: jnp.sum(m, dtype=jnp.int32)

@@ -20,7 +20,9 @@ turned polyline from the outline, the best translation within ±6 cm): the turns
 minimum, at least 30° from 0 and from one another, up to three, are the sides a partial view may
 be taken for, and the hypotheses stage e′ tests besides the GP's heading.
 
-**Calibration** (held-out examples of the class, refined from the GP's poses as the step does):
+**Calibration** (held-out examples of the class, refined from the GP's poses as the step does; a
+class whose refined headings are less precise there than the GP's, by the median error, keeps the
+GP's: its outline is not used):
 ``max_rms`` (a fit with a larger residual fails: 1.5 × the 99th percentile of the right side's
 residual), the temperature and the prior of the side posterior (maximum likelihood of the true side),
 and the factors that calibrate the covariance ``s² H⁻¹`` (as the GP variances are calibrated).
@@ -29,12 +31,13 @@ and the factors that calibrate the covariance ``s² H⁻¹`` (as the GP variance
 import math
 from collections.abc import Sequence
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from ..core.e_pose import PoseRegressor, regress_one_class, to_sensor_frame
-from ..core.e_refine import DEFAULT_PRIOR_RIGHT, DEFAULT_SIDES, SIDES, Outline, fit
+from ..core.e_refine import DEFAULT_PRIOR_RIGHT, DEFAULT_SIDES, POINTS, SIDES, Outline, fit
 from ..core.geometry import compose, relative, wrap
 from ..io.logs import ScanLog
 from .calibrate import robust_variance_scale
@@ -284,7 +287,7 @@ def calibrate_outline(outline: Outline, k: int, pts, mask, pose_gp, truth, right
     outline and a summary: GP and refined errors side by side."""
     poses, cost, H = refine_examples(outline, k, pts, mask, pose_gp)
     usable = np.asarray(outline.side_mask[k])
-    n_pts = mask.sum(1).astype(float)
+    n_pts = np.minimum(mask.sum(1), POINTS).astype(float)  # as many as the fit uses (e_refine.compact)
     err_th = np.abs(wrap(poses[..., 2] - truth[:, None, 2]))  # [n, sides]
     err_th = np.where(usable[None], err_th, np.inf)
     label = np.argmin(err_th, 1)
@@ -410,4 +413,18 @@ def fit_outlines(logs: Sequence[ScanLog], ex: Examples, is_held: np.ndarray, cla
     for k, (pts, mask, pose_gp, truth) in held.items():
         outline, rep = calibrate_outline(outline, k, pts, mask, pose_gp, truth)
         report[classes[k]]["calibration"] = rep
+        # The outline is used only where its headings are at least as precise as the GP's on held-out
+        # views (the median error: the tracker's mixture takes care of the gross misreads either way).
+        # A blurred outline (too few distinct views to sharpen it) reads every heading a little off.
+        if rep["refined"]["heading_median_deg"] > rep["gp"]["heading_median_deg"]:
+            report[classes[k]]["used"] = False
+            report[classes[k]]["why"] = (f"held-out heading median {rep['refined']['heading_median_deg']:.2f}° "
+                                         f"against the GP's {rep['gp']['heading_median_deg']:.2f}°")
+            outline = eqx.tree_at(lambda o: (o.has, o.sides, o.side_mask, o.prior_right), outline, (
+                outline.has.at[k].set(False), outline.sides.at[k].set(jnp.asarray(DEFAULT_SIDES, _F32)),
+                outline.side_mask.at[k].set(True), outline.prior_right.at[k].set(DEFAULT_PRIOR_RIGHT)))
+        else:
+            report[classes[k]]["used"] = True
+    if not bool(jnp.any(outline.has)):
+        return None, report
     return outline, report

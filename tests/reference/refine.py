@@ -13,9 +13,10 @@ from scipy.ndimage import map_coordinates
 
 from .track import wrap
 
-# gtsjax: ``e_refine.ITERATIONS``, ``SIDES``, ``_MAX_STEP_XY``, ``_MAX_STEP_TH``, ``_DAMPING``,
+# gtsjax: ``e_refine.ITERATIONS``, ``POINTS``, ``SIDES``, ``_MAX_STEP_XY``, ``_MAX_STEP_TH``, ``_DAMPING``,
 # ``DEFAULT_SIDES``, ``DEFAULT_PRIOR_RIGHT`` (tests/test_refine.py checks that they agree).
 ITERATIONS = 6
+POINTS = 32  # a candidate's points the fit uses: every ceil(n / 32)-th
 SIDES = 4
 MAX_STEP_XY = 0.05  # m per step, per axis
 MAX_STEP_TH = 0.35  # rad per step
@@ -139,6 +140,11 @@ def fit_one(ol: Outline, k: int, pts: np.ndarray, start) -> tuple[np.ndarray, fl
     return pose, cost, H
 
 
+def thin(p: np.ndarray) -> np.ndarray:
+    """At most ``POINTS`` of a candidate's points, every ``ceil(n / POINTS)``-th from the first."""
+    return p[:: max(1, -(-len(p) // POINTS))][:POINTS]
+
+
 def fit(ol: Outline, cls, pts, mask, start):
     """:func:`fit_one` for candidates ``[n]`` (points ``[n, window, 2]`` under ``mask``) and starts
     ``[n, sides, 3]``: poses ``[n, sides, 3]``, costs ``[n, sides]``, Hessians ``[n, sides, 3, 3]``."""
@@ -146,7 +152,7 @@ def fit(ol: Outline, cls, pts, mask, start):
     n, h = start.shape[:2]
     poses, costs, hs = np.zeros((n, h, 3)), np.zeros((n, h)), np.zeros((n, h, 3, 3))
     for i in range(n):
-        p = pts[i][np.asarray(mask[i], bool)]
+        p = thin(pts[i][np.asarray(mask[i], bool)])
         for j in range(h):
             poses[i, j], costs[i, j], hs[i, j] = fit_one(ol, int(cls[i]), p, start[i, j])
     return poses, costs, hs
@@ -197,7 +203,7 @@ def refine(ol: Outline, cls, run, pts, mask, pose_gp, cov_gp) -> Refined:
     for i in range(n):
         k = int(cls[i])
         use = ol.side_mask[k]
-        p = np.asarray(pts[i], np.float64)[np.asarray(mask[i], bool)]
+        p = thin(np.asarray(pts[i], np.float64)[np.asarray(mask[i], bool)])
         n_pts = len(p)
         starts = [np.array([pose_gp[i, 0], pose_gp[i, 1], pose_gp[i, 2] + ol.sides[k, j]]) for j in range(h)]
         fits = [fit_one(ol, k, p, s) for s in starts]
