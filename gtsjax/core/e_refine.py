@@ -209,10 +209,7 @@ def refine(outline: Outline, cls: Int[Array, " n"], run: Bool[Array, " n"], pts:
     pose, cost, H = fit(outline, cls, pts, mask, start)
     n_pts = jnp.minimum(jnp.sum(mask, -1), POINTS).astype(dt)  # as many as the fit used (compact)
     # Side probabilities: the fit's evidence (calibrated temperature) and the prior that the GP was right.
-    k_sides = jnp.maximum(jnp.sum(use_side, -1).astype(dt) - 1.0, 1.0)
-    p_right = outline.prior_right[cls]
-    prior = jnp.where(jnp.arange(offsets.shape[1], dtype=jnp.int32)[None, :] == 0, jnp.log(p_right)[:, None],
-                      jnp.log((1.0 - p_right) / k_sides)[:, None])
+    prior = side_prior(use_side, outline.prior_right[cls].astype(dt))
     rms = jnp.sqrt(cost / jnp.maximum(n_pts, 1.0)[:, None])
     ok_fit = run & (n_pts >= outline.min_points.astype(dt))
     good = ok_fit[:, None] & (rms <= outline.max_rms[cls][:, None]) & use_side
@@ -250,14 +247,19 @@ DEFAULT_SIDES = (0.0, 0.5 * 3.141592653589793, 3.141592653589793, -0.5 * 3.14159
 DEFAULT_PRIOR_RIGHT = 0.9
 
 
+def side_prior(use: Bool[Array, "n sides"], p_right: Float[Array, " n"]) -> Float[Array, "n sides"]:
+    """The prior log-probability of each side: the GP's (side 0) ``p_right``, the other used sides
+    sharing the rest (unnormalised where sides are unused)."""
+    k = jnp.maximum(jnp.sum(use, -1).astype(p_right.dtype) - 1.0, 1.0)
+    first = jnp.arange(use.shape[1], dtype=jnp.int32)[None, :] == 0
+    return jnp.where(first, jnp.log(p_right)[:, None], jnp.log((1.0 - p_right) / k)[:, None])
+
+
 def prior_sides(pose: Float[Array, "n 3"], offsets: Float[Array, "n sides"], use: Bool[Array, "n sides"],
                 p_right: Float[Array, " n"]) -> tuple[Float[Array, "n sides 3"], Float[Array, "n sides"]]:
     """Side hypotheses from the GP's pose alone: its heading turned by each offset, the GP's side with
     probability ``p_right`` and the others sharing the rest."""
-    k = jnp.maximum(jnp.sum(use, -1).astype(pose.dtype) - 1.0, 1.0)
-    first = jnp.arange(offsets.shape[1], dtype=jnp.int32)[None, :] == 0
-    logp = jnp.where(first, jnp.log(p_right)[:, None], jnp.log((1.0 - p_right) / k)[:, None])
-    logp = jax.nn.log_softmax(jnp.where(use, logp, -jnp.inf), -1)
+    logp = jax.nn.log_softmax(jnp.where(use, side_prior(use, p_right), -jnp.inf), -1)
     side = jnp.broadcast_to(pose[:, None, :], offsets.shape + (3,))
     side = side.at[..., 2].set(wrap(pose[:, 2:3] + offsets))
     return side, logp
