@@ -168,10 +168,11 @@ def test_rejected_heading_is_a_position_only_update():
     with ``H = [I₂ 0]`` does; the heading mean and variance are untouched, the turn rate (learnt from
     the headings before) is reset to zero with its initial variance. The rejected heading, which no
     hypothesis explains, becomes a second heading hypothesis (its heading, the detection's variance)
-    with ``_NEW_P`` times the weight of the track's own, which stays the main one and is the state's
-    heading; the reference tracker agrees."""
+    with the rest's weight: ``(1 − _OUTLIER_P) / _OUTLIER_P`` times what the rest keeps, while the main
+    one, which the read does not support either, loses against the rest's faded odds what the floor
+    gives against the read; the main one stays the state's heading; the reference tracker agrees."""
     pytest.importorskip("filterpy")
-    from gtsjax.core.g_track import _NEW_P
+    from gtsjax.core.g_track import _OUTLIER_P
     from tests.reference.track import Tracker
 
     params = TrackerParams.default([False, True], n_confirm=1)
@@ -185,6 +186,7 @@ def test_rejected_heading_is_a_position_only_update():
     s = int(np.argmax(np.asarray(state.live)))
     assert np.isfinite(np.asarray(state.side_logw[s])).sum() == 1  # one hypothesis: every heading agreed
     x0, P0 = np.asarray(state.mean[s], np.float64), np.asarray(state.cov[s], np.float64)
+    lw0, rest0 = float(state.side_logw[s, int(state.main[s])]), float(state.side_rest[s])
     z = np.array([1.02, 0.99, 0.3 + np.pi / 2])
     d = dets(z, var=np.diag(R))
     state, _ = step(state, d, jnp.asarray(0.1, F32), params)
@@ -214,8 +216,12 @@ def test_rejected_heading_is_a_position_only_update():
     new = int(used[used != main][0])
     np.testing.assert_allclose([heading[main], var[main]], [x[2], P[2, 2]], rtol=1e-4, atol=1e-6)
     np.testing.assert_allclose([heading[new], var[new]], [z[2], R[2, 2]], rtol=1e-5, atol=1e-6)
-    np.testing.assert_allclose(np.exp(lw[used]).sum(), 1.0, rtol=1e-5)  # normalised
-    np.testing.assert_allclose(np.exp(lw[new] - lw[main]), _NEW_P, rtol=1e-4)
+    rest = float(state.side_rest[s])
+    np.testing.assert_allclose(np.exp(lw[used]).sum() + np.exp(rest), 1.0, rtol=1e-5)  # normalised
+    fade = np.exp(-dt / float(params.heading_memory))
+    np.testing.assert_allclose(lw[new] - rest, np.log((1 - _OUTLIER_P) / _OUTLIER_P), rtol=1e-5)
+    np.testing.assert_allclose(lw[main] - lw[new], fade * (lw0 - rest0) + np.log(_OUTLIER_P / (1 - _OUTLIER_P)),
+                               rtol=1e-4)
     same_hypotheses(state, s, next(t for t in ref.slots if t is not None))
 
 
@@ -374,12 +380,14 @@ def scan(poses, cls=1, other=(), var=(1e-4, 1e-4, 4e-3), k=6, sides=None, logp=N
 
 def same_hypotheses(state, s, t, where=None):
     """gtsjax's heading hypotheses of slot ``s`` are the reference track ``t``'s: the same main one,
-    the same used ones, with the same headings, variances and weights (float32 against float64)."""
+    the same used ones, with the same headings, variances and weights, and the same rest (float32
+    against float64)."""
     lw = np.asarray(state.side_logw[s], np.float64)
     used = np.isfinite(lw)
     np.testing.assert_array_equal(used, np.isfinite(t.logw), err_msg=str(where))
     assert int(state.main[s]) == t.main, (where, int(state.main[s]), t.main)
     np.testing.assert_allclose(lw[used], t.logw[used], rtol=1e-4, atol=2e-3, err_msg=str(where))
+    np.testing.assert_allclose(float(state.side_rest[s]), t.rest, rtol=1e-4, atol=2e-3, err_msg=str(where))
     dh = wrap(np.asarray(state.side_heading[s], np.float64)[used] - t.heading[used])
     np.testing.assert_allclose(np.asarray(dh), 0.0, atol=2e-4, err_msg=str(where))
     np.testing.assert_allclose(np.asarray(state.side_var[s], np.float64)[used], t.var[used], rtol=2e-3, atol=1e-7,

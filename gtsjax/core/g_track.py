@@ -24,19 +24,30 @@ a partial view (below) it may start and confirm a track.
 Gating alone cannot undo a wrong start: a track born on a misread heading rejects every right one.
 So the heading is a **mixture over side hypotheses** (Rao–Blackwellised: position and velocity are
 shared, the heading is not). Each track keeps ``SIDES`` heading hypotheses, each with a variance and a
-log-weight: at birth, its first detection's sides (stage e′: the refined poses from the GP's heading
-and from it turned to the outline's other sides, each with a posterior probability). Each scan the
-hypotheses turn with the track's turn rate and grow as uncertain as its heading; an assigned
-detection's evidence for hypothesis ``j`` is ``log Σ_h p(h) N(z_h; φ_j, σ_j² + r)`` over its sides,
-with a floor for a heading none of them explains (:func:`side_evidence`); the log-weights fade
-towards uniform with the time constant ``heading_memory`` and add the evidence; each hypothesis
-takes its nearest detection side as a one-dimensional Kalman update where it passes the heading gate.
-The state's heading is one of the hypotheses, its *main* one; where another becomes three times as
-probable, the state's heading becomes that hypothesis (its variance, no correlation with the rest of
-the state), and the state's update then uses the detection side nearest it. So a static robot whose
-scans disagree converges to the side the evidence favours, summed over the last second, not to the
-last scan's or the majority's; a robot that turns turns all its hypotheses. Detections without sides
-(a class without an outline) have one, and the mixture is then a single hypothesis.
+log-weight, and a *rest*: the weight of "the heading is none of them", a uniform heading. At birth
+the hypotheses are its first detection's sides (stage e′: the refined poses from the GP's heading and
+from it turned to the outline's other sides, each with a posterior probability), sharing
+``1 − _REST_P`` of the weight. Each scan the hypotheses turn with the track's turn rate and grow as
+uncertain as its heading; an assigned detection's evidence for hypothesis ``j`` is ``log Σ_h p(h)
+N(z_h; φ_j, σ_j² + r)`` over its sides, with a floor for a heading none of them explains
+(:func:`side_evidence`); the log-weights fade towards uniform with the time constant
+``heading_memory`` and add the evidence; each hypothesis takes its nearest detection side as a
+one-dimensional Kalman update where it passes the heading gate. Under the rest, any heading read is
+as likely as any other (``1/2π``); what it learns from the read is that the heading is near it: its
+weight splits into a hypothesis at the read (``1 − _OUTLIER_P``: added to the hypothesis that already
+explains the read, or, where none does, a new one in place of the weakest, whose weight goes back to
+the rest) and a rest that stays uniform (``_OUTLIER_P``). Two hypotheses that come within the heading
+gate of each other are one: the lighter (never the main one) gives its weight to the other.
+
+So a new hypothesis starts from what the rest has kept: on a young track that is much (a track born
+on a misread gives it up at the next right read), on one whose reads have long agreed it is what the
+floor left over the last ``heading_memory``, and one or two misreads in a row cannot outweigh that;
+the same reads for about ``heading_memory`` do. The state's heading is one of the hypotheses, its
+*main* one; where another becomes three times as probable, the state's heading becomes that
+hypothesis (its variance, no correlation with the rest of the state), and the state's update then
+uses the detection side nearest it. So a static robot whose scans disagree converges to the side the
+evidence favours, summed over the last second, not to the last scan's or the majority's; a robot that
+turns turns all its hypotheses. Detections without sides (a class without an outline) have one.
 
 Track life cycle (the paper leaves it open): an unassigned detection of a tracked class starts a
 tentative track in a free slot unless a live track of its class, or an earlier detection of its
@@ -195,7 +206,8 @@ class TrackerState(eqx.Module):
     contrary: Int[Array, " tracks"]  # while tentative: scans with no detection but an ``other`` candidate near
     side_heading: Float[Array, "tracks sides"]  # the heading hypotheses (see the module docstring)
     side_var: Float[Array, "tracks sides"]  # their variances
-    side_logw: Float[Array, "tracks sides"]  # their log-weights, normalised; -inf: unused
+    side_logw: Float[Array, "tracks sides"]  # their log-weights, normalised with the rest's; -inf: unused
+    side_rest: Float[Array, " tracks"]  # the log-weight of a heading none of them is (uniform)
     main: Int[Array, " tracks"]  # the hypothesis the state's heading is
     next_id: Int[Array, ""]
 
@@ -214,7 +226,8 @@ class TrackerState(eqx.Module):
             contrary=jnp.zeros(m, jnp.int32),
             side_heading=jnp.zeros((m, sides), _F32),
             side_var=jnp.ones((m, sides), _F32),
-            side_logw=jnp.full((m, sides), -jnp.inf, _F32).at[:, 0].set(0.0),
+            side_logw=jnp.full((m, sides), -jnp.inf, _F32).at[:, 0].set(jnp.log1p(-_REST_P)),
+            side_rest=jnp.full(m, jnp.log(_REST_P), _F32),
             main=jnp.zeros(m, jnp.int32),
             next_id=jnp.asarray(0, jnp.int32),
         )
@@ -359,11 +372,12 @@ def assign(cost: Float[Array, "dets tracks"]) -> tuple[Int[Array, " tracks"], Bo
     return det_of_track, has
 
 
-# A detection's heading that none of its sides explains (a side the refinement did not try): its
-# likelihood under any hypothesis is at least that of a uniform heading with this weight.
+# A detection's heading that none of its sides explains (a side the refinement did not try, a
+# misread): its likelihood under any hypothesis is at least that of a uniform heading with this weight.
+# It is also the share of the rest's weight that stays uniform after a read (see the module docstring).
 _OUTLIER_P = 0.01
-# The weight a new hypothesis starts with (see :func:`heading_mixture`).
-_NEW_P = 0.1
+# The weight a new track gives to a heading none of its first detection's sides is.
+_REST_P = 0.1
 # How much more weight another hypothesis needs before the state's heading becomes it: odds of 3 to 1.
 _SWITCH_ODDS = 3.0
 
@@ -397,31 +411,63 @@ def side_evidence(heading: Float[Array, "tracks sides"], var: Float[Array, "trac
 
 def heading_mixture(state: TrackerState, ev, near, nu, S, d2, seen, z_best, r, dt, params: TrackerParams):
     """Weights and headings of every track's hypotheses after this scan's evidence (see the module
-    docstring): the log-weights fade towards uniform over ``heading_memory`` and add the evidence; each
-    hypothesis within the heading gate of its nearest detection side takes it as a one-dimensional
-    Kalman update. Returns the new headings, variances, log-weights and the hypothesis the state's
-    heading becomes (the most probable one, where its odds over the present one exceed ``_SWITCH_ODDS``)."""
+    docstring): the log-weights (the rest's too) fade towards uniform over ``heading_memory`` and add
+    the evidence; each hypothesis within the heading gate of its nearest detection side takes it as a
+    one-dimensional Kalman update; the rest's share of the read goes to the hypothesis that explains
+    the detection's most probable side ``z_best``, or to a new one there; near-duplicates merge.
+    Returns the new headings, variances, log-weights, the rest's log-weight and the hypothesis the
+    state's heading becomes (the most probable one, where its odds over the present one exceed
+    ``_SWITCH_ODDS``), and whether that is a switch."""
     used = jnp.isfinite(state.side_logw)
     fade = jnp.exp(-dt / params.heading_memory)
     lw = jnp.where(used, fade * jnp.where(used, state.side_logw, 0.0) + jnp.where(seen[:, None], ev, 0.0), -jnp.inf)
-    lw = lw - jax.nn.logsumexp(lw, axis=-1, keepdims=True)
+    rest = fade * state.side_rest
     upd = seen[:, None] & used & (d2 <= params.heading_gate)
     gain = state.side_var / S
     heading = jnp.where(upd, wrap(state.side_heading + gain * nu), state.side_heading)
     var = jnp.where(upd, (1.0 - gain) * state.side_var, state.side_var)
     side = jnp.arange(lw.shape[1], dtype=jnp.int32)[None, :]
-    d2_best = wrap(z_best[:, None] - heading) ** 2 / (var + r[:, None])
-    explained = jnp.any(used & (d2_best <= params.heading_gate), axis=-1)
+    # The rest's read: most of its weight goes to a hypothesis at the read, the rest stays uniform.
+    d2_best = jnp.where(used, wrap(z_best[:, None] - heading) ** 2 / (var + r[:, None]), jnp.inf)
+    explained = jnp.any(d2_best <= params.heading_gate, axis=-1)
+    spawn = rest + jnp.log((1.0 - _OUTLIER_P) / (2 * jnp.pi))
+    rest = jnp.where(seen, rest + jnp.log(_OUTLIER_P / (2 * jnp.pi)), rest)
     weakest = jnp.argmin(jnp.where(side == state.main[:, None], jnp.inf, lw), axis=-1).astype(jnp.int32)
     new = (side == weakest[:, None]) & (seen & ~explained)[:, None]
+    rest = jnp.logaddexp(rest, jnp.max(jnp.where(new, lw, -jnp.inf), axis=-1))  # the replaced one's weight
     heading = jnp.where(new, z_best[:, None], heading)
     var = jnp.where(new, r[:, None], var)
-    lw = jnp.where(new, jnp.log(_NEW_P), lw)
-    lw = lw - jax.nn.logsumexp(lw, axis=-1, keepdims=True)
+    lw = jnp.where(new, -jnp.inf, lw)
+    target = jnp.where(explained, jnp.argmin(d2_best, axis=-1).astype(jnp.int32), weakest)
+    lw = jnp.where(seen[:, None] & (side == target[:, None]), jnp.logaddexp(lw, spawn[:, None]), lw)
+    lw = merge_duplicates(heading, var, lw, state.main, params.heading_gate)
+    total = jnp.logaddexp(jax.nn.logsumexp(lw, axis=-1), rest)
+    lw, rest = lw - total[:, None], rest - total
     best = jnp.argmax(lw, axis=-1).astype(jnp.int32)
     at = lambda a, i: jnp.take_along_axis(a, i[:, None], -1)[:, 0]  # noqa: E731
     switch = at(lw, best) - at(lw, state.main) > jnp.log(_SWITCH_ODDS)
-    return heading, var, lw, jnp.where(switch, best, state.main), switch
+    return heading, var, lw, rest, jnp.where(switch, best, state.main), switch
+
+
+def merge_duplicates(heading: Float[Array, "tracks sides"], var: Float[Array, "tracks sides"],
+                     lw: Float[Array, "tracks sides"], main: Int[Array, " tracks"], gate) -> Float[Array, "tracks sides"]:
+    """Log-weights after merging hypotheses within ``gate`` (χ², 1 dof, on the sum of their variances)
+    of each other: each one that another outranks (the main one outranks all, then the heavier, then
+    the first) gives its weight to the highest-ranked of those and becomes unused (``-inf``). The
+    survivor keeps its heading and variance."""
+    used = jnp.isfinite(lw)
+    n = lw.shape[1]
+    idx = jnp.arange(n, dtype=jnp.int32)
+    close = (used[:, :, None] & used[:, None, :] & (idx[:, None] != idx[None, :])[None]
+             & (wrap(heading[:, :, None] - heading[:, None, :]) ** 2 <= gate * (var[:, :, None] + var[:, None, :])))
+    rank = jnp.where(idx[None, :] == main[:, None], jnp.inf, lw)  # [M, j]
+    above = (rank[:, :, None] > rank[:, None, :]) | ((rank[:, :, None] == rank[:, None, :]) & (idx[:, None] < idx[None, :])[None])
+    over = close & above  # [M, j, k]: j outranks its near-duplicate k
+    dropped = jnp.any(over, axis=1)  # [M, k]
+    into = jnp.argmax(jnp.where(over, rank[:, :, None], -jnp.inf), axis=1).astype(jnp.int32)  # [M, k]: the top one outranking k
+    gets = over & (idx[None, :, None] == into[:, None, :]) & dropped[:, None, :]  # [M, j, k]
+    add = jax.nn.logsumexp(jnp.where(gets, lw[:, None, :], -jnp.inf), axis=-1)  # [M, j]
+    return jnp.where(dropped, -jnp.inf, jnp.logaddexp(lw, add))
 
 
 def plausible(mean: Float[Array, "tracks 6"], cov: Float[Array, "tracks 6 6"], omega: Float[Array, " tracks"],
@@ -509,7 +555,7 @@ def track_step(
     # The heading hypotheses: evidence, weights, their own updates; the state's heading becomes the
     # most probable one where it wins clearly (its variance, no correlation with the rest of the state).
     ev, near, nu_h, S_h, d2_h = side_evidence(state.side_heading, state.side_var, zs[..., 2], zlp, R[:, 2, 2])
-    side_heading, side_var, side_logw, main, switch = heading_mixture(
+    side_heading, side_var, side_logw, side_rest, main, switch = heading_mixture(
         state, ev, near, nu_h, S_h, d2_h, seen, det.pose[det_of_track, 2], R[:, 2, 2], dt, params)
     at = lambda a, i: jnp.take_along_axis(a, i[:, None], 1)[:, 0]  # noqa: E731
     theta0 = jnp.where(switch, at(state.side_heading, main), state.mean[:, 2])
@@ -597,7 +643,8 @@ def track_step(
         contrary=jnp.where(born | ~live, 0, contrary),
         side_heading=jnp.where(born[:, None], side_pose[src, :, 2], side_heading),
         side_var=jnp.where(born[:, None], det.cov[src, 2:3, 2], side_var),
-        side_logw=jnp.where(born[:, None], side_logp[src], side_logw),
+        side_logw=jnp.where(born[:, None], side_logp[src] + jnp.log1p(-_REST_P), side_logw),
+        side_rest=jnp.where(born, jnp.log(_REST_P), side_rest),
         main=jnp.where(born, jnp.argmax(side_logp[src], axis=-1).astype(jnp.int32), main),
         next_id=state.next_id + n_born,
     )

@@ -11,11 +11,12 @@ from filterpy.kalman import KalmanFilter
 NX = 6
 SIDES = 4  # heading hypotheses per track (gtsjax: ``e_refine.SIDES``)
 
-# The heading mixture's constants (gtsjax: ``g_track._OUTLIER_P``, ``_NEW_P``, ``_SWITCH_ODDS``): a
-# detection's heading that none of its sides explains is at least this likely under a uniform heading;
-# a new hypothesis starts with this weight; another hypothesis becomes the state's heading at these odds.
+# The heading mixture's constants (gtsjax: ``g_track._OUTLIER_P``, ``_REST_P``, ``_SWITCH_ODDS``): a
+# detection's heading that none of its sides explains is at least this likely under a uniform heading
+# (and the rest keeps this share of its weight after a read); a new track's rest has this weight;
+# another hypothesis becomes the state's heading at these odds.
 OUTLIER_P = 0.01
-NEW_P = 0.1
+REST_P = 0.1
 SWITCH_ODDS = 3.0
 
 
@@ -40,7 +41,8 @@ class Track:
     confirmed: bool
     heading: np.ndarray  # [SIDES] heading hypotheses
     var: np.ndarray  # [SIDES] their variances
-    logw: np.ndarray  # [SIDES] their log-weights, normalised; -inf: unused
+    logw: np.ndarray  # [SIDES] their log-weights, normalised with the rest; -inf: unused
+    rest: float  # the log-weight of a heading none of them is (uniform)
     main: int  # the hypothesis the filter's heading is
     hits: int = 1
     misses: int = 0
@@ -62,20 +64,26 @@ class Tracker:
     0; tracks reported while confirmed and missed fewer than ``m_report`` scans.
 
     The heading mixture, per track and hypothesis ``j`` (heading ``φ_j``, variance ``σ_j²``, log-weight
-    ``w_j``): the prediction turns ``φ_j`` by the filter's heading change and adds to ``σ_j²`` what the
-    filter's heading variance gained. An assigned detection (neither partial nor vague) with sides ``h``
-    (headings ``z_h``, log-probabilities ``log p_h``; one side, its heading, by default) and heading
-    variance ``r`` has the evidence ``e_j = log(Σ_h p_h N(z_h; φ_j, σ_j² + r) + OUTLIER_P / 2π)``;
-    every scan ``w_j ← exp(−dt / heading_memory) w_j + e_j`` (no ``e_j`` without such a detection),
-    normalised. Each hypothesis whose nearest side passes ``heading_gate`` takes it as a scalar Kalman
-    update. Where no hypothesis (updated) has the detection's most probable side within the gate, that
-    side replaces the weakest hypothesis other than the filter's (``main``): heading ``z``, variance
-    ``r``, weight ``NEW_P`` before normalising. Where the most probable hypothesis has more than
-    ``SWITCH_ODDS`` times the weight of ``main``, it becomes ``main``: the filter's heading is set to
-    that hypothesis's predicted heading and variance, uncorrelated with the rest of the state. The
-    filter's update then uses the side nearest ``main``'s predicted heading; after it, ``main`` is the
-    filter's heading and variance. A new track's hypotheses are its detection's sides (variance ``r``,
-    log-weights ``log p_h``), ``main`` the most probable."""
+    ``w_j``) and its rest (log-weight ``w_u``, a uniform heading): the prediction turns ``φ_j`` by the
+    filter's heading change and adds to ``σ_j²`` what the filter's heading variance gained. An assigned
+    detection (neither partial nor vague) with sides ``h`` (headings ``z_h``, log-probabilities ``log
+    p_h``; one side, its heading, by default) and heading variance ``r`` has the evidence ``e_j =
+    log(Σ_h p_h N(z_h; φ_j, σ_j² + r) + OUTLIER_P / 2π)``; every scan ``w_j ← exp(−dt /
+    heading_memory) w_j + e_j`` (no ``e_j`` without such a detection), and ``w_u`` fades the same way.
+    Each hypothesis whose nearest side passes ``heading_gate`` takes it as a scalar Kalman update. Then
+    the rest reads the detection's most probable side ``z``: ``log(1 − OUTLIER_P) / 2π`` plus ``w_u``
+    goes to the hypothesis that (updated) has ``z`` within the gate with the smallest normalised
+    distance, or where none has, to a new hypothesis ``z`` (variance ``r``) in place of the weakest
+    one other than the filter's (``main``), whose weight is added to the rest's; ``w_u`` itself adds
+    ``log OUTLIER_P / 2π``. Hypotheses within the heading gate of each other (on the sum of their
+    variances) merge: each one outranked by such a near one (``main`` first, then by weight, then by
+    index) adds its weight to the top one of those and is dropped. The weights are normalised with
+    the rest's. Where the most probable hypothesis has more than ``SWITCH_ODDS`` times the weight of
+    ``main``, it becomes ``main``: the filter's heading is set to that hypothesis's predicted heading
+    and variance, uncorrelated with the rest of the state. The filter's update then uses the side
+    nearest ``main``'s predicted heading; after it, ``main`` is the filter's heading and variance. A
+    new track's hypotheses are its detection's sides (variance ``r``, log-weights ``log p_h + log(1 −
+    REST_P)``), ``main`` the most probable, its rest ``log REST_P``."""
 
     def __init__(self, params, max_tracks: int, sides: int = SIDES):
         g = {f.name: np.asarray(getattr(params, f.name)) for f in dataclasses.fields(params)}
@@ -145,7 +153,7 @@ class Tracker:
                 s = var[j] + r
                 terms = [zlp[h] - 0.5 * wrap(zh[h] - phi[j]) ** 2 / s - 0.5 * math.log(2 * math.pi * s) for h in sides]
                 logw[j] += logsumexp([logsumexp(terms), math.log(OUTLIER_P / (2 * math.pi))])
-        logw -= logsumexp(list(logw))
+        rest = fade * t.rest
         if seen:
             for j in used:  # each hypothesis takes its nearest side where that passes the heading gate
                 h = nearest(j)
@@ -154,13 +162,37 @@ class Tracker:
                 if nu**2 / s <= self.heading_gate:
                     t.heading[j] = wrap(phi[j] + var[j] / s * nu)
                     t.var[j] = (1.0 - var[j] / s) * var[j]
-            # the detection's most probable side, if no hypothesis explains it, replaces the weakest one
-            best_side = max(sides, key=lambda h: zlp[h])
-            z = zh[best_side]
-            if not any(wrap(z - t.heading[j]) ** 2 / (t.var[j] + r) <= self.heading_gate for j in used):
-                weakest = min((j for j in range(n) if j != t.main), key=lambda j: logw[j])
-                t.heading[weakest], t.var[weakest], logw[weakest] = z, r, math.log(NEW_P)
-                logw -= logsumexp(list(logw))
+            # the rest reads the detection's most probable side
+            z = zh[max(sides, key=lambda h: zlp[h])]
+            d2 = {j: wrap(z - t.heading[j]) ** 2 / (t.var[j] + r) for j in used}
+            explains = [j for j in used if d2[j] <= self.heading_gate]
+            spawn = rest + math.log((1.0 - OUTLIER_P) / (2 * math.pi))
+            rest += math.log(OUTLIER_P / (2 * math.pi))
+            if explains:
+                target = min(explains, key=lambda j: d2[j])
+            else:  # a new hypothesis in place of the weakest one
+                target = min((j for j in range(n) if j != t.main), key=lambda j: logw[j])
+                rest = logsumexp([rest, logw[target]])
+                t.heading[target], t.var[target], logw[target] = z, r, -math.inf
+            logw[target] = logsumexp([logw[target], spawn])
+        # near-duplicates merge into the top-ranked one near them
+        rank = [math.inf if j == t.main else logw[j] for j in range(n)]
+        live = [j for j in range(n) if np.isfinite(logw[j])]
+        merged = logw.copy()
+        for k in live:
+            over = [j for j in live if j != k and (rank[j] > rank[k] or (rank[j] == rank[k] and j < k))
+                    and wrap(t.heading[j] - t.heading[k]) ** 2 <= self.heading_gate * (t.var[j] + t.var[k])]
+            if over:
+                into = max(over, key=lambda j: rank[j])
+                merged[into] = logsumexp([merged[into], logw[k]])
+                merged[k] = -math.inf
+        for k in live:  # a dropped one keeps nothing, even what was merged into it
+            if any(j != k and (rank[j] > rank[k] or (rank[j] == rank[k] and j < k))
+                   and wrap(t.heading[j] - t.heading[k]) ** 2 <= self.heading_gate * (t.var[j] + t.var[k])
+                   for j in live):
+                merged[k] = -math.inf
+        total = logsumexp(list(merged) + [rest])
+        logw, t.rest = merged - total, rest - total
         t.logw = logw
         best = max(range(n), key=lambda j: logw[j])
         main = best if logw[best] - logw[t.main] > math.log(SWITCH_ODDS) else t.main
@@ -355,6 +387,6 @@ class Tracker:
             self.slots[i] = Track(
                 kf, int(cls[j]), self.next_id + rank, self.n_confirm <= 1,
                 heading=side_heading[j].copy(), var=np.full(len(side_heading[j]), R[j][2, 2]),
-                logw=side_logp[j].copy(), main=int(np.argmax(side_logp[j])),
+                logw=side_logp[j] + math.log1p(-REST_P), rest=math.log(REST_P), main=int(np.argmax(side_logp[j])),
             )
         self.next_id += min(len(free), len(born))
