@@ -23,6 +23,9 @@ _SRC = Path(__file__).resolve().parents[1] / "gtsjax"
 #: Training settings of the cached UTM-30LX model (small fits; 128 inducing points like the demo model).
 UTM_TRAIN = {"max_per_class": 50, "max_pose_examples": 130, "n_inducing": 128, "restarts": 1}
 UTM_TRAIN_SCANS = 600
+#: The smoke run's (``--quick``): the same shapes of step to time, from a fraction of the fitting.
+UTM_TRAIN_QUICK = {"max_per_class": 20, "max_pose_examples": 40, "n_inducing": 32, "restarts": 1}
+UTM_TRAIN_SCANS_QUICK = 200
 
 
 @functools.cache
@@ -47,9 +50,10 @@ def demo_model_path() -> Path:
     return Path(p())
 
 
-def _source_hash() -> str:
-    """Hash of the gtsjax sources a trained model depends on (not the CLI, not the importers)."""
-    h = hashlib.sha256(json.dumps([UTM_TRAIN, UTM_TRAIN_SCANS]).encode())
+def _source_hash(config: dict, n_scans: int) -> str:
+    """Hash of a training setting and the gtsjax sources a trained model depends on (not the CLI, not
+    the importers)."""
+    h = hashlib.sha256(json.dumps([config, n_scans]).encode())
     files = sorted(p for p in _SRC.rglob("*.py") if p.parent.name not in ("cli",) and
                    not (p.parent.name == "io" and p.name not in ("modelfile.py", "logs.py", "site.py")))
     for p in files:
@@ -58,8 +62,9 @@ def _source_hash() -> str:
     return h.hexdigest()[:16]
 
 
-def utm_model_path(log=print) -> Path:
-    """The cached UTM-30LX model file, trained first if missing or stale (about half a minute)."""
+def utm_model_path(log=print, quick: bool = False) -> Path:
+    """The cached UTM-30LX model file, trained first if missing or stale (about a minute; ``quick``: the
+    smoke run's smaller one, kept apart)."""
     import time
 
     import jax
@@ -67,7 +72,9 @@ def utm_model_path(log=print) -> Path:
     from gtsjax.io.modelfile import load_model, save_model
     from gtsjax.train import TrainConfig, train
 
-    path = CACHE / f"utm30lx-{_source_hash()}.npz"
+    config, n_scans = (UTM_TRAIN_QUICK, UTM_TRAIN_SCANS_QUICK) if quick else (UTM_TRAIN, UTM_TRAIN_SCANS)
+    tag = "utm30lx-quick" if quick else "utm30lx"
+    path = CACHE / f"{tag}-{_source_hash(config, n_scans)}.npz"
     if path.exists():
         try:
             load_model(path)
@@ -75,21 +82,21 @@ def utm_model_path(log=print) -> Path:
         except Exception:  # a damaged or outdated cache entry: retrain
             path.unlink()
     CACHE.mkdir(parents=True, exist_ok=True)
-    for old in CACHE.glob("utm30lx-*.npz"):
+    for old in CACHE.glob(f"{tag}-{'[0-9a-f]' * 16}.npz"):
         old.unlink()
     jax.config.update("jax_enable_x64", True)
     t0 = time.perf_counter()
-    train_log, site = scenario("lab-train", 1, UTM_TRAIN_SCANS)
-    model, report = train([train_log], site, TrainConfig(**UTM_TRAIN))
+    train_log, site = scenario("lab-train", 1, n_scans)
+    model, report = train([train_log], site, TrainConfig(**config))
     save_model(model, path, summary={"benchmark": "UTM-30LX model for timing", **report})
     log(f"trained the UTM-30LX benchmark model in {time.perf_counter() - t0:.0f} s -> {path}")
     return path
 
 
-def utm_model(site, log=print):
+def utm_model(site, log=print, quick: bool = False):
     from gtsjax.io.modelfile import load_model
 
-    return load_model(utm_model_path(log)).with_site(site)
+    return load_model(utm_model_path(log, quick)).with_site(site)
 
 
 @functools.cache

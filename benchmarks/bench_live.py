@@ -81,7 +81,7 @@ def run(ctx) -> None:
     model = _data.demo_model(site)
     live_case(ctx, "urg-04lx_10hz", URG_04LX, log, model, duration)
     ulog, usite = _data.scenario("lab-trajectory", 5, 200 if ctx.quick else 600)
-    umodel = _data.utm_model(usite, ctx.log)
+    umodel = _data.utm_model(usite, ctx.log, ctx.quick)
     live_case(ctx, "utm-30lx_40hz", UTM_30LX, ulog, umodel, duration)
     n = 30 if ctx.quick else 300
     step_alone(ctx, "urg-04lx_10hz", URG_04LX, log, model, n)

@@ -229,7 +229,7 @@ def run(ctx) -> None:
     bench_sensor(ctx, "urg-04lx-no-outline", model.without_outline(), to_scans(log, model.n_beams), n_pool, repeats,
                  stage_repeats, stages=False)
     ulog, usite = _data.scenario("lab-trajectory", 5, n_pool)
-    umodel = _data.utm_model(usite, ctx.log)
+    umodel = _data.utm_model(usite, ctx.log, ctx.quick)
     # The smoke run times the UTM-30LX stages only end to end (the stage code is the URG-04LX's).
     bench_sensor(ctx, "utm-30lx", umodel, to_scans(ulog, umodel.n_beams), n_pool, repeats, stage_repeats,
                  stages=not q)

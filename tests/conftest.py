@@ -3,6 +3,7 @@ float64; the step is float32 by explicit dtypes), and strict dtype and rank prom
 accidental float64 in the float32 core, or a silent broadcast, fails loudly."""
 
 import os
+import tempfile
 from pathlib import Path
 
 import jax
@@ -16,6 +17,16 @@ install_import_hook(["gtsjax.core", "gtsjax.gp"], "beartype.beartype")
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
 jax.config.update("jax_numpy_rank_promotion", "raise")
+
+# Compiled programs kept on disk, as the command line keeps them (``gtsjax.cli.compile_cache_dir``), in a
+# folder of the tests' own that every worker and every ``gtsjax`` subprocess shares: the step of the demo
+# model compiles once per run, not once per command. ``GTSJAX_CACHE_DIR=off`` turns it off.
+os.environ.setdefault("GTSJAX_CACHE_DIR", os.path.join(tempfile.gettempdir(), f"gtsjax-tests-xla-{os.getuid()}"))
+from gtsjax.cli import compile_cache_dir  # noqa: E402  (after the import hook)
+
+if (_cache := compile_cache_dir()) is not None:
+    jax.config.update("jax_compilation_cache_dir", str(_cache))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
 
 SHARED = Path(os.environ.get("GTSJAX_SHARED", Path(__file__).resolve().parents[1].parent / "shared"))
 
