@@ -31,18 +31,21 @@ from it turned to the outline's other sides, each with a posterior probability),
 uncertain as its heading; an assigned detection's evidence for hypothesis ``j`` is ``log Σ_h p(h)
 N(z_h; φ_j, σ_j² + r)`` over its sides, with a floor for a heading none of them explains
 (:func:`side_evidence`); the log-weights fade towards uniform with the time constant
-``heading_memory`` and add the evidence; each hypothesis takes its nearest detection side as a
-one-dimensional Kalman update where it passes the heading gate. Under the rest, any heading read is
+``heading_memory`` and add the evidence; each hypothesis but the main one (below) takes its nearest
+detection side as a one-dimensional Kalman update where it passes the heading gate. Under the rest, any heading read is
 as likely as any other (``1/2π``); what it learns from the read is that the heading is near it: its
 weight splits into a hypothesis at the read (``1 − _OUTLIER_P``: added to the hypothesis that already
 explains the read, or, where none does, a new one in place of the weakest, whose weight goes back to
-the rest) and a rest that stays uniform (``_OUTLIER_P``). Two hypotheses that come within the heading
-gate of each other are one: the lighter (never the main one) gives its weight to the other.
+the rest) and a rest that stays uniform (``_OUTLIER_P``). A new hypothesis within ``_SAME_SIDE`` of
+one (predicted) is that side again, the track's heading having fallen behind a turn: it also gets
+``_NEW_P`` of that one's weight. Two hypotheses that come within the heading gate of each other (on twice the
+smaller variance) are one: the lighter (never the main one) gives its weight to the other.
 
-So a new hypothesis starts from what the rest has kept: on a young track that is much (a track born
-on a misread gives it up at the next right read), on one whose reads have long agreed it is what the
-floor left over the last ``heading_memory``, and one or two misreads in a row cannot outweigh that;
-the same reads for about ``heading_memory`` do. The state's heading is one of the hypotheses, its
+So a new hypothesis of another side starts from what the rest has kept: on a young track that is much
+(a track born on a misread gives it up at the next right read), on one whose reads have long agreed it
+is what the floor left over the last ``heading_memory``, and one or two misreads in a row cannot
+outweigh that; the same reads for about ``heading_memory`` do. A track lagging a turning robot takes
+the turned heading within a scan or two. The state's heading is one of the hypotheses, its
 *main* one; where another becomes three times as probable, the state's heading becomes that
 hypothesis (its variance, no correlation with the rest of the state), and the state's update then
 uses the detection side nearest it. So a static robot whose scans disagree converges to the side the
@@ -378,6 +381,12 @@ def assign(cost: Float[Array, "dets tracks"]) -> tuple[Int[Array, " tracks"], Bo
 _OUTLIER_P = 0.01
 # The weight a new track gives to a heading none of its first detection's sides is.
 _REST_P = 0.1
+# A new hypothesis within this angle of a hypothesis is that side seen again, the track's heading having
+# fallen behind a turn (or run ahead): it starts with ``_NEW_P`` times that hypothesis's weight, as much
+# as a second or two of reads can undo. Further from every one it is another side, and starts from the
+# rest. (The outline's other sides are 40° and more away.)
+_SAME_SIDE = 0.5
+_NEW_P = 0.1
 # How much more weight another hypothesis needs before the state's heading becomes it: odds of 3 to 1.
 _SWITCH_ODDS = 3.0
 
@@ -422,11 +431,13 @@ def heading_mixture(state: TrackerState, ev, near, nu, S, d2, seen, z_best, r, d
     fade = jnp.exp(-dt / params.heading_memory)
     lw = jnp.where(used, fade * jnp.where(used, state.side_logw, 0.0) + jnp.where(seen[:, None], ev, 0.0), -jnp.inf)
     rest = fade * state.side_rest
-    upd = seen[:, None] & used & (d2 <= params.heading_gate)
+    side = jnp.arange(lw.shape[1], dtype=jnp.int32)[None, :]
+    # The main hypothesis is the state's heading: its update is the state's own (``track_step``, with the
+    # state's gate and turn-rate test), written back after it.
+    upd = seen[:, None] & used & (d2 <= params.heading_gate) & (side != state.main[:, None])
     gain = state.side_var / S
     heading = jnp.where(upd, wrap(state.side_heading + gain * nu), state.side_heading)
     var = jnp.where(upd, (1.0 - gain) * state.side_var, state.side_var)
-    side = jnp.arange(lw.shape[1], dtype=jnp.int32)[None, :]
     # The rest's read: most of its weight goes to a hypothesis at the read, the rest stays uniform.
     d2_best = jnp.where(used, wrap(z_best[:, None] - heading) ** 2 / (var + r[:, None]), jnp.inf)
     explained = jnp.any(d2_best <= params.heading_gate, axis=-1)
@@ -440,6 +451,10 @@ def heading_mixture(state: TrackerState, ev, near, nu, S, d2, seen, z_best, r, d
     lw = jnp.where(new, -jnp.inf, lw)
     target = jnp.where(explained, jnp.argmin(d2_best, axis=-1).astype(jnp.int32), weakest)
     lw = jnp.where(seen[:, None] & (side == target[:, None]), jnp.logaddexp(lw, spawn[:, None]), lw)
+    # A new hypothesis near one that was there (the same side, turned further) also gets _NEW_P of its weight.
+    near = used & (jnp.abs(wrap(z_best[:, None] - state.side_heading)) < _SAME_SIDE)
+    kin = jnp.max(jnp.where(near & ~new, lw, -jnp.inf), axis=-1) + jnp.log(_NEW_P)
+    lw = jnp.where(new, jnp.logaddexp(lw, kin[:, None]), lw)
     lw = merge_duplicates(heading, var, lw, state.main, params.heading_gate)
     total = jnp.logaddexp(jax.nn.logsumexp(lw, axis=-1), rest)
     lw, rest = lw - total[:, None], rest - total
@@ -451,15 +466,17 @@ def heading_mixture(state: TrackerState, ev, near, nu, S, d2, seen, z_best, r, d
 
 def merge_duplicates(heading: Float[Array, "tracks sides"], var: Float[Array, "tracks sides"],
                      lw: Float[Array, "tracks sides"], main: Int[Array, " tracks"], gate) -> Float[Array, "tracks sides"]:
-    """Log-weights after merging hypotheses within ``gate`` (χ², 1 dof, on the sum of their variances)
-    of each other: each one that another outranks (the main one outranks all, then the heavier, then
-    the first) gives its weight to the highest-ranked of those and becomes unused (``-inf``). The
-    survivor keeps its heading and variance."""
+    """Log-weights after merging hypotheses within ``gate`` (χ², 1 dof) of each other, on twice the
+    smaller of their variances (a hypothesis grown vague, a heading rejected scan after scan, does not
+    swallow a precise one near it): each one that another outranks (the main one outranks all, then
+    the heavier, then the first) gives its weight to the highest-ranked of those and becomes unused
+    (``-inf``). The survivor keeps its heading and variance."""
     used = jnp.isfinite(lw)
     n = lw.shape[1]
     idx = jnp.arange(n, dtype=jnp.int32)
     close = (used[:, :, None] & used[:, None, :] & (idx[:, None] != idx[None, :])[None]
-             & (wrap(heading[:, :, None] - heading[:, None, :]) ** 2 <= gate * (var[:, :, None] + var[:, None, :])))
+             & (wrap(heading[:, :, None] - heading[:, None, :]) ** 2
+                <= 2 * gate * jnp.minimum(var[:, :, None], var[:, None, :])))
     rank = jnp.where(idx[None, :] == main[:, None], jnp.inf, lw)  # [M, j]
     above = (rank[:, :, None] > rank[:, None, :]) | ((rank[:, :, None] == rank[:, None, :]) & (idx[:, None] < idx[None, :])[None])
     over = close & above  # [M, j, k]: j outranks its near-duplicate k
