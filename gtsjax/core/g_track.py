@@ -38,8 +38,8 @@ weight splits into a hypothesis at the read (``1 − _OUTLIER_P``: added to the 
 explains the read, or, where none does, a new one in place of the weakest, whose weight goes back to
 the rest) and a rest that stays uniform (``_OUTLIER_P``). A new hypothesis within ``_SAME_SIDE`` of
 one (predicted) is that side again, the track's heading having fallen behind a turn: it also gets
-``_NEW_P`` of that one's weight. Two hypotheses that come within the heading gate of each other (on twice the
-smaller variance) are one: the lighter (never the main one) gives its weight to the other.
+``_NEW_P`` of that one's weight. Two hypotheses closer than ``_MERGE`` (3°) are one: the lighter
+(never the main one) gives its weight to the other.
 
 So a new hypothesis of another side starts from what the rest has kept: on a young track that is much
 (a track born on a misread gives it up at the next right read), on one whose reads have long agreed it
@@ -387,6 +387,9 @@ _REST_P = 0.1
 # rest. (The outline's other sides are 40° and more away.)
 _SAME_SIDE = 0.5
 _NEW_P = 0.1
+# Two hypotheses closer than this (3°) are one (the refinement's fits from two sides that converged to
+# one heading; a new hypothesis next to one that took the same reads).
+_MERGE = 0.05
 # How much more weight another hypothesis needs before the state's heading becomes it: odds of 3 to 1.
 _SWITCH_ODDS = 3.0
 
@@ -455,7 +458,7 @@ def heading_mixture(state: TrackerState, ev, near, nu, S, d2, seen, z_best, r, d
     near = used & (jnp.abs(wrap(z_best[:, None] - state.side_heading)) < _SAME_SIDE)
     kin = jnp.max(jnp.where(near & ~new, lw, -jnp.inf), axis=-1) + jnp.log(_NEW_P)
     lw = jnp.where(new, jnp.logaddexp(lw, kin[:, None]), lw)
-    lw = merge_duplicates(heading, var, lw, state.main, params.heading_gate)
+    lw = merge_duplicates(heading, lw, state.main)
     total = jnp.logaddexp(jax.nn.logsumexp(lw, axis=-1), rest)
     lw, rest = lw - total[:, None], rest - total
     best = jnp.argmax(lw, axis=-1).astype(jnp.int32)
@@ -464,19 +467,17 @@ def heading_mixture(state: TrackerState, ev, near, nu, S, d2, seen, z_best, r, d
     return heading, var, lw, rest, jnp.where(switch, best, state.main), switch
 
 
-def merge_duplicates(heading: Float[Array, "tracks sides"], var: Float[Array, "tracks sides"],
-                     lw: Float[Array, "tracks sides"], main: Int[Array, " tracks"], gate) -> Float[Array, "tracks sides"]:
-    """Log-weights after merging hypotheses within ``gate`` (χ², 1 dof) of each other, on twice the
-    smaller of their variances (a hypothesis grown vague, a heading rejected scan after scan, does not
-    swallow a precise one near it): each one that another outranks (the main one outranks all, then
-    the heavier, then the first) gives its weight to the highest-ranked of those and becomes unused
-    (``-inf``). The survivor keeps its heading and variance."""
+def merge_duplicates(heading: Float[Array, "tracks sides"], lw: Float[Array, "tracks sides"],
+                     main: Int[Array, " tracks"]) -> Float[Array, "tracks sides"]:
+    """Log-weights after merging hypotheses within ``_MERGE`` of each other (a fixed angle: variances
+    grown through missed scans would merge distinct hypotheses): each one that another outranks (the
+    main one outranks all, then the heavier, then the first) gives its weight to the highest-ranked of
+    those and becomes unused (``-inf``). The survivor keeps its heading and variance."""
     used = jnp.isfinite(lw)
     n = lw.shape[1]
     idx = jnp.arange(n, dtype=jnp.int32)
     close = (used[:, :, None] & used[:, None, :] & (idx[:, None] != idx[None, :])[None]
-             & (wrap(heading[:, :, None] - heading[:, None, :]) ** 2
-                <= 2 * gate * jnp.minimum(var[:, :, None], var[:, None, :])))
+             & (jnp.abs(wrap(heading[:, :, None] - heading[:, None, :])) < _MERGE))
     rank = jnp.where(idx[None, :] == main[:, None], jnp.inf, lw)  # [M, j]
     above = (rank[:, :, None] > rank[:, None, :]) | ((rank[:, :, None] == rank[:, None, :]) & (idx[:, None] < idx[None, :])[None])
     over = close & above  # [M, j, k]: j outranks its near-duplicate k

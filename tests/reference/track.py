@@ -20,6 +20,7 @@ REST_P = 0.1
 # A new hypothesis within SAME_SIDE (rad) of a predicted one also gets NEW_P of that one's weight.
 SAME_SIDE = 0.5
 NEW_P = 0.1
+MERGE = 0.05  # hypotheses closer than this (rad) merge
 SWITCH_ODDS = 3.0
 
 
@@ -80,8 +81,8 @@ class Tracker:
     distance, or where none has, to a new hypothesis ``z`` (variance ``r``) in place of the weakest
     one other than the filter's (``main``), whose weight is added to the rest's, and which also gets
     ``NEW_P`` times the weight of the heaviest other hypothesis whose predicted heading is within
-    ``SAME_SIDE`` of ``z``; ``w_u`` itself adds ``log OUTLIER_P / 2π``. Hypotheses within the heading
-    gate of each other (on twice the smaller of their variances) merge: each one outranked by such a
+    ``SAME_SIDE`` of ``z``; ``w_u`` itself adds ``log OUTLIER_P / 2π``. Hypotheses closer than ``MERGE``
+    merge: each one outranked by such a
     near one (``main`` first, then by weight, then by index) adds its weight to the top one of those
     and is dropped. The weights are normalised with the rest's. Where the most probable hypothesis has more than ``SWITCH_ODDS`` times the weight of
     ``main``, it becomes ``main``: the filter's heading is set to that hypothesis's predicted heading
@@ -192,14 +193,14 @@ class Tracker:
         merged = logw.copy()
         for k in live:
             over = [j for j in live if j != k and (rank[j] > rank[k] or (rank[j] == rank[k] and j < k))
-                    and wrap(t.heading[j] - t.heading[k]) ** 2 <= 2 * self.heading_gate * min(t.var[j], t.var[k])]
+                    and abs(wrap(t.heading[j] - t.heading[k])) < MERGE]
             if over:
                 into = max(over, key=lambda j: rank[j])
                 merged[into] = logsumexp([merged[into], logw[k]])
                 merged[k] = -math.inf
         for k in live:  # a dropped one keeps nothing, even what was merged into it
             if any(j != k and (rank[j] > rank[k] or (rank[j] == rank[k] and j < k))
-                   and wrap(t.heading[j] - t.heading[k]) ** 2 <= 2 * self.heading_gate * min(t.var[j], t.var[k])
+                   and abs(wrap(t.heading[j] - t.heading[k])) < MERGE
                    for j in live):
                 merged[k] = -math.inf
         total = logsumexp(list(merged) + [rest])
