@@ -1,0 +1,141 @@
+"""Count the kernels a compiled XLA program runs: the unit of cost of a step bound by dispatch, not
+arithmetic (on XLA:CPU each costs a few microseconds, whatever its size).
+
+A kernel is a top-level instruction of a computation that does work: a fusion, a dot, a copy, a
+reduce, a scatter, a custom call (LAPACK), … Not kernels: parameters, constants, tuples and their
+elements, bitcasts. Control flow is followed: a ``call`` counts its callee's kernels, a
+``conditional`` the largest of its branches' (one runs), a ``while`` its condition's and body's
+kernels per trip (times XLA's ``known_trip_count`` where it knows one; once, and flagged, where not).
+
+    python -m benchmarks.kernels          # the step of the shipped model, by stage and kind
+"""
+
+import collections
+import dataclasses
+import json
+import re
+
+_FREE = {"parameter", "constant", "get-tuple-element", "tuple", "bitcast", "after-all", "partition-id",
+         "replica-id", "opt-barrier", "add-dependency"}
+_COMP = re.compile(r"^(ENTRY )?%?([\w.\-]+) (\(.*\)) -> .* \{$")
+_INSTR = re.compile(r"^\s*(?:ROOT )?%?[\w.\-]+ = (?:\([^=]*?\)|[^ ]+) ([a-z][\w\-]*)\((.*)$")
+
+
+@dataclasses.dataclass
+class KernelCount:
+    """Kernels run by one call of a compiled program."""
+
+    total: int
+    by_kind: dict[str, int]  # fusion, dot, copy, … (control flow resolved into its callees' kernels)
+    unknown_trip_loops: int  # while loops whose trip count XLA does not know (counted once)
+
+    def __str__(self) -> str:
+        kinds = ", ".join(f"{k} {v}" for k, v in sorted(self.by_kind.items(), key=lambda kv: -kv[1]))
+        extra = f"; {self.unknown_trip_loops} loop(s) of unknown trip count counted once" if self.unknown_trip_loops else ""
+        return f"{self.total} kernels ({kinds}){extra}"
+
+
+def _computations(hlo: str) -> tuple[dict[str, list[tuple[str, str]]], str]:
+    comps: dict[str, list[tuple[str, str]]] = {}
+    entry, name = None, None
+    for line in hlo.splitlines():
+        if name is None:
+            m = _COMP.match(line)
+            if m:
+                name = m.group(2)
+                comps[name] = []
+                if m.group(1):
+                    entry = name
+            continue
+        if line.startswith("}"):
+            name = None
+            continue
+        m = _INSTR.match(line)
+        if m:
+            comps[name].append((m.group(1), m.group(2)))
+    if entry is None:
+        raise ValueError("no ENTRY computation in the HLO text")
+    return comps, entry
+
+
+def _callees(attrs: str, *keys: str) -> list[str]:
+    out = []
+    for key in keys:
+        m = re.search(key + r"=\{([^}]*)\}", attrs)
+        if m:
+            out += [c.strip().lstrip("%") for c in m.group(1).split(",") if c.strip()]
+            continue
+        m = re.search(key + r"=%?([\w.\-]+)", attrs)
+        if m:
+            out.append(m.group(1))
+    return out
+
+
+def count_kernels(hlo: str) -> KernelCount:
+    """Kernels run by one call of the program whose optimised HLO text is ``hlo``
+    (``jax.jit(f).lower(...).compile().as_text()``)."""
+    comps, entry = _computations(hlo)
+    unknown = [0]
+    memo: dict[str, collections.Counter] = {}
+
+    def count(name: str) -> collections.Counter:
+        if name in memo:
+            return memo[name]
+        c: collections.Counter = collections.Counter()
+        for op, rest in comps.get(name, []):
+            if op in _FREE:
+                continue
+            if op == "call":
+                c += count(_callees(rest, "to_apply")[0])
+            elif op == "conditional":
+                branches = _callees(rest, "branch_computations") or _callees(rest, "true_computation",
+                                                                              "false_computation")
+                c += max((count(b) for b in branches), key=lambda k: sum(k.values()), default=collections.Counter())
+            elif op == "while":
+                m = re.search(r'"known_trip_count":\{"n":"(\d+)"\}', rest)
+                n = int(m.group(1)) if m else 1
+                unknown[0] += m is None
+                per_trip = count(_callees(rest, "body")[0]) + count(_callees(rest, "condition")[0])
+                c += collections.Counter({k: v * n for k, v in per_trip.items()})
+            else:
+                c[op] += 1
+        memo[name] = c
+        return c
+
+    total = count(entry)
+    return KernelCount(sum(total.values()), dict(total), unknown[0])
+
+
+def compiled_text(fn, *args) -> str:
+    """The optimised HLO text of ``jax.jit(fn)`` for ``args``."""
+    import jax
+
+    return jax.jit(fn).lower(*args).compile().as_text()
+
+
+def main() -> None:
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    from gtsjax.core import pipeline as P
+    from gtsjax.io.logs import to_scans
+
+    from . import _data
+
+    log, site = _data.scenario("spl-crossing", 3, 5)
+    model = _data.demo_model(site)
+    scan = jax.tree.map(lambda a: a[0], to_scans(log, model.n_beams))
+    state = P.init_state(model)
+    report = {}
+    for label, m in (("step", model), ("step without outline", model.without_outline())):
+        report[label] = count_kernels(compiled_text(lambda s, x, m=m: P.step(m, s, x), state, scan))
+    percept = jax.jit(P.perceive, static_argnames="bucket")(model, scan)
+    report["perceive (a–e′)"] = count_kernels(compiled_text(lambda x: P.perceive(model, x), scan))
+    report["update (f–g)"] = count_kernels(compiled_text(lambda s, p, x: P.update(model, s, p, x), state, percept, scan))
+    for k, v in report.items():
+        print(f"{k:24s} {v}")
+    print(json.dumps({k: dataclasses.asdict(v) for k, v in report.items()}))
+
+
+if __name__ == "__main__":
+    main()
