@@ -357,21 +357,22 @@ def kalman_update(mean: Float[Array, "6"], cov: Float[Array, "6 6"], z: Float[Ar
 
 def assign(cost: Float[Array, "dets tracks"]) -> tuple[Int[Array, " tracks"], Bool[Array, " tracks"]]:
     """Greedy one-to-one assignment on a cost matrix with ``inf`` for forbidden pairs: for each track,
-    the index of its detection and whether it has one."""
-    k, m = cost.shape
+    the index of its detection and whether it has one.
 
-    def body(_, carry):
-        cost, det_of_track, has = carry
+    ``min(K, M)`` rounds, unrolled, each a whole-array step: take the cheapest finite pair, forbid its
+    row and column (masks from iotas, no scatter). Two or three XLA kernels per round."""
+    k, m = cost.shape
+    rows = jnp.arange(k, dtype=jnp.int32)[:, None]
+    cols = jnp.arange(m, dtype=jnp.int32)[None, :]
+    det_of_track, has = jnp.zeros(m, jnp.int32), jnp.zeros(m, bool)
+    for _ in range(min(k, m)):
         flat = jnp.argmin(cost).astype(jnp.int32)
         i, j = flat // m, flat % m
-        ok = jnp.isfinite(cost[i, j])
-        det_of_track = jnp.where(ok, det_of_track.at[j].set(i), det_of_track)
-        has = has | (ok & (jnp.arange(m, dtype=jnp.int32) == j))
-        cost = jnp.where(ok, cost.at[i, :].set(jnp.inf).at[:, j].set(jnp.inf), cost)
-        return cost, det_of_track, has
-
-    init = (cost, jnp.zeros(m, jnp.int32), jnp.zeros(m, bool))
-    _, det_of_track, has = jax.lax.fori_loop(0, min(k, m), body, init)
+        ok = jnp.isfinite(jnp.min(cost))
+        col = ok & (cols[0] == j)
+        det_of_track = jnp.where(col, i, det_of_track)
+        has = has | col
+        cost = jnp.where(ok & ((rows == i) | (cols == j)), jnp.inf, cost)
     return det_of_track, has
 
 
