@@ -18,15 +18,13 @@ jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
 jax.config.update("jax_numpy_rank_promotion", "raise")
 
-# Compiled programs kept on disk, as the command line keeps them (``gtsjax.cli.compile_cache_dir``), in a
+# Compiled programs kept on disk, as the command line keeps them (``gtsjax.cli.use_compile_cache``), in a
 # folder of the tests' own that every worker and every ``gtsjax`` subprocess shares: the step of the demo
 # model compiles once per run, not once per command. ``GTSJAX_CACHE_DIR=off`` turns it off.
 os.environ.setdefault("GTSJAX_CACHE_DIR", os.path.join(tempfile.gettempdir(), f"gtsjax-tests-xla-{os.getuid()}"))
-from gtsjax.cli import compile_cache_dir  # noqa: E402  (after the import hook)
+from gtsjax.cli import use_compile_cache  # noqa: E402  (after the import hook)
 
-if (_cache := compile_cache_dir()) is not None:
-    jax.config.update("jax_compilation_cache_dir", str(_cache))
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
+use_compile_cache()
 
 SHARED = Path(os.environ.get("GTSJAX_SHARED", Path(__file__).resolve().parents[1].parent / "shared"))
 

@@ -40,19 +40,22 @@ def _spread(argv: list[str]) -> list[str]:
     return out
 
 
-def compile_cache_dir():
-    """Where compiled steps are kept between runs, so that a command's second run on a model of the same
-    shapes starts in a fraction of the time: ``$GTSJAX_CACHE_DIR``, else ``$XDG_CACHE_HOME/gtsjax/xla``
-    (``~/.cache/gtsjax/xla``). ``GTSJAX_CACHE_DIR=off`` (or empty) keeps nothing. Only compilations
-    over a second are kept (JAX's ``jax_persistent_cache_min_compile_time_secs``)."""
+def use_compile_cache() -> None:
+    """Keep compiled steps on disk between runs, so that a command's second run on a model of the same
+    shapes skips XLA's compilation: in ``$GTSJAX_CACHE_DIR``, else ``$XDG_CACHE_HOME/gtsjax/xla``
+    (``~/.cache/gtsjax/xla``); ``GTSJAX_CACHE_DIR=off`` (or empty) keeps nothing. Only compilations
+    over 0.2 s are kept (JAX's ``jax_persistent_cache_min_compile_time_secs``)."""
     import os
     from pathlib import Path
 
+    import jax
+
     env = os.environ.get("GTSJAX_CACHE_DIR")
-    if env is not None:
-        return None if env.strip().lower() in ("", "off", "0", "no", "false") else Path(env)
+    if env is not None and env.strip().lower() in ("", "off", "0", "no", "false"):
+        return
     base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "gtsjax" / "xla"
+    jax.config.update("jax_compilation_cache_dir", env or str(Path(base) / "gtsjax" / "xla"))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -62,10 +65,7 @@ def main(argv: list[str] | None = None) -> int:
 
     # Stamps and GP fitting need float64; the real-time core is float32 by explicit dtypes.
     jax.config.update("jax_enable_x64", True)
-    cache = compile_cache_dir()
-    if cache is not None:
-        jax.config.update("jax_compilation_cache_dir", str(cache))
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
+    use_compile_cache()
     try:
         app(args=_spread(sys.argv[1:] if argv is None else list(argv)), prog_name="gtsjax")
     except InputError as err:

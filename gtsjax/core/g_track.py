@@ -32,9 +32,9 @@ uncertain as its heading; an assigned detection's evidence for hypothesis ``j`` 
 N(z_h; φ_j, σ_j² + r)`` over its sides, with a floor for a heading none of them explains
 (:func:`side_evidence`); the log-weights fade towards uniform with the time constant
 ``heading_memory`` and add the evidence; each hypothesis but the main one (below) takes its nearest
-detection side as a one-dimensional Kalman update where it passes the heading gate. Under the rest, any heading read is
-as likely as any other (``1/2π``); what it learns from the read is that the heading is near it: its
-weight splits into a hypothesis at the read (``1 − _OUTLIER_P``: added to the hypothesis that already
+detection side as a one-dimensional Kalman update where it passes the heading gate. Under the rest,
+any heading read is as likely as any other (``1/2π``); what it learns from the read is that the
+heading is near it: its weight splits into a hypothesis at the read (``1 − _OUTLIER_P``: added to the hypothesis that already
 explains the read, or, where none does, a new one in place of the weakest, whose weight goes back to
 the rest) and a rest that stays uniform (``_OUTLIER_P``). A new hypothesis within ``_SAME_SIDE`` of
 one (predicted) is that side again, the track's heading having fallen behind a turn: it also gets
@@ -422,11 +422,11 @@ def side_evidence(heading: Float[Array, "tracks sides"], var: Float[Array, "trac
     return ev, near, pick(nu), S[..., 0], pick(d2)  # S is the same for every side h
 
 
-def heading_mixture(state: TrackerState, ev, near, nu, S, d2, seen, z_best, r, dt, params: TrackerParams):
+def heading_mixture(state: TrackerState, ev, nu, S, d2, seen, z_best, r, dt, params: TrackerParams):
     """Weights and headings of every track's hypotheses after this scan's evidence (see the module
     docstring): the log-weights (the rest's too) fade towards uniform over ``heading_memory`` and add
-    the evidence; each hypothesis within the heading gate of its nearest detection side takes it as a
-    one-dimensional Kalman update; the rest's share of the read goes to the hypothesis that explains
+    the evidence; each hypothesis but the main one within the heading gate of its nearest detection side
+    takes it as a one-dimensional Kalman update; the rest's share of the read goes to the hypothesis that explains
     the detection's most probable side ``z_best``, or to a new one there; near-duplicates merge.
     Returns the new headings, variances, log-weights, the rest's log-weight and the hypothesis the
     state's heading becomes (the most probable one, where its odds over the present one exceed
@@ -456,8 +456,8 @@ def heading_mixture(state: TrackerState, ev, near, nu, S, d2, seen, z_best, r, d
     target = jnp.where(explained, jnp.argmin(d2_best, axis=-1).astype(jnp.int32), weakest)
     lw = jnp.where(seen[:, None] & (side == target[:, None]), jnp.logaddexp(lw, spawn[:, None]), lw)
     # A new hypothesis near one that was there (the same side, turned further) also gets _NEW_P of its weight.
-    near = used & (jnp.abs(wrap(z_best[:, None] - state.side_heading)) < _SAME_SIDE)
-    kin = jnp.max(jnp.where(near & ~new, lw, -jnp.inf), axis=-1) + jnp.log(_NEW_P)
+    same_side = used & (jnp.abs(wrap(z_best[:, None] - state.side_heading)) < _SAME_SIDE)
+    kin = jnp.max(jnp.where(same_side & ~new, lw, -jnp.inf), axis=-1) + jnp.log(_NEW_P)
     lw = jnp.where(new, jnp.logaddexp(lw, kin[:, None]), lw)
     lw = merge_duplicates(heading, lw, state.main)
     total = jnp.logaddexp(jax.nn.logsumexp(lw, axis=-1), rest)
@@ -484,7 +484,7 @@ def merge_duplicates(heading: Float[Array, "tracks sides"], lw: Float[Array, "tr
     over = close & above  # [M, j, k]: j outranks its near-duplicate k
     dropped = jnp.any(over, axis=1)  # [M, k]
     into = jnp.argmax(jnp.where(over, rank[:, :, None], -jnp.inf), axis=1).astype(jnp.int32)  # [M, k]: the top one outranking k
-    gets = over & (idx[None, :, None] == into[:, None, :]) & dropped[:, None, :]  # [M, j, k]
+    gets = over & (idx[None, :, None] == into[:, None, :])  # [M, j, k]
     add = jax.nn.logsumexp(jnp.where(gets, lw[:, None, :], -jnp.inf), axis=-1)  # [M, j]
     return jnp.where(dropped, -jnp.inf, jnp.logaddexp(lw, add))
 
@@ -575,7 +575,7 @@ def track_step(
     # most probable one where it wins clearly (its variance, no correlation with the rest of the state).
     ev, near, nu_h, S_h, d2_h = side_evidence(state.side_heading, state.side_var, zs[..., 2], zlp, R[:, 2, 2])
     side_heading, side_var, side_logw, side_rest, main, switch = heading_mixture(
-        state, ev, near, nu_h, S_h, d2_h, seen, det.pose[det_of_track, 2], R[:, 2, 2], dt, params)
+        state, ev, nu_h, S_h, d2_h, seen, det.pose[det_of_track, 2], R[:, 2, 2], dt, params)
     at = lambda a, i: jnp.take_along_axis(a, i[:, None], 1)[:, 0]  # noqa: E731
     theta0 = jnp.where(switch, at(state.side_heading, main), state.mean[:, 2])
     cross = jnp.where(switch[:, None], 0.0, state.cov[:, 2, :])

@@ -11,8 +11,8 @@ from filterpy.kalman import KalmanFilter
 NX = 6
 SIDES = 4  # heading hypotheses per track (gtsjax: ``e_refine.SIDES``)
 
-# The heading mixture's constants (gtsjax: ``g_track._OUTLIER_P``, ``_REST_P``, ``_SAME_SIDE``, ``_NEW_P``, ``_SWITCH_ODDS``): a
-# detection's heading that none of its sides explains is at least this likely under a uniform heading
+# The heading mixture's constants (gtsjax: ``g_track._OUTLIER_P``, ``_REST_P``, ``_SAME_SIDE``, ``_NEW_P``,
+# ``_MERGE``, ``_SWITCH_ODDS``): a detection's heading that none of its sides explains is at least this likely under a uniform heading
 # (and the rest keeps this share of its weight after a read); a new track's rest has this weight;
 # another hypothesis becomes the state's heading at these odds.
 OUTLIER_P = 0.01
@@ -75,16 +75,15 @@ class Tracker:
     log(Σ_h p_h N(z_h; φ_j, σ_j² + r) + OUTLIER_P / 2π)``; every scan ``w_j ← exp(−dt /
     heading_memory) w_j + e_j`` (no ``e_j`` without such a detection), and ``w_u`` fades the same way.
     Each hypothesis but ``main`` whose nearest side passes ``heading_gate`` takes it as a scalar Kalman
-    update. Then
-    the rest reads the detection's most probable side ``z``: ``log(1 − OUTLIER_P) / 2π`` plus ``w_u``
-    goes to the hypothesis that (updated) has ``z`` within the gate with the smallest normalised
-    distance, or where none has, to a new hypothesis ``z`` (variance ``r``) in place of the weakest
-    one other than the filter's (``main``), whose weight is added to the rest's, and which also gets
-    ``NEW_P`` times the weight of the heaviest other hypothesis whose predicted heading is within
-    ``SAME_SIDE`` of ``z``; ``w_u`` itself adds ``log OUTLIER_P / 2π``. Hypotheses closer than ``MERGE``
-    merge: each one outranked by such a
-    near one (``main`` first, then by weight, then by index) adds its weight to the top one of those
-    and is dropped. The weights are normalised with the rest's. Where the most probable hypothesis has more than ``SWITCH_ODDS`` times the weight of
+    update. Then the rest reads the detection's most probable side ``z``: ``log(1 − OUTLIER_P) / 2π``
+    plus ``w_u`` goes to the hypothesis that (updated) has ``z`` within the gate with the smallest
+    normalised distance, or where none has, to a new hypothesis ``z`` (variance ``r``) in place of the
+    weakest one other than the filter's (``main``), whose weight is added to the rest's, and which also
+    gets ``NEW_P`` times the weight of the heaviest other hypothesis whose predicted heading is within
+    ``SAME_SIDE`` of ``z``; ``w_u`` itself adds ``log OUTLIER_P / 2π``. Hypotheses closer than
+    ``MERGE`` merge: each one outranked by such a near one (``main`` first, then by weight, then by
+    index) adds its weight to the top one of those and is dropped. The weights are normalised with the
+    rest's. Where the most probable hypothesis has more than ``SWITCH_ODDS`` times the weight of
     ``main``, it becomes ``main``: the filter's heading is set to that hypothesis's predicted heading
     and variance, uncorrelated with the rest of the state. The filter's update then uses the side
     nearest ``main``'s predicted heading; after it, ``main`` is the filter's heading and variance. A
@@ -187,21 +186,18 @@ class Tracker:
                 near = [j for j in used if j != target and abs(wrap(z - phi[j])) < SAME_SIDE]
                 if near:
                     logw[target] = logsumexp([logw[target], max(logw[j] for j in near) + math.log(NEW_P)])
-        # near-duplicates merge into the top-ranked one near them
+        # near-duplicates merge into the top-ranked one near them; a dropped one keeps nothing
         rank = [math.inf if j == t.main else logw[j] for j in range(n)]
         live = [j for j in range(n) if np.isfinite(logw[j])]
+        over = {k: [j for j in live if j != k and (rank[j] > rank[k] or (rank[j] == rank[k] and j < k))
+                    and abs(wrap(t.heading[j] - t.heading[k])) < MERGE] for k in live}
         merged = logw.copy()
-        for k in live:
-            over = [j for j in live if j != k and (rank[j] > rank[k] or (rank[j] == rank[k] and j < k))
-                    and abs(wrap(t.heading[j] - t.heading[k])) < MERGE]
-            if over:
-                into = max(over, key=lambda j: rank[j])
+        for k, js in over.items():
+            if js:
+                into = max(js, key=lambda j: rank[j])
                 merged[into] = logsumexp([merged[into], logw[k]])
-                merged[k] = -math.inf
-        for k in live:  # a dropped one keeps nothing, even what was merged into it
-            if any(j != k and (rank[j] > rank[k] or (rank[j] == rank[k] and j < k))
-                   and abs(wrap(t.heading[j] - t.heading[k])) < MERGE
-                   for j in live):
+        for k, js in over.items():
+            if js:
                 merged[k] = -math.inf
         total = logsumexp(list(merged) + [rest])
         logw, t.rest = merged - total, rest - total
