@@ -116,32 +116,67 @@ def lookup(outline: Outline, cls: Int[Array, "*n"], m: Float[Array, "*n 2"], lo=
     return v[..., 0] + beyond, grad
 
 
-def _residuals(outline, cls, pose, pts, free, mask):
-    """Residuals, Jacobians and weights of one pose against its points ``[..., L, 2]``: the points'
-    signed distances, and the free-space points' distances where negative."""
-    c, s = jnp.cos(pose[..., 2])[..., None], jnp.sin(pose[..., 2])[..., None]
-    t = pose[..., None, :2]
-    cls_p = jnp.broadcast_to(cls[..., None], mask.shape[:-1] + (2 * mask.shape[-1],))
-    lo, cell = outline.lo[cls][..., None, :], outline.cell[cls][..., None, None]
+_CHANNELS = 5  # per point: √w·∂r/∂(x, y, θ), √w·r, √(robust cost): their Gram matrix holds JᵀWJ, JᵀWr and the cost
 
-    def terms(p):
-        d = p - t
-        mx = c * d[..., 0] + s * d[..., 1]
-        my = -s * d[..., 0] + c * d[..., 1]
-        r, g = lookup(outline, cls_p, jnp.stack([mx, my], -1), lo, cell)
-        # ∂r/∂t = −(Rot g)ᵀ, ∂r/∂θ = g · (m_y, −m_x)
-        jx = -(c * g[..., 0] - s * g[..., 1])
-        jy = -(s * g[..., 0] + c * g[..., 1])
-        jt = g[..., 0] * my - g[..., 1] * mx
-        return r, jnp.stack([jx, jy, jt], -1)
 
-    n = pts.shape[-2]
-    both_r, both_J = terms(jnp.concatenate([pts, free], -2))  # one lookup for the points and the free space
-    r, J, rf, Jf = both_r[..., :n], both_J[..., :n, :], both_r[..., n:], both_J[..., n:, :]
-    inside = mask & (rf < 0)
-    w = jnp.where(mask, 1.0 / (1.0 + (r / outline.robust) ** 2), 0.0)
-    wf = jnp.where(inside, 1.0, 0.0)
-    return r, J, w, jnp.where(inside, rf, 0.0), Jf, wf, mask
+def _gram(outline: Outline, cls: Int[Array, " n"], pose: Float[Array, "n sides 3"], trig: Float[Array, "n sides 2"],
+          pts: Float[Array, "n 1 l 2"], is_free: Bool[Array, "1 1 l"], mask: Bool[Array, "n 1 l"]
+          ) -> Float[Array, "n sides 5 5"]:
+    """One Gauss–Newton step's sums for every candidate and side: the Gram matrix ``VᵀV`` over the
+    points of ``V = [√w J, √w r, √cost]`` (one row per point), whose top-left 3 × 3 block is ``JᵀWJ``,
+    whose fourth column holds ``JᵀWr`` and whose last diagonal entry the robust cost (:func:`_cost`).
+    ``pts`` holds the points then the free-space points (``is_free``).
+
+    Written for XLA's fusion: every quantity is computed on one ``[n, sides, l, 5]`` domain, each
+    channel picked at the end by a select (the per-point arithmetic is repeated five times, but all
+    of it runs in one kernel, the sums in one product), and the outline's bilinear lookup is twelve
+    scalar gathers rather than one gather of twelve columns that would have to be sliced apart. Built
+    as the obvious form (a gather, a few small arrays, ``einsum``s), one step was 26 kernels; this is 6."""
+    g = outline.field.shape[1]
+    shape = pose.shape[:2] + (pts.shape[2], _CHANNELS)
+    per_pose = lambda a: jnp.broadcast_to(a[..., None, None], shape)  # noqa: E731  [n, sides] -> domain
+    per_point = lambda a: jnp.broadcast_to(a[..., None], shape)  # noqa: E731  [n, 1, l] -> domain
+    per_cand = lambda a: jnp.broadcast_to(a[:, None, None, None], shape)  # noqa: E731  [n] -> domain
+    c, s = per_pose(trig[..., 0]), per_pose(trig[..., 1])
+    dx = per_point(pts[..., 0]) - per_pose(pose[..., 0])
+    dy = per_point(pts[..., 1]) - per_pose(pose[..., 1])
+    mx, my = c * dx + s * dy, -s * dx + c * dy  # the point in the object's frame
+    lo, cell = outline.lo[cls], outline.cell[cls]
+    inv_cell = per_cand(1.0 / cell)
+    ux = (mx - per_cand(lo[:, 0])) * inv_cell
+    uy = (my - per_cand(lo[:, 1])) * inv_cell
+    uxc, uyc = jnp.clip(ux, 0.0, g - 1.0), jnp.clip(uy, 0.0, g - 1.0)
+    ix, iy = jnp.clip(jnp.floor(uxc), 0, g - 2), jnp.clip(jnp.floor(uyc), 0, g - 2)
+    fx, fy = uxc - ix, uyc - iy
+    fld = outline.field
+    corners = jnp.concatenate([fld[:, :-1, :-1], fld[:, :-1, 1:], fld[:, 1:, :-1], fld[:, 1:, 1:]], -1).reshape(-1)
+    at = (per_cand(cls) * (g - 1) ** 2 + ix.astype(jnp.int32) * (g - 1) + iy.astype(jnp.int32)) * 12
+    w00, w01, w10, w11 = (1 - fx) * (1 - fy), (1 - fx) * fy, fx * (1 - fy), fx * fy
+    interp = lambda k: (w00 * corners[at + k] + w01 * corners[at + 3 + k]  # noqa: E731
+                        + w10 * corners[at + 6 + k] + w11 * corners[at + 9 + k])
+    # Beyond the grid the distance grows with the distance from its edge, along the way out.
+    cell_d = per_cand(cell)
+    ox, oy = (ux - uxc) * cell_d, (uy - uyc) * cell_d
+    out2 = ox * ox + oy * oy
+    out = out2 > 0
+    rinv = jax.lax.rsqrt(jnp.where(out, out2, 1.0))
+    gx = jnp.where(out, ox * rinv, interp(1))
+    gy = jnp.where(out, oy * rinv, interp(2))
+    r = interp(0) + jnp.where(out, out2 * rinv, 0.0)
+    # ∂r/∂t = −(Rot g)ᵀ, ∂r/∂θ = g · (m_y, −m_x)
+    jx, jy, jt = -(c * gx - s * gy), -(s * gx + c * gy), gx * my - gy * mx
+    free, m = per_point(is_free), per_point(mask)
+    z = r / outline.robust
+    inside = m & (r < 0)
+    # Points: Cauchy-weighted residuals; free-space points: their distance where inside, squared.
+    w = jnp.where(free, jnp.where(inside, 1.0, 0.0), jnp.where(m, 1.0 / (1.0 + z * z), 0.0))
+    res = jnp.where(free & ~inside, 0.0, r)
+    cost = jnp.where(free, w * res * res, jnp.where(m, outline.robust**2 * jnp.log1p(z * z), 0.0))
+    sw = jnp.sqrt(w)
+    ch = jax.lax.broadcasted_iota(jnp.int32, shape, 3)
+    v = jnp.where(ch == 0, sw * jx, jnp.where(ch == 1, sw * jy, jnp.where(ch == 2, sw * jt, jnp.where(
+        ch == 3, sw * res, jnp.sqrt(cost)))))
+    return jnp.einsum("...li,...lj->...ij", v, v)
 
 
 def _solve3(H, b):
@@ -160,40 +195,43 @@ def _solve3(H, b):
     return inv, jnp.einsum("...ij,...j->...i", inv, b)
 
 
-def _normal(robust, r, J, w, rf, Jf, wf, mask):
-    """The reweighted normal equations ``JᵀWJ``, ``JᵀWr`` and the robust cost: Cauchy's
-    ``c² log(1 + (r/c)²)`` over the points (grows with every residual, so a fit that explains fewer
-    points never looks better for it), plus the free-space terms squared."""
-    H = jnp.einsum("...l,...li,...lj->...ij", w, J, J) + jnp.einsum("...l,...li,...lj->...ij", wf, Jf, Jf)
-    b = jnp.einsum("...l,...li,...l->...i", w, J, r) + jnp.einsum("...l,...li,...l->...i", wf, Jf, rf)
-    cost = jnp.sum(jnp.where(mask, robust**2 * jnp.log1p((r / robust) ** 2), 0.0), -1) + jnp.sum(wf * rf**2, -1)
-    return H, b, cost
+def _gn_step(pose: Float[Array, "n sides 3"], G: Float[Array, "n sides 5 5"]) -> Float[Array, "n sides 3"]:
+    """One damped Gauss–Newton step from the sums of :func:`_gram`, clipped (elementwise: one kernel)."""
+    d = 1.0 + _DAMPING
+    a, b_, c = G[..., 0, 0] * d + 1e-9, G[..., 0, 1], G[..., 0, 2]
+    e_, f_, h = G[..., 1, 1] * d + 1e-9, G[..., 1, 2], G[..., 2, 2] * d + 1e-9
+    A, B, C = e_ * h - f_ * f_, c * f_ - b_ * h, b_ * f_ - c * e_
+    D, E, F = a * h - c * c, b_ * c - a * f_, a * e_ - b_ * b_
+    det = a * A + b_ * B + c * C
+    det = jnp.where(jnp.abs(det) > 0, det, 1.0)
+    g0, g1, g2 = -G[..., 0, 3], -G[..., 1, 3], -G[..., 2, 3]
+    step = jnp.stack([jnp.clip((A * g0 + B * g1 + C * g2) / det, -_MAX_STEP_XY, _MAX_STEP_XY),
+                      jnp.clip((B * g0 + D * g1 + E * g2) / det, -_MAX_STEP_XY, _MAX_STEP_XY),
+                      jnp.clip((C * g0 + E * g1 + F * g2) / det, -_MAX_STEP_TH, _MAX_STEP_TH)], -1)
+    return pose + step
 
 
 def fit(outline: Outline, cls: Int[Array, " n"], pts: Float[Array, "n window 2"], mask: Bool[Array, "n window"],
         start: Float[Array, "n sides 3"]) -> tuple[Float[Array, "n sides 3"], Float[Array, "n sides"],
                                                     Float[Array, "n sides 3 3"]]:
     """``ITERATIONS`` damped Gauss–Newton steps from each start, on at most ``POINTS`` of each
-    candidate's points (:func:`compact`). Returns the poses, their robust costs (see :func:`_normal`)
-    and their Hessians ``JᵀWJ``."""
+    candidate's points (:func:`compact`). Returns the poses, their robust costs (Cauchy's
+    ``c² log(1 + (r/c)²)`` over the points, which grows with every residual, so that a fit that
+    explains fewer points never looks better for it, plus the free-space terms squared) and their
+    Hessians ``JᵀWJ``."""
     pts, mask = compact(pts, mask)
     rho = jnp.sqrt(jnp.sum(pts**2, -1, keepdims=True))
     free = pts * (1.0 - outline.free_gap / jnp.where(rho > 0, rho, 1.0))
-    pts_h, free_h = pts[:, None], free[:, None]
-    mask_h = jnp.broadcast_to(mask[:, None], (mask.shape[0], start.shape[1], mask.shape[1]))
-    cls_h = jnp.broadcast_to(cls[:, None], start.shape[:2])
+    both = jnp.concatenate([pts, free], 1)[:, None]  # [n, 1, 2 POINTS, 2]: one lookup for both
+    mask2 = jnp.concatenate([mask, mask], 1)[:, None]
+    is_free = (jnp.arange(2 * pts.shape[1], dtype=jnp.int32) >= pts.shape[1])[None, None]
+    trig = lambda p: jnp.stack([jnp.cos(p[..., 2]), jnp.sin(p[..., 2])], -1)  # noqa: E731
     pose = start
-    eye = jnp.eye(3, dtype=pts.dtype)[None, None]
     for _ in range(ITERATIONS):
-        H, b, _ = _normal(outline.robust, *_residuals(outline, cls_h, pose, pts_h, free_h, mask_h))
-        diag = jnp.diagonal(H, axis1=-2, axis2=-1)
-        _, delta = _solve3(H + _DAMPING * diag[..., None, :] * eye + 1e-9 * eye, -b)
-        delta = jnp.concatenate([jnp.clip(delta[..., :2], -_MAX_STEP_XY, _MAX_STEP_XY),
-                                 jnp.clip(delta[..., 2:], -_MAX_STEP_TH, _MAX_STEP_TH)], -1)
-        pose = pose + delta
-    pose = pose.at[..., 2].set(wrap(pose[..., 2]))
-    H, _, cost = _normal(outline.robust, *_residuals(outline, cls_h, pose, pts_h, free_h, mask_h))
-    return pose, cost, H
+        pose = _gn_step(pose, _gram(outline, cls, pose, trig(pose), both, is_free, mask2))
+    pose = jnp.concatenate([pose[..., :2], wrap(pose[..., 2:])], -1)
+    G = _gram(outline, cls, pose, trig(pose), both, is_free, mask2)
+    return pose, G[..., 4, 4], G[..., :3, :3]
 
 
 def refine(outline: Outline, cls: Int[Array, " n"], run: Bool[Array, " n"], pts: Float[Array, "n window 2"],
