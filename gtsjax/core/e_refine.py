@@ -116,27 +116,25 @@ def lookup(outline: Outline, cls: Int[Array, "*n"], m: Float[Array, "*n 2"], lo=
     return v[..., 0] + beyond, grad
 
 
-_CHANNELS = 5  # per point: √w·∂r/∂(x, y, θ), √w·r, √(robust cost): their Gram matrix holds JᵀWJ, JᵀWr and the cost
-
-
 def _gram(outline: Outline, cls: Int[Array, " n"], pose: Float[Array, "n sides 3"], trig: Float[Array, "n sides 2"],
-          pts: Float[Array, "n 1 l 2"], is_free: Bool[Array, "1 1 l"], mask: Bool[Array, "n 1 l"]
-          ) -> Float[Array, "n sides 5 5"]:
-    """One Gauss–Newton step's sums for every candidate and side: the Gram matrix ``VᵀV`` over the
-    points of ``V = [√w J, √w r, √cost]`` (one row per point), whose top-left 3 × 3 block is ``JᵀWJ``,
-    whose fourth column holds ``JᵀWr`` and whose last diagonal entry the robust cost (:func:`_cost`).
-    ``pts`` holds the points then the free-space points (``is_free``).
+          pts: Float[Array, "n 1 l 2"], is_free: Bool[Array, "1 1 l"], mask: Bool[Array, "n 1 l"], with_cost: bool = False):
+    """One Gauss–Newton step's sums for every candidate and side: the weighted Gram matrix ``VᵀWV`` over
+    the points of ``V = [J, r]`` (one row per point), whose top-left 3 × 3 block is ``JᵀWJ`` and whose
+    fourth column holds ``JᵀWr``; ``with_cost`` adds the robust cost (Cauchy's ``c² log(1 + (r/c)²)``
+    over the points, plus the free-space terms squared). ``pts`` holds the points then the
+    free-space points (``is_free``).
 
-    Written for XLA's fusion: every quantity is computed on one ``[n, sides, l, 5]`` domain, each
-    channel picked at the end by a select (the per-point arithmetic is repeated five times, but all
-    of it runs in one kernel, the sums in one product), and the outline's bilinear lookup is twelve
-    scalar gathers rather than one gather of twelve columns that would have to be sliced apart. Built
-    as the obvious form (a gather, a few small arrays, ``einsum``s), one step was 26 kernels; this is 6."""
+    Each point's residual, Jacobian and weight are computed once on the ``[n, sides, l]`` domain,
+    from scalars per pose (``trig``: its cosine and sine, computed in the step's small kernel), the
+    outline's bilinear lookup as twelve scalar gathers; the sums are one product. Built as the
+    obvious form (a gather of twelve columns sliced apart, one ``einsum`` per term), a step was 26
+    kernels; this is about 14. Fewer is possible (everything on a ``[…, l, 4]`` domain is one fusion)
+    but repeats the per-point arithmetic per channel, which on a CPU costs more than the kernels saved."""
     g = outline.field.shape[1]
-    shape = pose.shape[:2] + (pts.shape[2], _CHANNELS)
-    per_pose = lambda a: jnp.broadcast_to(a[..., None, None], shape)  # noqa: E731  [n, sides] -> domain
-    per_point = lambda a: jnp.broadcast_to(a[..., None], shape)  # noqa: E731  [n, 1, l] -> domain
-    per_cand = lambda a: jnp.broadcast_to(a[:, None, None, None], shape)  # noqa: E731  [n] -> domain
+    shape = pose.shape[:2] + (pts.shape[2],)
+    per_pose = lambda a: jnp.broadcast_to(a[..., None], shape)  # noqa: E731  [n, sides] -> domain
+    per_point = lambda a: jnp.broadcast_to(a, shape)  # noqa: E731  [n, 1, l] -> domain
+    per_cand = lambda a: jnp.broadcast_to(a[:, None, None], shape)  # noqa: E731  [n] -> domain
     c, s = per_pose(trig[..., 0]), per_pose(trig[..., 1])
     dx = per_point(pts[..., 0]) - per_pose(pose[..., 0])
     dy = per_point(pts[..., 1]) - per_pose(pose[..., 1])
@@ -171,12 +169,12 @@ def _gram(outline: Outline, cls: Int[Array, " n"], pose: Float[Array, "n sides 3
     # Points: Cauchy-weighted residuals; free-space points: their distance where inside, squared.
     w = jnp.where(free, jnp.where(inside, 1.0, 0.0), jnp.where(m, 1.0 / (1.0 + z * z), 0.0))
     res = jnp.where(free & ~inside, 0.0, r)
+    v = jnp.stack([jx, jy, jt, res], -1)
+    G = jnp.einsum("...li,...lj->...ij", v * w[..., None], v)
+    if not with_cost:
+        return G
     cost = jnp.where(free, w * res * res, jnp.where(m, outline.robust**2 * jnp.log1p(z * z), 0.0))
-    sw = jnp.sqrt(w)
-    ch = jax.lax.broadcasted_iota(jnp.int32, shape, 3)
-    v = jnp.where(ch == 0, sw * jx, jnp.where(ch == 1, sw * jy, jnp.where(ch == 2, sw * jt, jnp.where(
-        ch == 3, sw * res, jnp.sqrt(cost)))))
-    return jnp.einsum("...li,...lj->...ij", v, v)
+    return G, jnp.sum(cost, -1)
 
 
 def _solve3(H, b):
@@ -195,7 +193,7 @@ def _solve3(H, b):
     return inv, jnp.einsum("...ij,...j->...i", inv, b)
 
 
-def _gn_step(pose: Float[Array, "n sides 3"], G: Float[Array, "n sides 5 5"]) -> Float[Array, "n sides 3"]:
+def _gn_step(pose: Float[Array, "n sides 3"], G: Float[Array, "n sides 4 4"]) -> Float[Array, "n sides 3"]:
     """One damped Gauss–Newton step from the sums of :func:`_gram`, clipped (elementwise: one kernel)."""
     d = 1.0 + _DAMPING
     a, b_, c = G[..., 0, 0] * d + 1e-9, G[..., 0, 1], G[..., 0, 2]
@@ -230,8 +228,8 @@ def fit(outline: Outline, cls: Int[Array, " n"], pts: Float[Array, "n window 2"]
     for _ in range(ITERATIONS):
         pose = _gn_step(pose, _gram(outline, cls, pose, trig(pose), both, is_free, mask2))
     pose = jnp.concatenate([pose[..., :2], wrap(pose[..., 2:])], -1)
-    G = _gram(outline, cls, pose, trig(pose), both, is_free, mask2)
-    return pose, G[..., 4, 4], G[..., :3, :3]
+    G, cost = _gram(outline, cls, pose, trig(pose), both, is_free, mask2, with_cost=True)
+    return pose, cost, G[..., :3, :3]
 
 
 def refine(outline: Outline, cls: Int[Array, " n"], run: Bool[Array, " n"], pts: Float[Array, "n window 2"],
