@@ -165,9 +165,18 @@ def join_data_lines(lines: Sequence[bytes], *, where: str = "SCIP data", strict:
     ``strict`` a failing sum raises :class:`ScipError` (reason ``"checksum"``); otherwise the count of
     failing lines is returned alongside the payload.
     """
+    payload, bad = data_payload(lines, where=where, strict=strict)
+    return payload.tobytes(), int(bad.sum())
+
+
+def data_payload(lines: Sequence[bytes], *, where: str = "SCIP data", strict: bool = True
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`join_data_lines` as arrays, for the decoder: the payload (``uint8[chars]``) and, per
+    line, whether it fails its sum (``bool[lines]``). One pass over the frame: the lines are joined
+    once, the full ones checked as one ``[lines, 65]`` block."""
     n = len(lines)
     if n == 0:
-        return b"", 0
+        return np.zeros(0, np.uint8), np.zeros(0, bool)
     full_len = LINE_PAYLOAD + 1
     if n > 1 and set(map(len, lines[:-1])) != {full_len}:
         i = next(i for i in range(n - 1) if len(lines[i]) != full_len)
@@ -175,28 +184,17 @@ def join_data_lines(lines: Sequence[bytes], *, where: str = "SCIP data", strict:
     last = lines[-1]
     if not 2 <= len(last) <= full_len:
         raise ScipError(where, f"last data line has {len(last)} characters", "truncated")
-    joined = b"".join(lines)
-    arr = np.frombuffer(joined, dtype=np.uint8)
+    arr = np.frombuffer(b"".join(lines), dtype=np.uint8)
     n_full = n - 1
-    bad = 0
-    payload_parts = []
-    if n_full:
-        full = arr[: n_full * full_len].reshape(n_full, full_len)
-        sums = (full[:, :LINE_PAYLOAD].sum(axis=1, dtype=np.int64) & 0x3F) + 0x30
-        bad += int(np.count_nonzero(sums != full[:, LINE_PAYLOAD]))
-        payload_parts.append(full[:, :LINE_PAYLOAD].tobytes())
-    if last[-1] != sum_byte(last[:-1]):
-        bad += 1
-    payload_parts.append(last[:-1])
-    if bad and strict:
-        raise ScipError(where, f"{bad} of {n} data line(s) fail their sum", "checksum")
-    return b"".join(payload_parts), bad
-
-
-def bad_line_mask(lines: Sequence[bytes]) -> np.ndarray:
-    """Per payload character, whether its data line fails its sum (``bool[payload chars]``)."""
-    flags = [line[-1] != sum_byte(line[:-1]) for line in lines]
-    return np.repeat(np.array(flags, dtype=bool), [len(line) - 1 for line in lines])
+    full = arr[: n_full * full_len].reshape(n_full, full_len)
+    tail = arr[n_full * full_len:]
+    bad = np.empty(n, bool)
+    bad[:n_full] = ((full[:, :LINE_PAYLOAD].sum(axis=1, dtype=np.int32) & 0x3F) + 0x30) != full[:, LINE_PAYLOAD]
+    bad[n_full] = tail[-1] != (int(tail[:-1].sum(dtype=np.int32)) & 0x3F) + 0x30
+    if strict and bad.any():
+        raise ScipError(where, f"{int(bad.sum())} of {n} data line(s) fail their sum", "checksum")
+    payload = np.concatenate([full[:, :LINE_PAYLOAD].reshape(-1), tail[:-1]])
+    return payload, bad
 
 
 # --------------------------------------------------------------------------- timestamps

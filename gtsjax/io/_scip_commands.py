@@ -109,10 +109,21 @@ class Command:
 def parse_command(text: bytes | str, *, where: str = "SCIP echo") -> Command:
     """Parse a command line or its echo (no LF). Raises :class:`ScipError` if it is not one."""
     b = text.encode("latin-1") if isinstance(text, str) else bytes(text)
+    cmd = _ECHOES.get(b)
+    if cmd is not None:
+        return cmd
     m = ECHO_RE.match(b)
     if m is None:
         raise ScipError(where, f"not a SCIP 2.0 command: {b[:40]!r}")
-    return _command_from_match(m, where)
+    cmd = _command_from_match(m, where)
+    if len(_ECHOES) < 256:  # a stream repeats a few echoes (the remaining count cycles through 100 values)
+        _ECHOES[b] = cmd
+    return cmd
+
+
+# Parsed echoes by their bytes: a frame's echo is parsed once, not once per frame (a regular
+# expression and a dataclass were a sixth of a UTM-30LX frame's decoding time). Commands are frozen.
+_ECHOES: dict[bytes, Command] = {}
 
 
 def find_echo(line: bytes) -> int:

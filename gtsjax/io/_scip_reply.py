@@ -18,15 +18,15 @@ import numpy as np
 from ..errors import InputError
 from ..sensors import SensorModel
 from ._scip_codec import (
+    LINE_PAYLOAD,
     ScipError,
-    bad_line_mask,
     data_lines,
+    data_payload,
     decode_timestamp_line,
     decode_values,
     encode_values,
     format_line,
     format_timestamp_line,
-    join_data_lines,
     sum_byte,
     verify_line,
 )
@@ -182,7 +182,14 @@ def _parse_scan(
     lines = payload[1:]
     if not lines:
         raise ScipError(where, f"{cmd.text}: no data lines", "truncated")
-    data, bad = join_data_lines(lines, where=where, strict=strict)
+    data, bad_lines = data_payload(lines, where=where, strict=strict)
+    return _scan_frame(cmd, echo, status, stamp, data, bad_lines, lambda: [len(line) - 1 for line in lines], where)
+
+
+def _scan_frame(cmd: Command, echo: bytes, status: str, stamp: int, data: np.ndarray, bad_lines: np.ndarray,
+                line_chars, where: str) -> ScanFrame:
+    """A scan reply's frame from its payload (``uint8``) and which of its data lines failed their sum
+    (``line_chars()``: the payload characters of each line, asked for only when one failed)."""
     chars, per_step = SCAN_CODES[cmd.code]
     n = cmd.n_values
     assert n is not None
@@ -197,11 +204,58 @@ def _parse_scan(
     else:
         raw, intensities = values, None
     valid = raw >= MIN_VALID_RANGE
+    bad = int(bad_lines.sum())
     if bad:
-        valid &= ~bad_line_mask(lines).reshape(n, chars * per_step).any(axis=1)
-    ranges = np.where(valid, raw, 0).astype(np.int32)
+        per_char = np.repeat(bad_lines, line_chars())
+        valid &= ~per_char.reshape(n, chars * per_step).any(axis=1)
+    ranges = np.where(valid, raw, np.int32(0))
     remaining = cmd.count if cmd.is_continuous else None
     return ScanFrame(echo.decode("latin-1"), status, stamp, ranges, intensities, remaining, bad, raw, valid)
+
+
+_FULL_LINE = LINE_PAYLOAD + 2  # a full data line: 64 characters, its sum, LF
+
+
+def _scan_reply_whole(b: bytes, strict: bool) -> "ScanFrame | None":
+    """One scan reply decoded as one block, without cutting its data lines apart: the lines a command
+    implies are checked and joined as one ``[lines, 66]`` array. ``None`` where ``b`` is anything else
+    (another reply, several, a data block of another shape, a CR): :func:`parse_lines` then parses it
+    line by line and says what is wrong."""
+    if not b.endswith(b"\n\n") or b"\r" in b:
+        return None
+    i0 = b.find(b"\n")
+    i1 = b.find(b"\n", i0 + 1)
+    i2 = b.find(b"\n", i1 + 1)
+    if i2 < 0:
+        return None
+    try:
+        cmd = parse_command(b[:i0])
+    except ScipError:
+        return None
+    if cmd.code not in SCAN_CODES or cmd.n_values is None:
+        return None
+    status = _parse_status(b[i0 + 1:i1], "SCIP reply")
+    if status != (STATUS_DATA if cmd.code in CONTINUOUS_CODES else STATUS_OK):
+        return None
+    chars, per_step = SCAN_CODES[cmd.code]
+    total = cmd.n_values * chars * per_step
+    n_full, last = divmod(total - 1, LINE_PAYLOAD)
+    last += 1
+    block = np.frombuffer(b, np.uint8, offset=i2 + 1, count=len(b) - i2 - 2)  # the data lines, each with its LF
+    if total < 1 or block.size != n_full * _FULL_LINE + last + 2 or np.count_nonzero(block == 0x0A) != n_full + 1:
+        return None
+    full = block[: n_full * _FULL_LINE].reshape(n_full, _FULL_LINE)
+    tail = block[n_full * _FULL_LINE:]
+    if (n_full and not np.all(full[:, -1] == 0x0A)) or tail[-1] != 0x0A:
+        return None
+    stamp = decode_timestamp_line(b[i1 + 1:i2], where="SCIP reply")
+    bad = np.empty(n_full + 1, bool)
+    bad[:n_full] = ((full[:, :LINE_PAYLOAD].sum(axis=1, dtype=np.int32) & 0x3F) + 0x30) != full[:, LINE_PAYLOAD]
+    bad[n_full] = tail[last] != (int(tail[:last].sum(dtype=np.int32)) & 0x3F) + 0x30
+    if strict and bad.any():
+        raise ScipError("SCIP reply", f"{int(bad.sum())} of {n_full + 1} data line(s) fail their sum", "checksum")
+    data = np.concatenate([full[:, :LINE_PAYLOAD].reshape(-1), tail[:last]])
+    return _scan_frame(cmd, b[:i0], status, stamp, data, bad, lambda: [LINE_PAYLOAD] * n_full + [last], "SCIP reply")
 
 
 def split_replies(data: bytes) -> list[list[bytes]]:
@@ -237,7 +291,11 @@ def parse_replies(data: bytes, *, strict: bool = True) -> "list[Reply | ScanFram
 
 
 def parse_reply(data: bytes, *, strict: bool = True) -> "Reply | ScanFrame":
-    """Parse exactly one complete reply; :class:`ScipError` if ``data`` is not one."""
+    """Parse exactly one complete reply; :class:`ScipError` if ``data`` is not one. A scan reply is
+    decoded as one block (:func:`_scan_reply_whole`), anything else line by line."""
+    frame = _scan_reply_whole(bytes(data), strict)
+    if frame is not None:
+        return frame
     blocks = split_replies(data)
     if len(blocks) != 1:
         raise ScipError(
