@@ -78,7 +78,8 @@ def test_step_traced_once_per_model_shape_and_replay_equals_stepping(tiny):
     """The pure ``step`` under a caller's jit is traced once for every scan and for a retuned model of
     the same shape; batch replay's jitted chunk compiles once for both models and both chunk fills,
     and gives the tracks of stepping scan by scan (the same computation, compiled apart: ids and
-    masks equal, poses to float32 rounding)."""
+    masks equal, poses to float32 rounding); so does its vectorised form (perception ``vmap``ped over
+    groups of scans, one size bucket per group, then the updates in turn)."""
     from gtsjax.drivers.replay import process_chunk
 
     log, site = simulate("spl-crossing", seed=21, n_scans=45)
@@ -98,14 +99,17 @@ def test_step_traced_once_per_model_shape_and_replay_equals_stepping(tiny):
     final, batch = process_log(model, scans, chunk=16)  # 45 = 16 + 16 + 13: the last chunk is padded
     process_log(retuned, scans, chunk=16)
     assert process_chunk._cache_size() - before <= 1
+    vfinal, vbatch = process_log(model, scans, chunk=16, vectorise=True, sub=8)
     assert sum(int(o.track_mask.sum()) for o in outs) > 40  # the robots were tracked
-    for i, o in enumerate(outs):
-        for name in ("track_id", "track_class", "track_mask", "det_mask"):
-            np.testing.assert_array_equal(getattr(o, name), getattr(batch, name)[i], err_msg=f"{name} at scan {i}")
-        for name in ("track_pose", "track_var", "det_pose", "sensor_pose"):
-            np.testing.assert_allclose(getattr(o, name), getattr(batch, name)[i], rtol=1e-4, atol=1e-5,
-                                       err_msg=f"{name} at scan {i}")
-    np.testing.assert_array_equal(np.asarray(state.tracker.track_id), np.asarray(final.tracker.track_id))
+    for form, b in (("loop", batch), ("vectorised", vbatch)):
+        for i, o in enumerate(outs):
+            for name in ("track_id", "track_class", "track_mask", "det_mask"):
+                np.testing.assert_array_equal(getattr(o, name), getattr(b, name)[i], err_msg=f"{form}: {name} at scan {i}")
+            for name in ("track_pose", "track_var", "det_pose", "sensor_pose"):
+                np.testing.assert_allclose(getattr(o, name), getattr(b, name)[i], rtol=1e-4, atol=1e-5,
+                                           err_msg=f"{form}: {name} at scan {i}")
+    for f in (final, vfinal):
+        np.testing.assert_array_equal(np.asarray(state.tracker.track_id), np.asarray(f.tracker.track_id))
 
 
 def test_replay_writes_spec_csv(tiny, tmp_path):

@@ -28,11 +28,14 @@ def replay_cmd(
     model: Path = typer.Option(..., "--model", help="Model file from gtsjax train."),
     out: Path = typer.Option(..., "--out", help="Ground-truth CSV to write."),
     sensor_out: Path | None = typer.Option(None, "--sensor-out", help="Also write the estimated sensor pose per scan (CSV)."),
-    chunk: int = typer.Option(256, min=1, help="Scans per vmapped chunk."),
+    chunk: int = typer.Option(256, min=1, help="Scans per compiled chunk."),
     topic: str | None = typer.Option(None, "--topic", help=TOPIC_HELP),
     crop_fov: bool = typer.Option(False, "--crop-fov",
                                   help="Crop a wider field of view to the model's, and its range window."),
     confirm_scans: int | None = typer.Option(None, "--confirm-scans", min=1, help=CONFIRM_HELP),
+    step_by_step: bool = typer.Option(False, "--step-by-step",
+                                      help="Run each scan's whole step in turn, as the live loop does (bit for bit), "
+                                           "instead of perceiving groups of scans at once (equal to float32 round-off, faster)."),
 ):
     """Process a logged scan file into ground truth (GTD CSV)."""
     console = Console(stderr=True)
@@ -52,7 +55,7 @@ def replay_cmd(
     with Progress(TextColumn("replay"), BarColumn(), MofNCompleteColumn(), TextColumn("scans"),
                   TimeRemainingColumn(), console=console, transient=True) as bar:
         task = bar.add_task("replay", total=scan_log.n_scans)
-        totals = replay_log(scan_log, m, out, chunk=chunk, sensor_out=sensor_out,
+        totals = replay_log(scan_log, m, out, chunk=chunk, sensor_out=sensor_out, vectorise=not step_by_step,
                             progress=lambda n: bar.update(task, completed=n))
     dt = time.perf_counter() - t0
     console.print(f"{totals['scans']} scans in {dt:.1f} s ({totals['scans'] / max(dt, 1e-9):.0f} scans/s, "

@@ -22,10 +22,19 @@ def sizes(cap: int) -> tuple[int, ...]:
     return tuple(sorted(set(out + [cap])))
 
 
-def bucketed(fn, v: Float[Array, "rows features"], n: Int[Array, ""], width: int):
+def _count(n: Int[Array, ""], axis_name) -> Int[Array, ""]:
+    """``n``, or under ``vmap(..., axis_name=axis_name)`` its largest value over the mapped axis: one
+    count for the whole batch, so the branch stays a branch (a count that differs per element would
+    turn ``lax.switch`` into a select that runs every branch)."""
+    n = jnp.asarray(n, jnp.int32)
+    return n if axis_name is None else jax.lax.pmax(n, axis_name)
+
+
+def bucketed(fn, v: Float[Array, "rows features"], n: Int[Array, ""], width: int, axis_name=None):
     """``fn`` (``[b, features]`` -> a tuple of ``[b, width]`` arrays) on the first ``b`` rows of
     ``v``, ``b`` the smallest of :func:`sizes` at least ``n``; each result padded with zeros to
-    ``v``'s row count."""
+    ``v``'s row count. Under ``vmap`` with ``axis_name``, ``b`` holds the largest ``n`` of the batch."""
+    n = _count(n, axis_name)
     cap = v.shape[0]
     bs = sizes(cap)
 
@@ -34,13 +43,14 @@ def bucketed(fn, v: Float[Array, "rows features"], n: Int[Array, ""], width: int
             return tuple(jnp.zeros((cap, width), o.dtype).at[:b].set(o) for o in fn(v[:b]))
         return run
 
-    which = jnp.searchsorted(jnp.asarray(bs, jnp.int32), jnp.asarray(n, jnp.int32), side="left")
+    which = jnp.searchsorted(jnp.asarray(bs, jnp.int32), n, side="left")
     return jax.lax.switch(jnp.minimum(which, len(bs) - 1), [branch(b) for b in bs], v)
 
 
-def bucketed_rows(fn, args, n: Int[Array, ""]):
+def bucketed_rows(fn, args, n: Int[Array, ""], axis_name=None):
     """:func:`bucketed` for a pytree: ``fn`` on the first ``b`` rows (leading axis) of every leaf of
     ``args``; every leaf of its result padded with zeros (False) to ``args``' row count."""
+    n = _count(n, axis_name)
     cap = jax.tree.leaves(args)[0].shape[0]
     bs = sizes(cap)
 
@@ -50,5 +60,5 @@ def bucketed_rows(fn, args, n: Int[Array, ""]):
             return jax.tree.map(lambda o: jnp.zeros((cap,) + o.shape[1:], o.dtype).at[:b].set(o), out)
         return run
 
-    which = jnp.searchsorted(jnp.asarray(bs, jnp.int32), jnp.asarray(n, jnp.int32), side="left")
+    which = jnp.searchsorted(jnp.asarray(bs, jnp.int32), n, side="left")
     return jax.lax.switch(jnp.minimum(which, len(bs) - 1), [branch(b) for b in bs], args)

@@ -91,6 +91,7 @@ def regress(
     max_objects: int,
     max_landmarks: int,
     bucket: bool = True,
+    axis_name=None,
 ) -> tuple[Float[Array, "cands 3"], Float[Array, "cands 3"], Bool[Array, " cands"]]:
     """Each kept candidate's ORS-relative pose and variances under the regressors of its own class,
     and which candidates got one.
@@ -100,12 +101,13 @@ def regress(
     ``max_objects`` best of a mobile class get the mean and variance GPs, the ``max_landmarks`` best
     of a landmark class the position means only (stage f reads no variance). With ``bucket`` each
     runs at the smallest of a few fixed sizes that holds the candidates present
-    (:func:`~gtsjax.core.buckets.bucketed`: a scan with one robot pays for one, not eight); leave it off
-    under ``vmap``, which turns the branches into selects that all run. A candidate beyond its
+    (:func:`~gtsjax.core.buckets.bucketed`: a scan with one robot pays for one, not eight); under
+    ``vmap`` pass the mapped axis's ``axis_name`` (one bucket for the batch, its largest count),
+    or leave it off: a count per element turns the branches into selects that all run. A candidate beyond its
     class's cap gets no pose and must be dropped (the third output is False for it). Background and
     unkept candidates give zeros."""
     n = vectors.shape[0]
-    run = bucketed if bucket else (lambda fn, v, _n, _w: tuple(fn(v)))
+    run = (lambda fn, v, n, w: bucketed(fn, v, n, w, axis_name)) if bucket else (lambda fn, v, _n, _w: tuple(fn(v)))
     rel = jnp.zeros((n, 3), vectors.dtype)
     var = jnp.zeros_like(rel)
     posed = jnp.zeros((n,), bool)

@@ -314,13 +314,13 @@ class Sides(eqx.Module):
 def refine_candidates(outline: "Outline | None", max_objects: int, cls: Int[Array, " cands"], ok: Bool[Array, " cands"],
                       scores: Float[Array, "cands classes"], xy: Float[Array, "cands window 2"],
                       mask: Bool[Array, "cands window"], pose: Float[Array, "cands 3"],
-                      cov: Float[Array, "cands 3 3"], bucket: bool = False) -> Sides:
+                      cov: Float[Array, "cands 3 3"], bucket: bool = False, axis_name=None) -> Sides:
     """Stage e′ on a scan's candidates: the ``max_objects`` kept candidates of classes with an outline
     that score highest for their class are refined (:func:`refine`); every other candidate keeps its
     GP pose and gets its class's side hypotheses from the GP's heading (:func:`prior_sides`). With
     ``bucket``, the fits run on the smallest of a few fixed counts of candidates that holds those
     present (:func:`~gtsjax.core.buckets.bucketed_rows`: a scan with one robot pays for one), as the
-    pose GPs do (``e_pose.regress``)."""
+    pose GPs do (``e_pose.regress``; ``axis_name`` as there)."""
     n = cls.shape[0]
     dt = pose.dtype
     if outline is None:
@@ -336,7 +336,7 @@ def refine_candidates(outline: "Outline | None", max_objects: int, cls: Int[Arra
     chosen = sel[idx]
     args = (cls[idx], chosen, xy[idx], mask[idx], pose[idx], cov[idx])
     run = lambda a: refine(outline, *a)  # noqa: E731
-    r = bucketed_rows(run, args, jnp.sum(chosen, dtype=jnp.int32)) if bucket else run(args)
+    r = bucketed_rows(run, args, jnp.sum(chosen, dtype=jnp.int32), axis_name) if bucket else run(args)
     done = chosen & r.fitted
     put = lambda full, part: full.at[idx].set(jnp.where(done.reshape((-1,) + (1,) * (part.ndim - 1)), part, full[idx]))  # noqa: E731
     return Sides(put(pose, r.pose), put(cov, r.cov), put(side_pose, r.side_pose), put(side_logp, r.side_logp),

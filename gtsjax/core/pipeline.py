@@ -104,11 +104,12 @@ def landmark_cap(model: Model) -> int:
 
 
 @exact_products
-def perceive(model: Model, scan: Scan, *, bucket: bool | None = None) -> Perception:
+def perceive(model: Model, scan: Scan, *, bucket: bool | None = None, axis_name=None) -> Perception:
     """Stages a–e′ (segmentation … pose regression, outline refinement) of one scan; no state. ``bucket``: see
-    :func:`~gtsjax.core.e_pose.regress`; off where ``perceive`` is ``vmap``ped, and by default on a CPU
-    only: on a GPU each branch choice waits for its index on the host (an H100's step took 2.23 ms
-    with it, 1.61 ms without)."""
+    :func:`~gtsjax.core.e_pose.regress`; by default on a CPU only: on a GPU each branch choice waits
+    for its index on the host (an H100's step took 2.23 ms with it, 1.61 ms without). Where
+    ``perceive`` is ``vmap``ped, pass the mapped axis's ``axis_name`` with ``bucket`` (one bucket for
+    the batch), or turn ``bucket`` off."""
     if bucket is None:
         bucket = jax.default_backend() == "cpu"
     fe = front_end(model.frontend, scan)
@@ -118,11 +119,11 @@ def perceive(model: Model, scan: Scan, *, bucket: bool | None = None) -> Percept
     in_env = envelope_pass(model.envelope, shape_quantities(f.width, f.height, f.n_points, rng), rng)
     dec = classify(model.classifier, x, fe.keep, in_env)
     cls, ok, scores = dec.cls, dec.ok, dec.scores
-    rel, var, posed = regress(model.pose, x, cls, ok, scores, model.max_objects, landmark_cap(model), bucket)
+    rel, var, posed = regress(model.pose, x, cls, ok, scores, model.max_objects, landmark_cap(model), bucket, axis_name)
     pose_s, cov_s = to_sensor_frame(f.origin, f.heading, rel, var)
     c = fe.candidates
     sides = refine_candidates(model.outline, model.max_objects, cls, ok & posed & model.tracker.tracked[cls], scores,
-                              c.xy, c.mask, pose_s, cov_s, bucket)
+                              c.xy, c.mask, pose_s, cov_s, bucket, axis_name)
     d = fe.diagnostics
     unposed = jnp.sum(ok & ~posed, dtype=jnp.int32)
     count = lambda m: jnp.sum(m, dtype=jnp.int32)

@@ -2,7 +2,8 @@
 into the GTD CSV (and the sensor-pose CSV).
 
 ``process_chunk`` is this driver's one jitted function: a chunk of scans through a ``while_loop``
-whose body is one scan's whole step (or, ``vectorise=True``, ``scan(update) ∘ vmap(perceive)``). It
+whose body is one scan's whole step, or (``vectorise=True``, ``replay_log``'s default)
+``scan(update) ∘ vmap(perceive)``, perception ``vmap``ped over groups of scans. It
 compiles once per model shape and chunk size: retuned thresholds, another log of the same scanner,
 the last (padded) chunk all reuse it. ``process_log`` feeds it a stack of scans a chunk at a time, so
 device memory is bounded whatever the log's length; ``replay_log`` moves the log to the device a
@@ -10,6 +11,7 @@ block at a time and writes the rows.
 """
 
 import csv
+import math
 from pathlib import Path
 
 import jax
@@ -56,19 +58,36 @@ def _pad_chunk(scans: Scan, start: int, stop: int, size: int) -> Scan:
     return jax.tree.map(lambda a: jnp.concatenate([a, jnp.repeat(a[-1:], pad, axis=0)]), part)
 
 
-@jax.jit(static_argnames="vectorise")
-def process_chunk(model: Model, state: PipelineState, scans: Scan, n_real: Int[Array, ""], vectorise: bool = False
-                  ) -> tuple[PipelineState, Output]:
+# Scans per ``vmap``ped group of perception in the vectorised batch form: each kernel's fixed cost is
+# shared by the group, and the size buckets (``core.buckets``) still work, one per group (its largest
+# count of robots and posts), where a whole chunk would pay for its busiest scan throughout.
+SUB_CHUNK = 8
+
+
+def perceive_batch(model: Model, scans: Scan, sub: int = SUB_CHUNK):
+    """``perceive`` of a stack of scans: ``vmap``ped over groups of ``sub`` scans (one size bucket
+    per group), the groups one after the other (``lax.map``). ``sub`` must divide the stack."""
+    size = scans.dt.shape[0]
+    group = jax.vmap(lambda sc: perceive(model, sc, axis_name="scans"), axis_name="scans")
+    grouped = jax.tree.map(lambda a: a.reshape((size // sub, sub) + a.shape[1:]), scans)
+    out = jax.lax.map(group, grouped)
+    return jax.tree.map(lambda a: a.reshape((size,) + a.shape[2:]), out)
+
+
+@jax.jit(static_argnames=("vectorise", "sub"))
+def process_chunk(model: Model, state: PipelineState, scans: Scan, n_real: Int[Array, ""], vectorise: bool = False,
+                  sub: int = SUB_CHUNK) -> tuple[PipelineState, Output]:
     """A chunk of scans (leading axis). Scans at index ``>= n_real`` (padding of the last chunk) leave
     the state as it was.
 
     ``vectorise=False``: the scans run one after the other through the whole step
     (:func:`_run_scans`), the same computation as the live loop's. ``vectorise=True``:
-    ``perceive`` (stages a–e) is ``vmap``ped over the chunk and ``update`` (f–g) runs under
-    ``lax.scan``; batched reductions may then round differently (about 1e-7 relative)."""
+    ``perceive`` (stages a–e′) runs ``vmap``ped over groups of ``sub`` scans (:func:`perceive_batch`)
+    and ``update`` (f–g) under ``lax.scan``; batched products may then round differently (float32
+    round-off)."""
     if not vectorise:
         return _run_scans(model, state, scans, n_real)
-    percepts = jax.vmap(lambda sc: perceive(model, sc, bucket=False))(scans)
+    percepts = perceive_batch(model, scans, math.gcd(sub, scans.dt.shape[0]))
 
     def body(s, inp):
         p, sc, i = inp
@@ -81,7 +100,7 @@ def process_chunk(model: Model, state: PipelineState, scans: Scan, n_real: Int[A
 
 
 def process_log(model: Model, scans: Scan, *, chunk: int = 256, state: PipelineState | None = None,
-                callback=None, vectorise: bool = False) -> tuple[PipelineState, Output]:
+                callback=None, vectorise: bool = False, sub: int = SUB_CHUNK) -> tuple[PipelineState, Output]:
     """Run a stack of scans through the pipeline ``chunk`` at a time. Returns the final state and the
     stacked outputs as NumPy arrays on the host; ``callback(n_done)`` is called after each chunk.
 
@@ -95,7 +114,8 @@ def process_log(model: Model, scans: Scan, *, chunk: int = 256, state: PipelineS
     for start in range(0, n, chunk):
         stop = min(start + chunk, n)
         part = _pad_chunk(scans, start, stop, chunk)
-        state, out = process_chunk(model, state, part, jnp.asarray(stop - start, jnp.int32), vectorise=vectorise)
+        state, out = process_chunk(model, state, part, jnp.asarray(stop - start, jnp.int32), vectorise=vectorise,
+                                   sub=sub)
         real = stop - start
         outs.append(jax.tree.map(lambda a, real=real: np.asarray(a)[:real], out))
         if callback is not None:
@@ -103,9 +123,11 @@ def process_log(model: Model, scans: Scan, *, chunk: int = 256, state: PipelineS
     return state, jax.tree.map(lambda *a: np.concatenate(a), *outs)
 
 
-def replay_log(log, model, out: Path, *, chunk: int = 256, sensor_out: Path | None = None, progress=None):
+def replay_log(log, model, out: Path, *, chunk: int = 256, sensor_out: Path | None = None, progress=None,
+               vectorise: bool = True):
     """Run ``log`` through ``model`` (site attached) and write the GTD CSV; returns stacked outputs'
-    summary counters. The log is moved to the device a block at a time, so memory stays bounded."""
+    summary counters. The log is moved to the device a block at a time, so memory stays bounded.
+    ``vectorise``: see :func:`process_chunk` (off: bit for bit what the live loop computes)."""
     state = init_state(model)
     block = chunk * 16
     totals = {"scans": 0, "rows": 0, "degraded": 0, "n_overflow": 0, "n_too_long": 0, "unlike": 0, "off_envelope": 0,
@@ -116,7 +138,7 @@ def replay_log(log, model, out: Path, *, chunk: int = 256, sensor_out: Path | No
             part = log.slice(start, start + block)
             scans = to_scans(part, model.n_beams, prev_stamp=log.stamps[start - 1] if start else None)
             cb = None if progress is None else (lambda n, s=start: progress(s + n))
-            state, out_arrays = process_log(model, scans, chunk=chunk, state=state, callback=cb)
+            state, out_arrays = process_log(model, scans, chunk=chunk, state=state, callback=cb, vectorise=vectorise)
             for i in range(part.n_scans):
                 rows = rows_from_output(part.stamps[i], out_arrays.track_id[i], out_arrays.track_class[i],
                                         out_arrays.track_pose[i], out_arrays.track_var[i], out_arrays.track_mask[i],
