@@ -128,7 +128,7 @@ def _gram(outline: Outline, cls: Int[Array, " n"], pose: Float[Array, "n sides 3
     from scalars per pose (``trig``: its cosine and sine, computed in the step's small kernel), the
     outline's bilinear lookup as twelve scalar gathers; the sums are one product. Built as the
     obvious form (a gather of twelve columns sliced apart, one ``einsum`` per term), a step was 26
-    kernels; this is about 14. Fewer is possible (everything on a ``[…, l, 4]`` domain is one fusion)
+    kernels; this is about 19 (twelve of them the gathers). Fewer is possible (everything on a ``[…, l, 4]`` domain is one fusion)
     but repeats the per-point arithmetic per channel, which on a CPU costs more than the kernels saved."""
     g = outline.field.shape[1]
     shape = pose.shape[:2] + (pts.shape[2],)
