@@ -355,24 +355,46 @@ def kalman_update(mean: Float[Array, "6"], cov: Float[Array, "6 6"], z: Float[Ar
     return mean, 0.5 * (cov + cov.T)
 
 
-def assign(cost: Float[Array, "dets tracks"]) -> tuple[Int[Array, " tracks"], Bool[Array, " tracks"]]:
-    """Greedy one-to-one assignment on a cost matrix with ``inf`` for forbidden pairs: for each track,
+def assign(cost: Float[Array, "dets tracks"], fallback: Float[Array, "dets tracks"] | None = None
+           ) -> tuple[Int[Array, " tracks"], Bool[Array, " tracks"]]:
+    """Greedy one-to-one assignment on a cost matrix with ``inf`` for forbidden pairs, then, if
+    ``fallback`` is given, greedy on ``fallback`` among the rows and columns left: for each track,
     the index of its detection and whether it has one.
 
-    ``min(K, M)`` rounds, unrolled, each a whole-array step: take the cheapest finite pair, forbid its
-    row and column (masks from iotas, no scatter). Two or three XLA kernels per round."""
+    ``min(K, M)`` rounds, unrolled, each one XLA reduction: the first pair in the order (a finite
+    ``cost`` before a finite ``fallback`` only, then the lower value, then the lower flat index, as
+    ``argmin`` breaks ties) among the rows and columns no earlier round took (masks from iotas and
+    the earlier rounds' picks, recomputed inside the reduction, so that no matrix is carried from
+    round to round). Both passes fit in these rounds: the first takes finite costs while any is left
+    among the free rows and columns, exactly as greedy on ``cost`` alone would (a fallback pair never
+    comes before one), and once none is left the free rows and columns are the ones that pass leaves,
+    where the rest is greedy on ``fallback``; each round that takes a pair takes a new track."""
     k, m = cost.shape
+    fallback = jnp.full_like(cost, jnp.inf) if fallback is None else fallback
     rows = jnp.arange(k, dtype=jnp.int32)[:, None]
     cols = jnp.arange(m, dtype=jnp.int32)[None, :]
+    flat = rows * m + cols
+    inf = jnp.asarray(jnp.inf, cost.dtype)
+
+    def first(a, b):  # of two pairs (cost, fallback, flat index), the one greedy takes first
+        (ca, fa, ia), (cb, fb, ib) = a, b
+        rank_a = jnp.where(ca < jnp.inf, 0, jnp.where(fa < jnp.inf, 1, 2))
+        rank_b = jnp.where(cb < jnp.inf, 0, jnp.where(fb < jnp.inf, 1, 2))
+        va, vb = jnp.where(rank_a == 0, ca, fa), jnp.where(rank_b == 0, cb, fb)
+        a_first = (rank_a < rank_b) | ((rank_a == rank_b) & ((va < vb) | ((va == vb) & (ia < ib))))
+        return tuple(jnp.where(a_first, x, y) for x, y in ((ca, cb), (fa, fb), (ia, ib)))
+
     det_of_track, has = jnp.zeros(m, jnp.int32), jnp.zeros(m, bool)
+    taken = jnp.zeros((k, m), bool)
+    init = (inf, inf, jnp.asarray(k * m, jnp.int32))
     for _ in range(min(k, m)):
-        flat = jnp.argmin(cost).astype(jnp.int32)
-        i, j = flat // m, flat % m
-        ok = jnp.isfinite(jnp.min(cost))
-        col = ok & (cols[0] == j)
+        c, f, idx = jax.lax.reduce((jnp.where(taken, inf, cost), jnp.where(taken, inf, fallback), flat), init,
+                                   first, (0, 1))
+        i, j = idx // m, idx % m
+        col = ((c < inf) | (f < inf)) & (cols[0] == j)
         det_of_track = jnp.where(col, i, det_of_track)
         has = has | col
-        cost = jnp.where(ok & ((rows == i) | (cols == j)), jnp.inf, cost)
+        taken = taken | (rows == i) | (cols == j)  # a round that takes none leaves only forbidden pairs
     return det_of_track, has
 
 
@@ -542,25 +564,22 @@ def track_step(
         & (det.class_id[:, None] == state.class_id[None, :])
         & (d2 <= params.gate[det.class_id][:, None])
     )
-    cost = jnp.where(gated, d2, jnp.inf)
-    det_of_track, has = assign(cost)
     # Recapture: a detection too close to a live track of its class to start one of its own
-    # (``birth_exclusion``) goes to that track if both are still unmatched, whatever the gate says.
-    used = jnp.zeros(det.mask.shape, bool).at[det_of_track].max(has)
+    # (``birth_exclusion``) goes to that track, nearest first, if both are left unmatched by the
+    # gated assignment, whatever the gate says: the fallback pass of the same assignment.
     dist = jnp.linalg.norm(det.pose[:, None, :2] - state.mean[None, :, :2], axis=-1)  # [K, M]
     close = (
-        tracked_det[:, None] & ~used[:, None] & may_update
-        & state.live[None, :] & ~has[None, :]
+        tracked_det[:, None] & may_update & state.live[None, :]
         & (det.class_id[:, None] == state.class_id[None, :])
         & (dist < params.birth_exclusion)
     )
-    det2, has2 = assign(jnp.where(close, dist, jnp.inf))
+    det_of_track, has = assign(jnp.where(gated, d2, jnp.inf), jnp.where(close, dist, jnp.inf))
+    # The detections taken (one-hot against an iota, not a scatter).
+    used = jnp.any(has[None, :] & (det_of_track[None, :] == jnp.arange(det.mask.shape[0], dtype=jnp.int32)[:, None]), axis=1)
     # Majority confirmation: an ``other`` candidate near a track's predicted position (the same
     # distances), counted below for tentative tracks left without a detection.
     other = jnp.zeros(det.mask.shape, bool) if det.other is None else det.other
     other_near = jnp.any(other[:, None] & (dist < params.birth_exclusion), axis=0)  # [M]
-    det_of_track = jnp.where(has, det_of_track, det2)
-    has = has | has2
 
     side_pose, side_logp = detection_sides(det, state.side_heading.shape[1])
     R = det.cov[det_of_track]
@@ -626,7 +645,6 @@ def track_step(
     live = state.live & ~dead
 
     # Births: the i-th free slot takes the i-th unused detection of a tracked class.
-    used = used.at[det2].max(has2)  # the recaptured ones too
     dist = jnp.linalg.norm(det.pose[:, None, :2] - mean[None, :, :2], axis=-1)
     near_live = jnp.any(live[None, :] & (det.class_id[:, None] == state.class_id[None, :]) & (dist < params.birth_exclusion), 1)
     born_ok = tracked_det & ~used & ~near_live & whole
