@@ -126,9 +126,9 @@ def _gram(outline: Outline, cls: Int[Array, " n"], pose: Float[Array, "n sides 3
 
     Each point's residual, Jacobian and weight are computed once on the ``[n, sides, l]`` domain,
     from scalars per pose (``trig``: its cosine and sine, computed in the step's small kernel), the
-    outline's bilinear lookup as twelve scalar gathers; the sums are one product. Built as the
+    outline's bilinear lookup one gather of each cell's four corners; the sums are one product. Built as the
     obvious form (a gather of twelve columns sliced apart, one ``einsum`` per term), a step was 26
-    kernels; this is about 19 (twelve of them the gathers). Fewer is possible (everything on a ``[…, l, 4]`` domain is one fusion)
+    kernels; this is about 11. Fewer is possible (everything on a ``[…, l, 4]`` domain is one fusion)
     but repeats the per-point arithmetic per channel, which on a CPU costs more than the kernels saved."""
     g = outline.field.shape[1]
     shape = pose.shape[:2] + (pts.shape[2],)
@@ -147,11 +147,11 @@ def _gram(outline: Outline, cls: Int[Array, " n"], pose: Float[Array, "n sides 3
     ix, iy = jnp.clip(jnp.floor(uxc), 0, g - 2), jnp.clip(jnp.floor(uyc), 0, g - 2)
     fx, fy = uxc - ix, uyc - iy
     fld = outline.field
-    corners = jnp.concatenate([fld[:, :-1, :-1], fld[:, :-1, 1:], fld[:, 1:, :-1], fld[:, 1:, 1:]], -1).reshape(-1)
-    at = (per_cand(cls) * (g - 1) ** 2 + ix.astype(jnp.int32) * (g - 1) + iy.astype(jnp.int32)) * 12
+    corners = jnp.concatenate([fld[:, :-1, :-1], fld[:, :-1, 1:], fld[:, 1:, :-1], fld[:, 1:, 1:]], -1)
+    cv = corners.reshape(-1, 12)[per_cand(cls) * (g - 1) ** 2 + ix.astype(jnp.int32) * (g - 1) + iy.astype(jnp.int32)]
     w00, w01, w10, w11 = (1 - fx) * (1 - fy), (1 - fx) * fy, fx * (1 - fy), fx * fy
-    interp = lambda k: (w00 * corners[at + k] + w01 * corners[at + 3 + k]  # noqa: E731
-                        + w10 * corners[at + 6 + k] + w11 * corners[at + 9 + k])
+    interp = lambda k: (w00 * cv[..., k] + w01 * cv[..., 3 + k]  # noqa: E731
+                        + w10 * cv[..., 6 + k] + w11 * cv[..., 9 + k])
     # Beyond the grid the distance grows with the distance from its edge, along the way out.
     cell_d = per_cand(cell)
     ox, oy = (ux - uxc) * cell_d, (uy - uyc) * cell_d
