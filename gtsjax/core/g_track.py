@@ -301,11 +301,11 @@ def innovation(mean: Float[Array, "6"], cov: Float[Array, "6 6"], z: Float[Array
     return nu, S
 
 
-def inv3(S: Float[Array, "3 3"]) -> Float[Array, "3 3"]:
+def inv3(S: Float[Array, "*b 3 3"]) -> Float[Array, "*b 3 3"]:
     """Inverse of a symmetric positive definite 3×3 matrix by its adjugate: a handful of multiplies,
     where a general LU solve on such small batched matrices dominates the step's cost."""
-    a, b, c = S[0, 0], S[0, 1], S[0, 2]
-    d, e, f = S[1, 1], S[1, 2], S[2, 2]
+    a, b, c = S[..., 0, 0], S[..., 0, 1], S[..., 0, 2]
+    d, e, f = S[..., 1, 1], S[..., 1, 2], S[..., 2, 2]
     A = d * f - e * e
     B = c * e - b * f
     C = b * e - c * d
@@ -313,8 +313,8 @@ def inv3(S: Float[Array, "3 3"]) -> Float[Array, "3 3"]:
     E = b * c - a * e
     F = a * d - b * b
     det = a * A + b * B + c * C
-    adj = jnp.stack([jnp.stack([A, B, C]), jnp.stack([B, D, E]), jnp.stack([C, E, F])])
-    return adj / det
+    adj = jnp.stack([jnp.stack([A, B, C], -1), jnp.stack([B, D, E], -1), jnp.stack([C, E, F], -1)], -2)
+    return adj / det[..., None, None]
 
 
 def inv2(S: Float[Array, "2 2"]) -> Float[Array, "2 2"]:
@@ -336,23 +336,44 @@ def heading_consistent(mean, cov, z, R, gate) -> Bool[Array, ""]:
     return nu[2] ** 2 <= gate * S[2, 2]
 
 
-def kalman_update(mean: Float[Array, "6"], cov: Float[Array, "6 6"], z: Float[Array, "3"], R: Float[Array, "3 3"],
-                  use_heading: Bool[Array, ""] = True):
+def _mm(a, b):
+    """``a @ b`` over the last two axes (batched, broadcast) as a sum of outer products, one per index
+    of the contracted axis: elementwise, so XLA fuses it with its neighbours instead of running a dot."""
+    out = a[..., :, 0:1] * b[..., 0:1, :]
+    for c in range(1, a.shape[-1]):
+        out = out + a[..., :, c:c + 1] * b[..., c:c + 1, :]
+    return out
+
+
+def kalman_update(mean: Float[Array, "*#b 6"], cov: Float[Array, "*#b 6 6"], z: Float[Array, "*#b 3"],
+                  R: Float[Array, "*#b 3 3"], use_heading: Bool[Array, "*#b"] | bool = True):
     """Measurement update with ``H = [I₃ 0]``: gain ``K = P Hᵀ S⁻¹``, Joseph-form covariance
     ``(I − KH) P (I − KH)ᵀ + K R Kᵀ``, which stays symmetric positive definite in float32.
 
     With ``use_heading`` False the update is position-only (``H = [I₂ 0]``): the heading row of the
     gain is zero, which is the 3-row update with the heading's innovation zeroed and the heading's
-    row and column of ``S⁻¹`` removed."""
-    nu, S = innovation(mean, cov, z, R)
-    PHt = cov[:, :3]
-    s_inv = jnp.where(use_heading, inv3(S), jnp.zeros((3, 3), S.dtype).at[:2, :2].set(inv2(S[:2, :2])))
-    K = PHt @ s_inv  # S is symmetric
-    mean = mean + K @ nu
-    mean = mean.at[2].set(wrap(mean[2]))
-    IKH = jnp.eye(NX, dtype=cov.dtype).at[:, :3].add(-K)
-    cov = IKH @ cov @ IKH.T + K @ R @ K.T
-    return mean, 0.5 * (cov + cov.T)
+    row and column of ``S⁻¹`` removed.
+
+    Batched over leading axes (broadcast against each other), in whole-array form: the products with
+    ``H`` are the first three rows or columns, ``(I − KH) P = P − K P₃`` and ``A (I − KH)ᵀ = A − A₃ Kᵀ``,
+    each product a sum of three outer products."""
+    i3 = jnp.arange(3, dtype=jnp.int32)
+    i6 = jnp.arange(NX, dtype=jnp.int32)
+    nu = z - mean[..., :3]
+    nu = jnp.where(i3 == 2, wrap(nu), nu)
+    S = cov[..., :3, :3] + R
+    a, b, d = S[..., 0, 0], S[..., 0, 1], S[..., 1, 1]
+    zero = jnp.zeros_like(a)
+    pos_only = jnp.stack([jnp.stack([d, -b, zero], -1), jnp.stack([-b, a, zero], -1),
+                          jnp.stack([zero, zero, zero], -1)], -2) / (a * d - b * b)[..., None, None]
+    s_inv = jnp.where(jnp.asarray(use_heading)[..., None, None], inv3(S), pos_only)
+    K = _mm(cov[..., :, :3], s_inv)  # S is symmetric
+    mean = mean + _mm(K, nu[..., :, None])[..., 0]
+    mean = jnp.where(i6 == 2, wrap(mean), mean)
+    A = cov - _mm(K, cov[..., :3, :])
+    Kt = jnp.swapaxes(K, -1, -2)
+    cov = A - _mm(A[..., :, :3], Kt) + _mm(_mm(K, R), Kt)
+    return mean, 0.5 * (cov + jnp.swapaxes(cov, -1, -2))
 
 
 def assign(cost: Float[Array, "dets tracks"], fallback: Float[Array, "dets tracks"] | None = None
@@ -608,10 +629,16 @@ def track_step(
     # A confirmed track's heading that would turn it faster than its class can (``plausible``'s
     # turn-rate test on the updated estimate) is a misread, most often after a few scans without a
     # detection have widened the heading's gate: rejected like one that fails the gate.
-    upd_mean, upd_cov = jax.vmap(kalman_update)(mean0, cov0, z, R, head_ok & seen)
+    # Both candidate updates, with the heading and position-only, in one batched call (a leading axis
+    # of two); each test selects one of them.
+    both_mean, both_cov = kalman_update(mean0[None], cov0[None], z[None], R[None],
+                                        (jnp.arange(2, dtype=jnp.int32) == 0)[:, None])
+    pick = lambda ok: (jnp.where(ok[:, None], both_mean[0], both_mean[1]),  # noqa: E731
+                       jnp.where(ok[:, None, None], both_cov[0], both_cov[1]))
+    upd_mean, upd_cov = pick(head_ok & seen)
     turn_ok = plausible_turn(upd_mean[:, 5], upd_cov, state.class_id, params)
     head_ok = head_ok & (turn_ok | ~state.confirmed)
-    upd_mean, upd_cov = jax.vmap(kalman_update)(mean0, cov0, z, R, head_ok & seen)
+    upd_mean, upd_cov = pick(head_ok & seen)
     # A rejected heading discards a turn rate learnt from headings (see the module docstring). One
     # already discarded (its variance back at omega_var0 or above) is left as it is, with its
     # correlation to the heading: over consecutive rejections the heading's variance then grows with
