@@ -30,6 +30,12 @@ def _count(n: Int[Array, ""], axis_name) -> Int[Array, ""]:
     return n if axis_name is None else jax.lax.pmax(n, axis_name)
 
 
+def _which(bs: tuple[int, ...], n: Int[Array, ""]) -> Int[Array, ""]:
+    """The index of the smallest size at least ``n`` (the last if none is): how many sizes are below
+    ``n``, one comparison and one sum (``searchsorted`` is a loop of a dozen kernels)."""
+    return jnp.minimum(jnp.sum(jnp.asarray(bs, jnp.int32) < n, dtype=jnp.int32), len(bs) - 1)
+
+
 def bucketed(fn, v: Float[Array, "rows features"], n: Int[Array, ""], width: int, axis_name=None):
     """``fn`` (``[b, features]`` -> a tuple of ``[b, width]`` arrays) on the first ``b`` rows of
     ``v``, ``b`` the smallest of :func:`sizes` at least ``n``; each result padded with zeros to
@@ -43,8 +49,8 @@ def bucketed(fn, v: Float[Array, "rows features"], n: Int[Array, ""], width: int
             return tuple(jnp.zeros((cap, width), o.dtype).at[:b].set(o) for o in fn(v[:b]))
         return run
 
-    which = jnp.searchsorted(jnp.asarray(bs, jnp.int32), n, side="left")
-    return jax.lax.switch(jnp.minimum(which, len(bs) - 1), [branch(b) for b in bs], v)
+    which = _which(bs, n)
+    return jax.lax.switch(which, [branch(b) for b in bs], v)
 
 
 def bucketed_rows(fn, args, n: Int[Array, ""], axis_name=None):
@@ -60,5 +66,5 @@ def bucketed_rows(fn, args, n: Int[Array, ""], axis_name=None):
             return jax.tree.map(lambda o: jnp.zeros((cap,) + o.shape[1:], o.dtype).at[:b].set(o), out)
         return run
 
-    which = jnp.searchsorted(jnp.asarray(bs, jnp.int32), n, side="left")
-    return jax.lax.switch(jnp.minimum(which, len(bs) - 1), [branch(b) for b in bs], args)
+    which = _which(bs, n)
+    return jax.lax.switch(which, [branch(b) for b in bs], args)
