@@ -283,7 +283,7 @@ def predict(state: TrackerState, dt: Float[Array, ""], params: TrackerParams) ->
     """Time update of every slot (dead slots too: they are masked everywhere else and stay finite)."""
     F, Q = motion_model(dt, params)
     mean = jnp.einsum("ij,mj->mi", F, state.mean)
-    mean = mean.at[:, 2].set(wrap(mean[:, 2]))
+    mean = jnp.where(jnp.arange(NX, dtype=jnp.int32) == 2, wrap(mean), mean)
     cov = jnp.einsum("ij,mjk,lk->mil", F, state.cov, F) + Q[None]
     # The heading hypotheses turn with the state's heading, and grow as uncertain as it does.
     turn = mean[:, 2:3] - state.mean[:, 2:3]
@@ -618,10 +618,14 @@ def track_step(
         state, ev, nu_h, S_h, d2_h, seen, det.pose[det_of_track, 2], R[:, 2, 2], dt, params)
     at = lambda a, i: jnp.take_along_axis(a, i[:, None], 1)[:, 0]  # noqa: E731
     theta0 = jnp.where(switch, at(state.side_heading, main), state.mean[:, 2])
-    cross = jnp.where(switch[:, None], 0.0, state.cov[:, 2, :])
-    cov0 = state.cov.at[:, 2, :].set(cross).at[:, :, 2].set(cross)
-    cov0 = cov0.at[:, 2, 2].set(jnp.where(switch, at(state.side_var, main), state.cov[:, 2, 2]))
-    mean0 = state.mean.at[:, 2].set(theta0)
+    # Row and column 2 of the covariance (masks from iotas): the column is the row's (symmetric), and
+    # where the heading switched, both are zero but for the hypothesis's variance.
+    i6 = jnp.arange(NX, dtype=jnp.int32)
+    row2, col2 = (i6 == 2)[None, :, None], (i6 == 2)[None, None, :]
+    cov0 = jnp.where(col2 & ~row2, jnp.swapaxes(state.cov, 1, 2), state.cov)
+    cov0 = jnp.where(switch[:, None, None] & (row2 | col2),
+                     jnp.where(row2 & col2, at(state.side_var, main)[:, None, None], 0.0), cov0)
+    mean0 = jnp.where(i6 == 2, theta0[:, None], state.mean)
     # The measurement: the detection's position, and the heading of its side nearest the state's.
     h = at(near, main)
     z = jnp.concatenate([det.pose[det_of_track, :2], at(zs[..., 2], h)[:, None]], -1)
@@ -644,13 +648,12 @@ def track_step(
     # correlation to the heading: over consecutive rejections the heading's variance then grows with
     # the square of the time, as a turn at up to that rate would move it, not linearly, and a robot
     # that really turns is taken back within a few scans instead of being coasted past.
-    forget = (seen & ~head_ok & (cov0[:, 5, 5] < params.omega_var0))[:, None]
-    upd_cov = upd_cov.at[:, 5, :].set(jnp.where(forget, 0.0, upd_cov[:, 5, :]))
-    upd_cov = upd_cov.at[:, :, 5].set(jnp.where(forget, 0.0, upd_cov[:, :, 5]))
-    upd_cov = upd_cov.at[:, 5, 5].set(jnp.where(forget[:, 0], params.omega_var0, upd_cov[:, 5, 5]))
-    omega_raw = jnp.where(forget[:, 0], 0.0, upd_mean[:, 5])  # the turn rate before clipping, for plausible()
+    forget = seen & ~head_ok & (cov0[:, 5, 5] < params.omega_var0)
+    row5, col5 = (i6 == 5)[None, :, None], (i6 == 5)[None, None, :]
+    upd_cov = jnp.where(forget[:, None, None] & (row5 | col5), jnp.where(row5 & col5, params.omega_var0, 0.0), upd_cov)
+    omega_raw = jnp.where(forget, 0.0, upd_mean[:, 5])  # the turn rate before clipping, for plausible()
     turn_max = params.max_turn_rate[state.class_id]
-    upd_mean = upd_mean.at[:, 5].set(jnp.clip(omega_raw, -turn_max, turn_max))
+    upd_mean = jnp.where(i6 == 5, jnp.clip(omega_raw, -turn_max, turn_max)[:, None], upd_mean)
     mean = jnp.where(has[:, None], upd_mean, mean0)
     cov = jnp.where(has[:, None, None], upd_cov, cov0)
     # The state's heading is its main hypothesis: the hypothesis takes the state's update.
@@ -690,9 +693,10 @@ def track_step(
     born = jnp.any(match, axis=1)
     src = jnp.argmax(match, axis=1)
     z0 = det.pose[src]
-    P0 = jnp.zeros((born.shape[0], NX, NX), _F32).at[:, :3, :3].set(det.cov[src])
-    P0 = P0.at[:, 3, 3].set(params.vel_var0).at[:, 4, 4].set(params.vel_var0).at[:, 5, 5].set(params.omega_var0)
-    mean0 = jnp.zeros((born.shape[0], NX), _F32).at[:, :3].set(z0)
+    vel_diag = (i6[:, None] == i6[None, :]) & (i6 >= 3)[None, :]  # the velocities' and turn rate's variances
+    P0 = jnp.where(vel_diag[None], jnp.where(i6 == 5, params.omega_var0, params.vel_var0)[None, None, :],
+                   jnp.pad(det.cov[src], ((0, 0), (0, NX - 3), (0, NX - 3))))
+    mean0 = jnp.pad(z0, ((0, 0), (0, NX - 3)))
     n_born = jnp.sum(born).astype(jnp.int32)
 
     new = TrackerState(
