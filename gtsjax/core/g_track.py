@@ -260,6 +260,16 @@ class Detections(eqx.Module):
     side_logp: Float[Array, "dets sides"] | None = None
 
 
+def _select(values: Array, index: Int[Array, "..."]) -> Array:
+    """``values[..., index]`` along the last axis (a few entries: sides, classes) as a chain of selects,
+    ``values`` broadcast against ``index``: elementwise, so that it fuses into its consumers where a
+    gather is a kernel of its own. ``index`` is within range."""
+    out = jnp.broadcast_to(values[..., 0], jnp.broadcast_shapes(values.shape[:-1], index.shape))
+    for c in range(1, values.shape[-1]):
+        out = jnp.where(index == c, values[..., c], out)
+    return out
+
+
 def motion_model(dt: Float[Array, ""], params: TrackerParams) -> tuple[Float[Array, "6 6"], Float[Array, "6 6"]]:
     """Transition ``F`` and process noise ``Q`` over ``dt`` seconds.
 
@@ -461,8 +471,7 @@ def side_evidence(heading: Float[Array, "tracks sides"], var: Float[Array, "trac
     ll = jnp.where(usable, z_logp[:, None, :] - 0.5 * d2 - 0.5 * jnp.log(2 * jnp.pi * S), -jnp.inf)
     ev = jnp.logaddexp(jax.nn.logsumexp(ll, axis=-1), jnp.log(_OUTLIER_P / (2 * jnp.pi)))
     near = jnp.argmin(jnp.where(usable, d2, jnp.inf), axis=-1).astype(jnp.int32)  # [M, j]
-    pick = lambda a: jnp.take_along_axis(a, near[..., None], -1)[..., 0]  # noqa: E731
-    return ev, near, pick(nu), S[..., 0], pick(d2)  # S is the same for every side h
+    return ev, near, _select(nu, near), S[..., 0], _select(d2, near)  # S is the same for every side h
 
 
 def heading_mixture(state: TrackerState, ev, nu, S, d2, seen, z_best, r, dt, params: TrackerParams):
@@ -506,8 +515,7 @@ def heading_mixture(state: TrackerState, ev, nu, S, d2, seen, z_best, r, dt, par
     total = jnp.logaddexp(jax.nn.logsumexp(lw, axis=-1), rest)
     lw, rest = lw - total[:, None], rest - total
     best = jnp.argmax(lw, axis=-1).astype(jnp.int32)
-    at = lambda a, i: jnp.take_along_axis(a, i[:, None], -1)[:, 0]  # noqa: E731
-    switch = at(lw, best) - at(lw, state.main) > jnp.log(_SWITCH_ODDS)
+    switch = _select(lw, best) - _select(lw, state.main) > jnp.log(_SWITCH_ODDS)
     return heading, var, lw, rest, jnp.where(switch, best, state.main), switch
 
 
@@ -547,7 +555,7 @@ def plausible(mean: Float[Array, "tracks 6"], cov: Float[Array, "tracks 6 6"], o
     pos = disc > 0
     root = jnp.where(pos, jnp.sqrt(jnp.where(pos, disc, 1.0)), 0.0)  # double where: finite gradients at a = d, b = 0
     sigma_v = jnp.sqrt(jnp.maximum(0.5 * (a + d) + root, 0.0))
-    v_max = params.max_speed[class_id] + _PLAUSIBLE_SIGMAS * sigma_v
+    v_max = _select(params.max_speed, class_id) + _PLAUSIBLE_SIGMAS * sigma_v
     return (mean[:, 3] ** 2 + mean[:, 4] ** 2 <= v_max**2) & plausible_turn(omega, cov, class_id, params)
 
 
@@ -555,7 +563,7 @@ def plausible_turn(omega: Float[Array, " tracks"], cov: Float[Array, "tracks 6 6
                    params: TrackerParams) -> Bool[Array, " tracks"]:
     """The turn-rate half of :func:`plausible`: ``|ω| ≤ max_turn_rate + 2 σ_ω``."""
     sigma_w = jnp.sqrt(jnp.maximum(cov[:, 5, 5], 0.0))
-    return jnp.abs(omega) <= params.max_turn_rate[class_id] + _PLAUSIBLE_SIGMAS * sigma_w
+    return jnp.abs(omega) <= _select(params.max_turn_rate, class_id) + _PLAUSIBLE_SIGMAS * sigma_w
 
 
 def reported(state: TrackerState, params: TrackerParams) -> Bool[Array, " tracks"]:
@@ -574,7 +582,7 @@ def track_step(
     d2 = jax.vmap(lambda z, R: jax.vmap(lambda mu, P: mahalanobis(mu, P, z, R))(state.mean, state.cov))(
         det.pose, det.cov
     )  # [K, M]
-    tracked_det = det.mask & params.tracked[det.class_id]
+    tracked_det = det.mask & _select(params.tracked, det.class_id)
     # A partial detection (an occluded view of a class seen whole) only follows a confirmed track.
     whole = jnp.ones(det.mask.shape, bool) if det.partial is None else ~det.partial
     may_update = whole[:, None] | state.confirmed[None, :]  # [K, M]
@@ -583,7 +591,7 @@ def track_step(
         & may_update
         & state.live[None, :]
         & (det.class_id[:, None] == state.class_id[None, :])
-        & (d2 <= params.gate[det.class_id][:, None])
+        & (d2 <= _select(params.gate, det.class_id)[:, None])
     )
     # Recapture: a detection too close to a live track of its class to start one of its own
     # (``birth_exclusion``) goes to that track, nearest first, if both are left unmatched by the
@@ -602,33 +610,42 @@ def track_step(
     other = jnp.zeros(det.mask.shape, bool) if det.other is None else det.other
     other_near = jnp.any(other[:, None] & (dist < params.birth_exclusion), axis=0)  # [M]
 
+    # Every per-detection value a track reads, in one table, so that the detections of the tracks
+    # (and below, of the new tracks) are one gather each, not one per array.
     side_pose, side_logp = detection_sides(det, state.side_heading.shape[1])
-    R = det.cov[det_of_track]
-    zs, zlp = side_pose[det_of_track], side_logp[det_of_track]  # [M, sides, 3], [M, sides]
+    k, n_sides = det.mask.shape[0], side_logp.shape[1]
+    no = jnp.zeros(det.mask.shape, bool)
+    flags = jnp.stack([no if det.partial is None else det.partial, no if det.vague is None else det.vague], -1)
+    table = jnp.concatenate([det.pose, det.cov.reshape(k, 9), side_pose[..., 2], side_logp,
+                             flags.astype(det.pose.dtype), det.class_id.astype(det.pose.dtype)[:, None]], -1)
+
+    def rows(idx):  # pose, covariance, side headings and log-probabilities, partial, vague, class
+        t = table[idx]
+        o = 12 + 2 * n_sides
+        return (t[:, :3], t[:, 3:12].reshape(-1, 3, 3), t[:, 12:12 + n_sides], t[:, 12 + n_sides:o], t[:, o] > 0,
+                t[:, o + 1] > 0, t[:, o + 2].astype(jnp.int32))
+
+    z_pose, R, zs, zlp, z_partial, z_vague, _ = rows(det_of_track)  # zs, zlp: [M, sides]
     # A partial view's heading comes from a cut outline: it updates the position only, and neither
-    # supports nor rejects the track's heading.
-    seen = has if det.partial is None else has & ~det.partial[det_of_track]
-    # So does a vague one: a heading read with a variance that good reads of the class almost never
-    # have is more often a misread than not.
-    seen = seen if det.vague is None else seen & ~det.vague[det_of_track]
+    # supports nor rejects the track's heading. So does a vague one: a heading read with a variance
+    # that good reads of the class almost never have is more often a misread than not.
+    seen = has & ~z_partial & ~z_vague
     # The heading hypotheses: evidence, weights, their own updates; the state's heading becomes the
     # most probable one where it wins clearly (its variance, no correlation with the rest of the state).
-    ev, near, nu_h, S_h, d2_h = side_evidence(state.side_heading, state.side_var, zs[..., 2], zlp, R[:, 2, 2])
+    ev, near, nu_h, S_h, d2_h = side_evidence(state.side_heading, state.side_var, zs, zlp, R[:, 2, 2])
     side_heading, side_var, side_logw, side_rest, main, switch = heading_mixture(
-        state, ev, nu_h, S_h, d2_h, seen, det.pose[det_of_track, 2], R[:, 2, 2], dt, params)
-    at = lambda a, i: jnp.take_along_axis(a, i[:, None], 1)[:, 0]  # noqa: E731
-    theta0 = jnp.where(switch, at(state.side_heading, main), state.mean[:, 2])
+        state, ev, nu_h, S_h, d2_h, seen, z_pose[:, 2], R[:, 2, 2], dt, params)
+    theta0 = jnp.where(switch, _select(state.side_heading, main), state.mean[:, 2])
     # Row and column 2 of the covariance (masks from iotas): the column is the row's (symmetric), and
     # where the heading switched, both are zero but for the hypothesis's variance.
     i6 = jnp.arange(NX, dtype=jnp.int32)
     row2, col2 = (i6 == 2)[None, :, None], (i6 == 2)[None, None, :]
     cov0 = jnp.where(col2 & ~row2, jnp.swapaxes(state.cov, 1, 2), state.cov)
     cov0 = jnp.where(switch[:, None, None] & (row2 | col2),
-                     jnp.where(row2 & col2, at(state.side_var, main)[:, None, None], 0.0), cov0)
+                     jnp.where(row2 & col2, _select(state.side_var, main)[:, None, None], 0.0), cov0)
     mean0 = jnp.where(i6 == 2, theta0[:, None], state.mean)
     # The measurement: the detection's position, and the heading of its side nearest the state's.
-    h = at(near, main)
-    z = jnp.concatenate([det.pose[det_of_track, :2], at(zs[..., 2], h)[:, None]], -1)
+    z = jnp.concatenate([z_pose[:, :2], _select(zs, _select(near, main))[:, None]], -1)
     head_ok = jax.vmap(heading_consistent, in_axes=(0, 0, 0, 0, None))(mean0, cov0, z, R, params.heading_gate)
     # A confirmed track's heading that would turn it faster than its class can (``plausible``'s
     # turn-rate test on the updated estimate) is a misread, most often after a few scans without a
@@ -652,7 +669,7 @@ def track_step(
     row5, col5 = (i6 == 5)[None, :, None], (i6 == 5)[None, None, :]
     upd_cov = jnp.where(forget[:, None, None] & (row5 | col5), jnp.where(row5 & col5, params.omega_var0, 0.0), upd_cov)
     omega_raw = jnp.where(forget, 0.0, upd_mean[:, 5])  # the turn rate before clipping, for plausible()
-    turn_max = params.max_turn_rate[state.class_id]
+    turn_max = _select(params.max_turn_rate, state.class_id)
     upd_mean = jnp.where(i6 == 5, jnp.clip(omega_raw, -turn_max, turn_max)[:, None], upd_mean)
     mean = jnp.where(has[:, None], upd_mean, mean0)
     cov = jnp.where(has[:, None, None], upd_cov, cov0)
@@ -692,28 +709,28 @@ def track_step(
     match = free[:, None] & born_ok[None, :] & (rank_slot[:, None] == rank_det[None, :])  # [M, K]
     born = jnp.any(match, axis=1)
     src = jnp.argmax(match, axis=1)
-    z0 = det.pose[src]
+    z0, P0_pose, new_sides, new_logp, _, _, new_class = rows(src)
     vel_diag = (i6[:, None] == i6[None, :]) & (i6 >= 3)[None, :]  # the velocities' and turn rate's variances
     P0 = jnp.where(vel_diag[None], jnp.where(i6 == 5, params.omega_var0, params.vel_var0)[None, None, :],
-                   jnp.pad(det.cov[src], ((0, 0), (0, NX - 3), (0, NX - 3))))
+                   jnp.pad(P0_pose, ((0, 0), (0, NX - 3), (0, NX - 3))))
     mean0 = jnp.pad(z0, ((0, 0), (0, NX - 3)))
     n_born = jnp.sum(born).astype(jnp.int32)
 
     new = TrackerState(
         mean=jnp.where(born[:, None], mean0, mean),
         cov=jnp.where(born[:, None, None], P0, cov),
-        class_id=jnp.where(born, det.class_id[src], state.class_id),
+        class_id=jnp.where(born, new_class, state.class_id),
         track_id=jnp.where(born, state.next_id + rank_slot, jnp.where(live, state.track_id, -1)),
         live=live | born,
         confirmed=jnp.where(born, params.n_confirm <= 1, confirmed & live),
         hits=jnp.where(born, 1, jnp.where(live, hits, 0)),
         misses=jnp.where(born | ~live, 0, misses),
         contrary=jnp.where(born | ~live, 0, contrary),
-        side_heading=jnp.where(born[:, None], side_pose[src, :, 2], side_heading),
-        side_var=jnp.where(born[:, None], det.cov[src, 2:3, 2], side_var),
-        side_logw=jnp.where(born[:, None], side_logp[src] + jnp.log1p(-_REST_P), side_logw),
+        side_heading=jnp.where(born[:, None], new_sides, side_heading),
+        side_var=jnp.where(born[:, None], P0_pose[:, 2:3, 2], side_var),
+        side_logw=jnp.where(born[:, None], new_logp + jnp.log1p(-_REST_P), side_logw),
         side_rest=jnp.where(born, jnp.log(_REST_P), side_rest),
-        main=jnp.where(born, jnp.argmax(side_logp[src], axis=-1).astype(jnp.int32), main),
+        main=jnp.where(born, jnp.argmax(new_logp, axis=-1).astype(jnp.int32), main),
         next_id=state.next_id + n_born,
     )
     used_by_track = used
