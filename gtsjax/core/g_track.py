@@ -566,6 +566,13 @@ def plausible_turn(omega: Float[Array, " tracks"], cov: Float[Array, "tracks 6 6
     return jnp.abs(omega) <= _select(params.max_turn_rate, class_id) + _PLAUSIBLE_SIGMAS * sigma_w
 
 
+def _count_up_to(x: Bool[Array, " n"]) -> Int[Array, " n"]:
+    """``cumsum(x)`` as counts over a triangular mask: one reduction that fuses its inputs, where a
+    cumulative sum is a chain of reduce-windows."""
+    i = jnp.arange(x.shape[0], dtype=jnp.int32)
+    return jnp.sum(x[None, :] & (i[None, :] <= i[:, None]), axis=1, dtype=jnp.int32)
+
+
 def reported(state: TrackerState, params: TrackerParams) -> Bool[Array, " tracks"]:
     """Tracks to report: confirmed, and observed within the last ``m_report`` scans."""
     return state.live & state.confirmed & (state.misses < params.m_report)
@@ -704,8 +711,8 @@ def track_step(
                        & (dd < params.birth_exclusion), axis=1)
     born_ok = born_ok & ~shadowed
     free = ~live
-    rank_det = jnp.cumsum(born_ok, dtype=jnp.int32) - 1
-    rank_slot = jnp.cumsum(free, dtype=jnp.int32) - 1
+    rank_det = _count_up_to(born_ok) - 1
+    rank_slot = _count_up_to(free) - 1
     match = free[:, None] & born_ok[None, :] & (rank_slot[:, None] == rank_det[None, :])  # [M, K]
     born = jnp.any(match, axis=1)
     src = jnp.argmax(match, axis=1)
