@@ -333,6 +333,26 @@ def test_sparse_full_rank_matches_exact_and_low_rank_is_close():
     assert m32.dtype == jnp.float32
 
 
+def test_predict_many_equals_each_gp_on_its_own():
+    """The stacked prediction of several GPs (one batched computation) gives what each GP predicts on
+    its own; GPs of different shapes (inducing counts) are predicted one after the other."""
+    from gtsjax.gp.sparse import predict_many
+
+    rng = np.random.default_rng(12)
+    x = rng.uniform(-3, 3, (50, 2))
+    ys = [np.sin(x[:, 0]), np.cos(x[:, 1]) * x[:, 0], 0.1 * x[:, 1] ** 2]
+    gps = [gp.fit(x, y + 0.05 * rng.normal(size=50), key=jax.random.key(i), restarts=1).sparse(20, 8) for i, y in enumerate(ys)]
+    xs = jnp.asarray(rng.uniform(-3, 3, (7, 2)))
+    for group in (gps, [gps[0], gps[1].astype(jnp.float64), gp.fit(x, ys[2], key=jax.random.key(9), restarts=1).sparse(12, 8)]):
+        m, v = jax.jit(lambda xs, group=group: predict_many(group, xs, include_noise=True))(xs)
+        (m_only,) = predict_many(group, xs, mean_only=True)
+        for i, g in enumerate(group):
+            want_m, want_v = g.predict(xs, include_noise=True)
+            np.testing.assert_allclose(np.asarray(m[i]), np.asarray(want_m), rtol=1e-10, atol=1e-10)
+            np.testing.assert_allclose(np.asarray(v[i]), np.asarray(want_v), rtol=1e-10, atol=1e-10)
+            np.testing.assert_allclose(np.asarray(m_only[i]), np.asarray(g.predict_mean(xs)), rtol=1e-10, atol=1e-10)
+
+
 def test_all_restarts_failing_raises_clear_error():
     rng = np.random.default_rng(12)
     x, y = _sin1d(rng)

@@ -25,6 +25,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from ..gp import GP, SparseGP
+from ..gp.sparse import predict_many
 
 BACKGROUND = 0
 # Winning class score needed to keep a candidate, every class's until training says otherwise: the
@@ -98,8 +99,10 @@ class Classifier(eqx.Module):
 
 
 def class_scores(clf: Classifier, vectors: Float[Array, "cands features"]) -> Float[Array, "cands classes"]:
-    """``p_{j,k} = f_k(v_j)`` (eq. 13) for every candidate and class: each GP's predictive mean."""
-    return jnp.stack([gp.predict_mean(vectors).astype(vectors.dtype) for gp in clf.gps], axis=-1)
+    """``p_{j,k} = f_k(v_j)`` (eq. 13) for every candidate and class: each GP's predictive mean (the
+    classes' GPs batched, :func:`~gtsjax.gp.sparse.predict_many`)."""
+    (means,) = predict_many(clf.gps, vectors, mean_only=True)
+    return means.T.astype(vectors.dtype)
 
 
 class Decision(eqx.Module):

@@ -15,6 +15,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from ..gp import GP, SparseGP
+from ..gp.sparse import predict_many
 from .buckets import bucketed
 from .geometry import compose
 
@@ -38,23 +39,19 @@ class PoseRegressor(eqx.Module):
     heading_var_max: Float[Array, ""] | None = None
 
 
-def _predict(gp, v):
-    mean, var = gp.predict(v, include_noise=True)
-    return mean.astype(v.dtype), var.astype(v.dtype)
-
-
 def regress_one_class(
     reg: PoseRegressor, vectors: Float[Array, "cands features"]
 ) -> tuple[Float[Array, "cands 3"], Float[Array, "cands 3"]]:
     """ORS-relative pose ``(x̃, ỹ, θ̃)`` and its variances for every candidate under one class's GPs
-    (eq. 15). A class without heading GPs reports θ̃ = 0 with zero variance."""
-    mx, vx = _predict(reg.x, vectors)
-    my, vy = _predict(reg.y, vectors)
+    (eq. 15), the class's GPs batched (:func:`~gtsjax.gp.sparse.predict_many`). A class without
+    heading GPs reports θ̃ = 0 with zero variance."""
+    dt = vectors.dtype
     if reg.sin is None or reg.cos is None:
-        zero = jnp.zeros_like(mx)
-        return jnp.stack([mx, my, zero], -1), jnp.stack([vx, vy, zero], -1)
-    ms, vs = _predict(reg.sin, vectors)
-    mc, vc = _predict(reg.cos, vectors)
+        m, v = predict_many((reg.x, reg.y), vectors, include_noise=True)
+        zero = jnp.zeros_like(m[0], dt)
+        return jnp.stack([m[0].astype(dt), m[1].astype(dt), zero], -1), jnp.stack([v[0].astype(dt), v[1].astype(dt), zero], -1)
+    m, v = predict_many((reg.x, reg.y, reg.sin, reg.cos), vectors, include_noise=True)
+    (mx, my, ms, mc), (vx, vy, vs, vc) = m.astype(dt), v.astype(dt)
     theta = jnp.arctan2(ms, mc)
     # dθ = (c ds − s dc) / (s² + c²): first-order propagation of the two predictive variances.
     r2 = ms**2 + mc**2
@@ -119,8 +116,8 @@ def regress(
             idx, chosen = _top(sel, scores[:, k], min(max_landmarks, n))
 
             def means(v, reg=reg):
-                mx = reg.x.predict_mean(v).astype(vectors.dtype)
-                my = reg.y.predict_mean(v).astype(vectors.dtype)
+                (m,) = predict_many((reg.x, reg.y), v, mean_only=True)
+                mx, my = m.astype(vectors.dtype)
                 return (jnp.stack([mx, my, jnp.zeros_like(mx)], -1),)
 
             (r,) = run(means, vectors[idx], jnp.sum(chosen), 3)

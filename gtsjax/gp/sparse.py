@@ -98,6 +98,38 @@ def _predict_sparse(sp: SparseGP, xs, include_noise: bool):
     return mean, var
 
 
+def _stacked(gps):
+    """The GPs as one ``SparseGP`` whose leaves carry a leading GP axis, or ``None`` where their shapes
+    differ. Concrete leaves (a model closed over by a jit) are stacked on the host, so the stack is one
+    constant of the compiled program rather than a copy it makes at every call."""
+    import numpy as np
+
+    leaves = [jax.tree.leaves(g) for g in gps]
+    if any(type(g) is not SparseGP for g in gps) or any(
+            [a.shape for a in ls] != [a.shape for a in leaves[0]] for ls in leaves[1:]):
+        return None
+
+    def stack(*a):
+        if any(isinstance(x, jax.core.Tracer) for x in a):
+            return jnp.stack(a)
+        return jnp.asarray(np.stack([np.asarray(x) for x in a]))
+    return jax.tree.map(stack, *gps)
+
+
+@exact_products
+def predict_many(gps, xs: Float[Array, "tests features"], *, include_noise: bool = False, mean_only: bool = False):
+    """Every GP of ``gps`` on the same test inputs: means ``[gps, tests]`` (and, unless ``mean_only``,
+    variances ``[gps, tests]``). GPs of one shape run as one batched computation (``vmap`` over the
+    stacked GPs: each kernel of the prediction once for all of them, not once per GP: the classifier's
+    three score GPs, a class's four pose GPs); others one after the other."""
+    one = (lambda g: (g.predict_mean(xs),)) if mean_only else (lambda g: g.predict(xs, include_noise=include_noise))
+    st = _stacked(gps)
+    if st is not None:
+        return jax.vmap(one)(st)
+    outs = [one(g) for g in gps]
+    return tuple(jnp.stack(o) for o in zip(*outs, strict=True))
+
+
 # ------------------------------------------------------------------------------------------ building
 
 
