@@ -104,10 +104,12 @@ def regress(
     class's cap gets no pose and must be dropped (the third output is False for it). Background and
     unkept candidates give zeros."""
     n = vectors.shape[0]
+    dt = vectors.dtype
     run = (lambda fn, v, n, w: bucketed(fn, v, n, w, axis_name)) if bucket else (lambda fn, v, _n, _w: tuple(fn(v)))
-    rel = jnp.zeros((n, 3), vectors.dtype)
+    rel = jnp.zeros((n, 3), dt)
     var = jnp.zeros_like(rel)
     posed = jnp.zeros((n,), bool)
+    slot = jnp.arange(n, dtype=jnp.int32)[:, None]
     for k, reg in enumerate(regressors):
         if reg is None:
             continue
@@ -117,17 +119,21 @@ def regress(
 
             def means(v, reg=reg):
                 (m,) = predict_many((reg.x, reg.y), v, mean_only=True)
-                mx, my = m.astype(vectors.dtype)
+                mx, my = m.astype(dt)
                 return (jnp.stack([mx, my, jnp.zeros_like(mx)], -1),)
 
             (r,) = run(means, vectors[idx], jnp.sum(chosen), 3)
-            rel = rel.at[idx].set(jnp.where(chosen[:, None], r, rel[idx]))
+            v = jnp.zeros_like(r)
         else:
             idx, chosen = _top(sel, scores[:, k], min(max_objects, n))
             r, v = run(lambda v, reg=reg: regress_one_class(reg, v), vectors[idx], jnp.sum(chosen), 3)
-            rel = rel.at[idx].set(jnp.where(chosen[:, None], r, rel[idx]))
-            var = var.at[idx].set(jnp.where(chosen[:, None], v, var[idx]))
-        posed = posed.at[idx].max(chosen)
+        # Back into the candidate slots by comparison with ``idx`` (distinct) and one gather, no scatter.
+        hit = (idx[None, :] == slot) & chosen[None, :]  # [n, k]
+        got = jnp.any(hit, axis=1)
+        rows = jnp.concatenate([r, v], -1)[jnp.argmax(hit, axis=1)]
+        rel = jnp.where(got[:, None], rows[:, :3], rel)
+        var = jnp.where(got[:, None], rows[:, 3:], var)
+        posed = posed | got
     return rel, var, posed
 
 

@@ -338,6 +338,15 @@ def refine_candidates(outline: "Outline | None", max_objects: int, cls: Int[Arra
     run = lambda a: refine(outline, *a)  # noqa: E731
     r = bucketed_rows(run, args, jnp.sum(chosen, dtype=jnp.int32), axis_name) if bucket else run(args)
     done = chosen & r.fitted
-    put = lambda full, part: full.at[idx].set(jnp.where(done.reshape((-1,) + (1,) * (part.ndim - 1)), part, full[idx]))  # noqa: E731
-    return Sides(put(pose, r.pose), put(cov, r.cov), put(side_pose, r.side_pose), put(side_logp, r.side_logp),
-                 jnp.zeros((n,), bool).at[idx].set(done))
+    # Back into the candidate slots: each candidate's fitted row found by comparison with ``idx`` (the
+    # top_k indices are distinct) and taken by one gather of the rows side by side, no scatter.
+    hit = (idx[None, :] == jnp.arange(n, dtype=jnp.int32)[:, None]) & done[None, :]  # [n, k]
+    got = jnp.any(hit, axis=1)
+    parts = (r.pose, r.cov, r.side_pose, r.side_logp)
+    rows = jnp.concatenate([a.reshape(k, -1) for a in parts], -1)[jnp.argmax(hit, axis=1)]
+    out, at = [], 0
+    for full, part in zip((pose, cov, side_pose, side_logp), parts, strict=True):
+        w = part[0].size
+        out.append(jnp.where(got.reshape((-1,) + (1,) * (full.ndim - 1)), rows[:, at:at + w].reshape(full.shape), full))
+        at += w
+    return Sides(*out, got)
