@@ -201,14 +201,15 @@ def dispatch_floor(ctx, repeats: int) -> None:
 
 
 def bench_batch(ctx, model, n_scans: int, runs: int) -> None:
-    """``process_log`` throughput (exact loop and vmap), and the front end alone in batch."""
+    """``process_log`` throughput (step by step, and vectorised: perception vmapped over groups of
+    scans), and the front end alone in batch."""
     res = ctx.results
     log, _ = _data.scenario("spl-trajectory", 4, n_scans)
     scans = to_scans(log, model.n_beams)
     for vec, key in ((False, "exact"), (True, "vmap")):
         samples = ctx.time_calls(lambda i, vec=vec: process_log(model, scans, chunk=256, vectorise=vec), runs, warmup=1)
         res.add_rate(f"batch.urg-04lx.{key}", log.n_scans, samples, section=SECTION,
-                     label=f"batch replay, URG-04LX, chunk 256, {'bit-exact loop' if not vec else 'vmap variant'}",
+                     label=f"batch replay, URG-04LX, chunk 256, {'step by step' if not vec else 'vectorised (default)'}",
                      chunk=256, vectorise=vec)
     batch = jax.jit(front_end_batch)
     samples = ctx.time_calls(lambda i: batch(model.frontend, scans), runs, warmup=1)
