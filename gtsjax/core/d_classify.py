@@ -26,6 +26,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from ..gp import GP, SparseGP
 from ..gp.sparse import predict_many
+from .buckets import bucketed
 
 BACKGROUND = 0
 # Winning class score needed to keep a candidate, every class's until training says otherwise: the
@@ -105,6 +106,23 @@ def class_scores(clf: Classifier, vectors: Float[Array, "cands features"]) -> Fl
     return means.T.astype(vectors.dtype)
 
 
+def _kept_only(clf: Classifier, vectors: Float[Array, "cands features"], keep: Bool[Array, " cands"], axis_name
+               ) -> tuple[Float[Array, "cands classes"], Float[Array, "cands classes"]]:
+    """Scores and nearest-example distances of the kept candidates only (zeros elsewhere): the kept
+    rows gathered to the front, bucketed, and put back by comparison with their slots (no scatter)."""
+    n = vectors.shape[0]
+    order = jnp.argsort(~keep, stable=True).astype(jnp.int32)  # the kept candidates first, in slot order
+
+    def run(v):
+        (m,) = predict_many(clf.gps, v, mean_only=True)
+        return m.T.astype(v.dtype), nearest_d2(clf.support, v)
+
+    scores, d2 = bucketed(run, vectors[order], jnp.sum(keep, dtype=jnp.int32), clf.n_classes, axis_name)
+    back = jnp.argmax(order[None, :] == jnp.arange(n, dtype=jnp.int32)[:, None], axis=1)  # each slot's row
+    rows = jnp.concatenate([scores, d2], -1)[back]
+    return rows[:, :clf.n_classes], rows[:, clf.n_classes:]
+
+
 class Decision(eqx.Module):
     """Stage d's verdict on each candidate slot of one scan."""
 
@@ -120,19 +138,29 @@ def classify(
     vectors: Float[Array, "cands features"],
     keep: Bool[Array, " cands"],
     in_envelope: Bool[Array, "cands classes"] | None = None,
+    bucket: bool = False,
+    axis_name=None,
 ) -> Decision:
     """Scores; each candidate's class, the best score among the classes whose shape envelope it lies
     in (``in_envelope``; background always qualifies); and which candidates survive: kept by the
     binary filters, not background, a winning score at or above its class's threshold, and like the
-    training examples of its class (the open-set test, see the module docstring)."""
-    scores = class_scores(clf, vectors)
+    training examples of its class (the open-set test, see the module docstring).
+
+    With ``bucket`` only the kept candidates are scored, at the smallest of a few fixed counts that
+    holds them (:func:`~gtsjax.core.buckets.bucketed`; ``axis_name`` under ``vmap``, as there): the
+    score GPs over all candidate slots were the step's largest arithmetic. The others' scores are then
+    zeros and their class background; nothing downstream reads them."""
+    if bucket:
+        scores, nearest = _kept_only(clf, vectors, keep, axis_name)
+    else:
+        scores, nearest = class_scores(clf, vectors), nearest_d2(clf.support, vectors)
     n = scores.shape[-1]
     if in_envelope is None:
         in_envelope = jnp.ones(scores.shape, bool)
     allowed = in_envelope | (jnp.arange(n) == BACKGROUND)[None, :]
     cls = jnp.argmax(jnp.where(allowed, scores, -jnp.inf), axis=-1).astype(jnp.int32)
     best = jnp.take_along_axis(scores, cls[:, None], axis=-1)[:, 0]
-    d2 = jnp.take_along_axis(nearest_d2(clf.support, vectors), cls[:, None], axis=-1)[:, 0]
+    d2 = jnp.take_along_axis(nearest, cls[:, None], axis=-1)[:, 0]
     scored = keep & (cls != BACKGROUND) & (best >= clf.threshold[cls])
     like = d2 <= clf.support.threshold[cls]
     top = jnp.argmax(scores, axis=-1)

@@ -117,7 +117,7 @@ def perceive(model: Model, scan: Scan, *, bucket: bool | None = None, axis_name=
     x = gp_inputs(f.vector, f.origin, f.height, model.gp_columns)
     rng = jnp.sqrt(jnp.sum(f.origin**2, axis=-1))
     in_env = envelope_pass(model.envelope, shape_quantities(f.width, f.height, f.n_points, rng), rng)
-    dec = classify(model.classifier, x, fe.keep, in_env)
+    dec = classify(model.classifier, x, fe.keep, in_env, bucket, axis_name)
     cls, ok, scores = dec.cls, dec.ok, dec.scores
     rel, var, posed = regress(model.pose, x, cls, ok, scores, model.max_objects, landmark_cap(model), bucket, axis_name)
     pose_s, cov_s = to_sensor_frame(f.origin, f.heading, rel, var)
