@@ -35,7 +35,8 @@ def replay_cmd(
     confirm_scans: int | None = typer.Option(None, "--confirm-scans", min=1, help=CONFIRM_HELP),
     step_by_step: bool = typer.Option(False, "--step-by-step",
                                       help="Run each scan's whole step in turn, as the live loop does (bit for bit), "
-                                           "instead of perceiving groups of scans at once (equal to float32 round-off, faster)."),
+                                           "instead of perceiving groups of scans at once (faster; equal to float32 round-off, "
+                                           "which can tip a near-tie of heading hypotheses)."),
 ):
     """Process a logged scan file into ground truth (GTD CSV)."""
     console = Console(stderr=True)
