@@ -1,5 +1,5 @@
-"""Count the kernels a compiled XLA program runs: the unit of cost of a step bound by dispatch, not
-arithmetic (on XLA:CPU each costs a few microseconds, whatever its size).
+"""Count the kernels a compiled XLA program runs: the unit of a step's fixed cost, apart from its
+arithmetic (on XLA:CPU each costs a microsecond or more, whatever its size; on a GPU, a launch).
 
 A kernel is a top-level instruction of a computation that does work: a fusion, a dot, a copy, a
 reduce, a scatter, a custom call (LAPACK), … Not kernels: parameters, constants, tuples and their
@@ -166,17 +166,16 @@ def main() -> None:
     model = _data.demo_model(site)
     scan = jax.tree.map(lambda a: a[0], to_scans(log, model.n_beams))
     state = P.init_state(model)
-    report = {}
-    for label, m in (("step", model), ("step without outline", model.without_outline())):
-        report[label] = count_kernels(compiled_text(lambda s, x, m=m: P.step(m, s, x), state, scan))
+    step_hlo = compiled_text(lambda s, x: P.step(model, s, x), state, scan)
+    report = {"step": count_kernels(step_hlo), "step without outline": count_kernels(
+        compiled_text(lambda s, x, m=model.without_outline(): P.step(m, s, x), state, scan))}
     percept = jax.jit(P.perceive, static_argnames="bucket")(model, scan)
     report["perceive (a–e′)"] = count_kernels(compiled_text(lambda x: P.perceive(model, x), scan))
     report["update (f–g)"] = count_kernels(compiled_text(lambda s, p, x: P.update(model, s, p, x), state, percept, scan))
     for k, v in report.items():
         print(f"{k:24s} {v}")
     if "--where" in sys.argv[1:]:
-        hlo = compiled_text(lambda s, x: P.step(model, s, x), state, scan)
-        by = count_kernels(hlo, where=True).by_kind
+        by = count_kernels(step_hlo, where=True).by_kind
         funcs = collections.Counter()
         for k, v in by.items():
             funcs[k.rsplit(":", 1)[0]] += v

@@ -68,3 +68,11 @@ def bucketed_rows(fn, args, n: Int[Array, ""], axis_name=None):
 
     which = _which(bs, n)
     return jax.lax.switch(which, [branch(b) for b in bs], args)
+
+
+def slots_of(idx: Int[Array, " k"], chosen, n: int):
+    """Where rows gathered from ``n`` slots by distinct indices ``idx`` go back: per slot, whether a
+    ``chosen`` row came from it and which row. A comparison with the slots and an argmax, so that
+    results return by one gather of their rows side by side rather than by a scatter per array."""
+    hit = (idx[None, :] == jnp.arange(n, dtype=jnp.int32)[:, None]) & chosen[None, :]  # [n, k]
+    return jnp.any(hit, axis=1), jnp.argmax(hit, axis=1)

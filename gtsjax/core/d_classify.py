@@ -26,7 +26,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from ..gp import GP, SparseGP
 from ..gp.sparse import predict_many
-from .buckets import bucketed
+from .buckets import bucketed, slots_of
 
 BACKGROUND = 0
 # Winning class score needed to keep a candidate, every class's until training says otherwise: the
@@ -113,12 +113,9 @@ def _kept_only(clf: Classifier, vectors: Float[Array, "cands features"], keep: B
     n = vectors.shape[0]
     order = jnp.argsort(~keep, stable=True).astype(jnp.int32)  # the kept candidates first, in slot order
 
-    def run(v):
-        (m,) = predict_many(clf.gps, v, mean_only=True)
-        return m.T.astype(v.dtype), nearest_d2(clf.support, v)
-
-    scores, d2 = bucketed(run, vectors[order], jnp.sum(keep, dtype=jnp.int32), clf.n_classes, axis_name)
-    back = jnp.argmax(order[None, :] == jnp.arange(n, dtype=jnp.int32)[:, None], axis=1)  # each slot's row
+    scores, d2 = bucketed(lambda v: (class_scores(clf, v), nearest_d2(clf.support, v)), vectors[order],
+                          jnp.sum(keep, dtype=jnp.int32), clf.n_classes, axis_name)
+    _, back = slots_of(order, jnp.ones((n,), bool), n)
     rows = jnp.concatenate([scores, d2], -1)[back]
     return rows[:, :clf.n_classes], rows[:, clf.n_classes:]
 

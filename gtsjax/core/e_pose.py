@@ -16,7 +16,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from ..gp import GP, SparseGP
 from ..gp.sparse import predict_many
-from .buckets import bucketed
+from .buckets import bucketed, slots_of
 from .geometry import compose
 
 # Heading variance is capped where the sine and cosine predictions carry no information.
@@ -109,7 +109,6 @@ def regress(
     rel = jnp.zeros((n, 3), dt)
     var = jnp.zeros_like(rel)
     posed = jnp.zeros((n,), bool)
-    slot = jnp.arange(n, dtype=jnp.int32)[:, None]
     for k, reg in enumerate(regressors):
         if reg is None:
             continue
@@ -127,10 +126,8 @@ def regress(
         else:
             idx, chosen = _top(sel, scores[:, k], min(max_objects, n))
             r, v = run(lambda v, reg=reg: regress_one_class(reg, v), vectors[idx], jnp.sum(chosen), 3)
-        # Back into the candidate slots by comparison with ``idx`` (distinct) and one gather, no scatter.
-        hit = (idx[None, :] == slot) & chosen[None, :]  # [n, k]
-        got = jnp.any(hit, axis=1)
-        rows = jnp.concatenate([r, v], -1)[jnp.argmax(hit, axis=1)]
+        got, src = slots_of(idx, chosen, n)
+        rows = jnp.concatenate([r, v], -1)[src]
         rel = jnp.where(got[:, None], rows[:, :3], rel)
         var = jnp.where(got[:, None], rows[:, 3:], var)
         posed = posed | got

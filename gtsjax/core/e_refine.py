@@ -31,7 +31,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from .buckets import bucketed_rows
+from .buckets import bucketed_rows, slots_of
 from .geometry import wrap
 
 POINTS = 32  # points per candidate the fit uses: a longer segment is thinned evenly (a robot at 1.5–3.6 m
@@ -90,30 +90,38 @@ def compact(pts: Float[Array, "n window 2"], mask: Bool[Array, "n window"], size
     return take(pts, idx[..., None], 1), take(mask, idx, 1) & (idx < n_pts[:, None])
 
 
-def lookup(outline: Outline, cls: Int[Array, "*n"], m: Float[Array, "*n 2"], lo=None, cell=None
-           ) -> tuple[Float[Array, "*n"], Float[Array, "*n 2"]]:
-    """Signed distance and its gradient at object-frame points ``m`` of classes ``cls`` (bilinear;
-    beyond the grid, the distance grows with the distance from its edge). ``lo``, ``cell``: the
-    classes' grid corners and cell sizes already gathered (broadcastable against ``m``)."""
+def _bilinear(outline: Outline, cls, mx, my, lo_x, lo_y, cell, inv_cell):
+    """Signed distance and gradient ``(d, gx, gy)`` at object-frame points ``(mx, my)`` of classes
+    ``cls``, all arguments broadcast to one shape (the grid corner ``lo``, the cell size and its inverse
+    as already gathered per class): bilinear in the grid, one gather of each cell's four corners
+    (distance and gradient at each, side by side); beyond the grid the distance grows with the
+    distance from its edge, along the way out."""
     g = outline.field.shape[1]
-    lo = outline.lo[cls] if lo is None else lo
-    cell = outline.cell[cls][..., None] if cell is None else cell
-    u = (m - lo) / cell
-    uc = jnp.clip(u, 0.0, g - 1.0)
-    i0 = jnp.clip(jnp.floor(uc), 0, g - 2).astype(jnp.int32)
-    f = uc - i0.astype(uc.dtype)
-    # One gather per point: each cell's four corners (distance and gradient at each) side by side.
+    ux, uy = (mx - lo_x) * inv_cell, (my - lo_y) * inv_cell
+    uxc, uyc = jnp.clip(ux, 0.0, g - 1.0), jnp.clip(uy, 0.0, g - 1.0)
+    ix, iy = jnp.clip(jnp.floor(uxc), 0, g - 2), jnp.clip(jnp.floor(uyc), 0, g - 2)
+    fx, fy = uxc - ix, uyc - iy
     fld = outline.field
     corners = jnp.concatenate([fld[:, :-1, :-1], fld[:, :-1, 1:], fld[:, 1:, :-1], fld[:, 1:, 1:]], -1)
-    v = corners.reshape(-1, 12)[cls * (g - 1) ** 2 + i0[..., 0] * (g - 1) + i0[..., 1]]
-    v00, v01, v10, v11 = v[..., 0:3], v[..., 3:6], v[..., 6:9], v[..., 9:12]
-    fx, fy = f[..., 0:1], f[..., 1:2]
-    v = (1 - fx) * ((1 - fy) * v00 + fy * v01) + fx * ((1 - fy) * v10 + fy * v11)
-    out = (u - uc) * cell  # metres beyond the grid, per axis
-    beyond = jnp.sqrt(jnp.sum(out**2, -1))
-    safe = jnp.where(beyond > 0, beyond, 1.0)
-    grad = jnp.where((beyond > 0)[..., None], out / safe[..., None], v[..., 1:])
-    return v[..., 0] + beyond, grad
+    cv = corners.reshape(-1, 12)[cls * (g - 1) ** 2 + ix.astype(jnp.int32) * (g - 1) + iy.astype(jnp.int32)]
+    w00, w01, w10, w11 = (1 - fx) * (1 - fy), (1 - fx) * fy, fx * (1 - fy), fx * fy
+    interp = lambda k: (w00 * cv[..., k] + w01 * cv[..., 3 + k]  # noqa: E731
+                        + w10 * cv[..., 6 + k] + w11 * cv[..., 9 + k])
+    ox, oy = (ux - uxc) * cell, (uy - uyc) * cell  # metres beyond the grid, per axis
+    out2 = ox * ox + oy * oy
+    out = out2 > 0
+    rinv = jax.lax.rsqrt(jnp.where(out, out2, 1.0))
+    d = interp(0) + jnp.where(out, out2 * rinv, 0.0)
+    return d, jnp.where(out, ox * rinv, interp(1)), jnp.where(out, oy * rinv, interp(2))
+
+
+def lookup(outline: Outline, cls: Int[Array, "*n"], m: Float[Array, "*n 2"]
+           ) -> tuple[Float[Array, "*n"], Float[Array, "*n 2"]]:
+    """Signed distance and its gradient at object-frame points ``m`` of classes ``cls`` (bilinear;
+    beyond the grid, the distance grows with the distance from its edge): :func:`_bilinear`."""
+    lo, cell = outline.lo[cls], outline.cell[cls]
+    d, gx, gy = _bilinear(outline, cls, m[..., 0], m[..., 1], lo[..., 0], lo[..., 1], cell, 1.0 / cell)
+    return d, jnp.stack([gx, gy], -1)
 
 
 def _gram(outline: Outline, cls: Int[Array, " n"], pose: Float[Array, "n sides 3"], trig: Float[Array, "n sides 2"],
@@ -125,12 +133,11 @@ def _gram(outline: Outline, cls: Int[Array, " n"], pose: Float[Array, "n sides 3
     free-space points (``is_free``).
 
     Each point's residual, Jacobian and weight are computed once on the ``[n, sides, l]`` domain,
-    from scalars per pose (``trig``: its cosine and sine, computed in the step's small kernel), the
-    outline's bilinear lookup one gather of each cell's four corners; the sums are one product. Built as the
+    from scalars per pose (``trig``: its cosine and sine, computed in the step's small kernel) and the
+    outline's bilinear lookup (:func:`_bilinear`); the sums are one product. Built as the
     obvious form (a gather of twelve columns sliced apart, one ``einsum`` per term), a step was 26
     kernels; this is about 11. Fewer is possible (everything on a ``[…, l, 4]`` domain is one fusion)
     but repeats the per-point arithmetic per channel, which on a CPU costs more than the kernels saved."""
-    g = outline.field.shape[1]
     shape = pose.shape[:2] + (pts.shape[2],)
     per_pose = lambda a: jnp.broadcast_to(a[..., None], shape)  # noqa: E731  [n, sides] -> domain
     per_point = lambda a: jnp.broadcast_to(a, shape)  # noqa: E731  [n, 1, l] -> domain
@@ -140,27 +147,8 @@ def _gram(outline: Outline, cls: Int[Array, " n"], pose: Float[Array, "n sides 3
     dy = per_point(pts[..., 1]) - per_pose(pose[..., 1])
     mx, my = c * dx + s * dy, -s * dx + c * dy  # the point in the object's frame
     lo, cell = outline.lo[cls], outline.cell[cls]
-    inv_cell = per_cand(1.0 / cell)
-    ux = (mx - per_cand(lo[:, 0])) * inv_cell
-    uy = (my - per_cand(lo[:, 1])) * inv_cell
-    uxc, uyc = jnp.clip(ux, 0.0, g - 1.0), jnp.clip(uy, 0.0, g - 1.0)
-    ix, iy = jnp.clip(jnp.floor(uxc), 0, g - 2), jnp.clip(jnp.floor(uyc), 0, g - 2)
-    fx, fy = uxc - ix, uyc - iy
-    fld = outline.field
-    corners = jnp.concatenate([fld[:, :-1, :-1], fld[:, :-1, 1:], fld[:, 1:, :-1], fld[:, 1:, 1:]], -1)
-    cv = corners.reshape(-1, 12)[per_cand(cls) * (g - 1) ** 2 + ix.astype(jnp.int32) * (g - 1) + iy.astype(jnp.int32)]
-    w00, w01, w10, w11 = (1 - fx) * (1 - fy), (1 - fx) * fy, fx * (1 - fy), fx * fy
-    interp = lambda k: (w00 * cv[..., k] + w01 * cv[..., 3 + k]  # noqa: E731
-                        + w10 * cv[..., 6 + k] + w11 * cv[..., 9 + k])
-    # Beyond the grid the distance grows with the distance from its edge, along the way out.
-    cell_d = per_cand(cell)
-    ox, oy = (ux - uxc) * cell_d, (uy - uyc) * cell_d
-    out2 = ox * ox + oy * oy
-    out = out2 > 0
-    rinv = jax.lax.rsqrt(jnp.where(out, out2, 1.0))
-    gx = jnp.where(out, ox * rinv, interp(1))
-    gy = jnp.where(out, oy * rinv, interp(2))
-    r = interp(0) + jnp.where(out, out2 * rinv, 0.0)
+    r, gx, gy = _bilinear(outline, per_cand(cls), mx, my, per_cand(lo[:, 0]), per_cand(lo[:, 1]), per_cand(cell),
+                          per_cand(1.0 / cell))
     # ∂r/∂t = −(Rot g)ᵀ, ∂r/∂θ = g · (m_y, −m_x)
     jx, jy, jt = -(c * gx - s * gy), -(s * gx + c * gy), gx * my - gy * mx
     free, m = per_point(is_free), per_point(mask)
@@ -177,31 +165,29 @@ def _gram(outline: Outline, cls: Int[Array, " n"], pose: Float[Array, "n sides 3
     return G, jnp.sum(cost, -1)
 
 
+def _adjugate3(a, b, c, d, e, f):
+    """The adjugate ``(A, B, C, D, E, F)`` (same layout) and determinant of the symmetric 3 × 3 matrix
+    ``[[a, b, c], [b, d, e], [c, e, f]]``, elementwise over any batch; a zero determinant becomes 1."""
+    A, B, C = d * f - e * e, c * e - b * f, b * e - c * d
+    D, E, F = a * f - c * c, b * c - a * e, a * d - b * b
+    det = a * A + b * B + c * C
+    return (A, B, C, D, E, F), jnp.where(jnp.abs(det) > 0, det, 1.0)
+
+
 def _solve3(H, b):
     """``H⁻¹ b`` for symmetric 3×3 ``H`` (closed-form adjugate), batched."""
-    a, b_, c = H[..., 0, 0], H[..., 0, 1], H[..., 0, 2]
-    d, e, f = H[..., 1, 1], H[..., 1, 2], H[..., 2, 2]
-    A = d * f - e * e
-    B = c * e - b_ * f
-    C = b_ * e - c * d
-    D = a * f - c * c
-    E = b_ * c - a * e
-    F = a * d - b_ * b_
-    det = a * A + b_ * B + c * C
+    (A, B, C, D, E, F), det = _adjugate3(H[..., 0, 0], H[..., 0, 1], H[..., 0, 2], H[..., 1, 1], H[..., 1, 2],
+                                         H[..., 2, 2])
     inv = jnp.stack([jnp.stack([A, B, C], -1), jnp.stack([B, D, E], -1), jnp.stack([C, E, F], -1)], -2)
-    inv = inv / jnp.where(jnp.abs(det) > 0, det, 1.0)[..., None, None]
+    inv = inv / det[..., None, None]
     return inv, jnp.einsum("...ij,...j->...i", inv, b)
 
 
 def _gn_step(pose: Float[Array, "n sides 3"], G: Float[Array, "n sides 4 4"]) -> Float[Array, "n sides 3"]:
     """One damped Gauss–Newton step from the sums of :func:`_gram`, clipped (elementwise: one kernel)."""
     d = 1.0 + _DAMPING
-    a, b_, c = G[..., 0, 0] * d + 1e-9, G[..., 0, 1], G[..., 0, 2]
-    e_, f_, h = G[..., 1, 1] * d + 1e-9, G[..., 1, 2], G[..., 2, 2] * d + 1e-9
-    A, B, C = e_ * h - f_ * f_, c * f_ - b_ * h, b_ * f_ - c * e_
-    D, E, F = a * h - c * c, b_ * c - a * f_, a * e_ - b_ * b_
-    det = a * A + b_ * B + c * C
-    det = jnp.where(jnp.abs(det) > 0, det, 1.0)
+    (A, B, C, D, E, F), det = _adjugate3(G[..., 0, 0] * d + 1e-9, G[..., 0, 1], G[..., 0, 2],
+                                         G[..., 1, 1] * d + 1e-9, G[..., 1, 2], G[..., 2, 2] * d + 1e-9)
     g0, g1, g2 = -G[..., 0, 3], -G[..., 1, 3], -G[..., 2, 3]
     step = jnp.stack([jnp.clip((A * g0 + B * g1 + C * g2) / det, -_MAX_STEP_XY, _MAX_STEP_XY),
                       jnp.clip((B * g0 + D * g1 + E * g2) / det, -_MAX_STEP_XY, _MAX_STEP_XY),
@@ -338,12 +324,9 @@ def refine_candidates(outline: "Outline | None", max_objects: int, cls: Int[Arra
     run = lambda a: refine(outline, *a)  # noqa: E731
     r = bucketed_rows(run, args, jnp.sum(chosen, dtype=jnp.int32), axis_name) if bucket else run(args)
     done = chosen & r.fitted
-    # Back into the candidate slots: each candidate's fitted row found by comparison with ``idx`` (the
-    # top_k indices are distinct) and taken by one gather of the rows side by side, no scatter.
-    hit = (idx[None, :] == jnp.arange(n, dtype=jnp.int32)[:, None]) & done[None, :]  # [n, k]
-    got = jnp.any(hit, axis=1)
+    got, src = slots_of(idx, done, n)
     parts = (r.pose, r.cov, r.side_pose, r.side_logp)
-    rows = jnp.concatenate([a.reshape(k, -1) for a in parts], -1)[jnp.argmax(hit, axis=1)]
+    rows = jnp.concatenate([a.reshape(k, -1) for a in parts], -1)[src]
     out, at = [], 0
     for full, part in zip((pose, cov, side_pose, side_logp), parts, strict=True):
         w = part[0].size

@@ -186,15 +186,20 @@ def data_payload(lines: Sequence[bytes], *, where: str = "SCIP data", strict: bo
         raise ScipError(where, f"last data line has {len(last)} characters", "truncated")
     arr = np.frombuffer(b"".join(lines), dtype=np.uint8)
     n_full = n - 1
-    full = arr[: n_full * full_len].reshape(n_full, full_len)
-    tail = arr[n_full * full_len:]
-    bad = np.empty(n, bool)
-    bad[:n_full] = ((full[:, :LINE_PAYLOAD].sum(axis=1, dtype=np.int32) & 0x3F) + 0x30) != full[:, LINE_PAYLOAD]
-    bad[n_full] = tail[-1] != (int(tail[:-1].sum(dtype=np.int32)) & 0x3F) + 0x30
+    return checked_payload(arr[: n_full * full_len].reshape(n_full, full_len), arr[n_full * full_len:],
+                           where=where, strict=strict)
+
+
+def checked_payload(full: np.ndarray, last: np.ndarray, *, where: str, strict: bool) -> tuple[np.ndarray, np.ndarray]:
+    """The payload and per-line sum failures of data lines already cut into ``full`` (``[lines, ≥65]``:
+    64 characters and the sum, anything after it ignored, e.g. the LF) and the ``last`` line
+    (characters and sum): every sum checked at once, the payload joined in one copy."""
+    bad = np.empty(full.shape[0] + 1, bool)
+    bad[:-1] = ((full[:, :LINE_PAYLOAD].sum(axis=1, dtype=np.int32) & 0x3F) + 0x30) != full[:, LINE_PAYLOAD]
+    bad[-1] = last[-1] != (int(last[:-1].sum(dtype=np.int32)) & 0x3F) + 0x30
     if strict and bad.any():
-        raise ScipError(where, f"{int(bad.sum())} of {n} data line(s) fail their sum", "checksum")
-    payload = np.concatenate([full[:, :LINE_PAYLOAD].reshape(-1), tail[:-1]])
-    return payload, bad
+        raise ScipError(where, f"{int(bad.sum())} of {bad.size} data line(s) fail their sum", "checksum")
+    return np.concatenate([full[:, :LINE_PAYLOAD].reshape(-1), last[:-1]]), bad
 
 
 # --------------------------------------------------------------------------- timestamps

@@ -20,6 +20,7 @@ from ..sensors import SensorModel
 from ._scip_codec import (
     LINE_PAYLOAD,
     ScipError,
+    checked_payload,
     data_lines,
     data_payload,
     decode_timestamp_line,
@@ -249,12 +250,7 @@ def _scan_reply_whole(b: bytes, strict: bool) -> "ScanFrame | None":
     if (n_full and not np.all(full[:, -1] == 0x0A)) or tail[-1] != 0x0A:
         return None
     stamp = decode_timestamp_line(b[i1 + 1:i2], where="SCIP reply")
-    bad = np.empty(n_full + 1, bool)
-    bad[:n_full] = ((full[:, :LINE_PAYLOAD].sum(axis=1, dtype=np.int32) & 0x3F) + 0x30) != full[:, LINE_PAYLOAD]
-    bad[n_full] = tail[last] != (int(tail[:last].sum(dtype=np.int32)) & 0x3F) + 0x30
-    if strict and bad.any():
-        raise ScipError("SCIP reply", f"{int(bad.sum())} of {n_full + 1} data line(s) fail their sum", "checksum")
-    data = np.concatenate([full[:, :LINE_PAYLOAD].reshape(-1), tail[:last]])
+    data, bad = checked_payload(full, tail[:-1], where="SCIP reply", strict=strict)
     return _scan_frame(cmd, b[:i0], status, stamp, data, bad, lambda: [LINE_PAYLOAD] * n_full + [last], "SCIP reply")
 
 
