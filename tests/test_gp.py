@@ -403,3 +403,91 @@ def test_sparse_mean_on_many_points_variance_on_the_first_few():
     m_40, _ = g.sparse(40).predict(xs)
     np.testing.assert_allclose(np.asarray(m_p), np.asarray(m_40), atol=1e-8)
     np.testing.assert_allclose(np.asarray(v_p), np.asarray(v_12), rtol=1e-8, atol=1e-10)
+
+
+# ------------------------------------------------------------------------------ one kernel, k outputs
+
+
+def _lml_numpy(log_ls, sf2, sn2, jitter, x, y):
+    """Eq 5 written out in NumPy (pairwise differences, a dense solve and slogdet)."""
+    d = (x[:, None, :] - x[None, :, :]) / np.exp(log_ls)
+    k = sf2 * np.exp(-0.5 * np.sum(d * d, -1)) + (sn2 + jitter * sf2) * np.eye(len(x))
+    _, logdet = np.linalg.slogdet(k)
+    return -0.5 * y @ np.linalg.solve(k, y) - 0.5 * logdet - 0.5 * len(x) * np.log(2 * np.pi)
+
+
+def _three_outputs(rng, n=70):
+    x = rng.uniform(-2, 2, (n, 3))
+    y = np.stack([np.sin(x[:, 0]) + 0.3 * x[:, 1], 3.0 * np.cos(x[:, 1]) * x[:, 2], 0.2 * x[:, 0] * x[:, 2]], 1)
+    return x, y + rng.normal(size=y.shape) * np.array([0.05, 0.3, 0.02])
+
+
+def test_fit_shared_finds_a_maximum_of_the_summed_lml():
+    """The shared fit's GPs share the length scales and differ in signal and noise; at the fitted
+    hyperparameters the sum of the outputs' LMLs, computed by plain NumPy, is a maximum: moving any
+    one hyperparameter (a shared length scale, an output's signal or noise) lowers it."""
+    rng = np.random.default_rng(21)
+    x, y = _three_outputs(rng)
+    gps = gp.fit_shared(x, y, key=jax.random.key(2), restarts=2)
+    assert len(gps) == 3
+    ls = np.asarray(gps[0].params.log_lengthscale)
+    for g in gps[1:]:
+        np.testing.assert_array_equal(np.asarray(g.params.log_lengthscale), ls)
+        np.testing.assert_array_equal(np.asarray(g.x), np.asarray(gps[0].x))
+    sf = np.array([float(g.params.log_signal_var) for g in gps])
+    sn = np.array([float(g.params.log_noise_var) for g in gps])
+    assert np.ptp(sn) > 1.0  # the outputs' noise levels differ by e^2 and more: not forced equal
+    xs, ys, jit = np.asarray(gps[0].x), [np.asarray(g.y) for g in gps], float(gps[0].jitter)
+
+    def total(ls, sf, sn):
+        return sum(_lml_numpy(ls, np.exp(sf[j]), np.exp(sn[j]), jit, xs, ys[j]) for j in range(3))
+
+    best = total(ls, sf, sn)
+    for j in range(3):  # each GP's own LML is the NumPy one
+        np.testing.assert_allclose(float(gps[j].log_marginal_likelihood()),
+                                   _lml_numpy(ls, np.exp(sf[j]), np.exp(sn[j]), jit, xs, ys[j]), rtol=1e-8)
+    for vec, i in [(0, i) for i in range(3)] + [(1, j) for j in range(3)] + [(2, j) for j in range(3)]:
+        for step in (-0.05, 0.05):
+            args = [ls.copy(), sf.copy(), sn.copy()]
+            args[vec][i] += step
+            assert total(*args) < best + 1e-6 * abs(best), (vec, i, step)
+
+
+def test_fit_shared_of_one_output_is_fit():
+    rng = np.random.default_rng(22)
+    x, y = _three_outputs(rng, 50)
+    (one,) = gp.fit_shared(x, y[:, :1], key=jax.random.key(3), restarts=2)
+    ref = gp.fit(x, y[:, 0], key=jax.random.key(3), restarts=2)
+    for a, b in zip(jax.tree.leaves(one), jax.tree.leaves(ref), strict=True):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-6, atol=1e-9)
+
+
+def test_shared_sparse_predicts_what_each_outputs_own_predictor_does():
+    """One kernel row for all outputs (``SharedSparseGP``) gives each output's own DTC prediction
+    (``GP.sparse``), exact means when the inducing points cover the data; ``output(j)`` is output j
+    as a ``SparseGP``; GPs fitted one by one are refused."""
+    rng = np.random.default_rng(23)
+    x, y = _three_outputs(rng, 60)
+    gps = gp.fit_shared(x, y, key=jax.random.key(4), restarts=1)
+    xs = jnp.asarray(rng.uniform(-2.5, 2.5, (9, 3)))
+    for m, mv in ((60, 60), (60, 12), (25, 8)):
+        sh = gp.SharedSparseGP.build(gps, m, mv)
+        mean, var = jax.jit(lambda v, sh=sh: sh.predict(v, include_noise=True))(xs)
+        mean_only = sh.predict_mean(xs)
+        for j, g in enumerate(gps):
+            want_m, want_v = g.sparse(m, mv).predict(xs, include_noise=True)
+            scale = float(g.params.signal_var)
+            np.testing.assert_allclose(np.asarray(mean[j]), np.asarray(want_m), atol=1e-8 * scale**0.5)
+            np.testing.assert_allclose(np.asarray(mean_only[j]), np.asarray(want_m), atol=1e-8 * scale**0.5)
+            np.testing.assert_allclose(np.asarray(var[j]), np.asarray(want_v), rtol=1e-7, atol=1e-10 * scale)
+            one_m, one_v = sh.output(j).predict(xs, include_noise=True)
+            np.testing.assert_allclose(np.asarray(one_m), np.asarray(want_m), atol=1e-8 * scale**0.5)
+            np.testing.assert_allclose(np.asarray(one_v), np.asarray(want_v), rtol=1e-7, atol=1e-10 * scale)
+            if m == 60:
+                exact_m, _ = g.predict(xs)
+                np.testing.assert_allclose(np.asarray(mean[j]), np.asarray(exact_m), atol=1e-7 * scale**0.5)
+    m32, v32 = gp.SharedSparseGP.build(gps, 25, 8).astype(jnp.float32).predict(xs.astype(jnp.float32))
+    assert m32.dtype == v32.dtype == jnp.float32 and m32.shape == v32.shape == (3, 9)
+    apart = [gp.fit(x, y[:, j], key=jax.random.key(j), restarts=1) for j in range(2)]
+    with pytest.raises(gp.GPArgumentError, match="share one kernel"):
+        gp.SharedSparseGP.build(apart, 20, 8)

@@ -1,8 +1,10 @@
 """Stage e: the variance calibration of the pose regressors and pose regression on the best candidates."""
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from gtsjax import gp
 from gtsjax.core.e_pose import PoseRegressor, regress, regress_one_class
@@ -76,3 +78,36 @@ def test_bucketed_regression_equals_regression_of_every_slot():
         np.testing.assert_allclose(a[0], b[0], rtol=1e-3, atol=1e-5)
         np.testing.assert_allclose(a[1], b[1], rtol=5e-3, atol=1e-7)  # the DTC variance: a difference of sums
         assert a[2].sum() == min(present, 8)
+
+
+@pytest.mark.parametrize("groups", [((0, 1, 2, 3),), ((0, 1), (2, 3))])
+def test_shared_kernel_rows_pose_as_the_separate_gps_do(groups):
+    """A class's pose GPs fitted in groups of one kernel (``PoseRegressor.shared``: one kernel row per
+    candidate and group) give the poses and variances of the same GPs held one by one (``outputs()``,
+    the layout of models trained before), through stage e's regression of the best candidates."""
+    rng = np.random.default_rng(3)
+    x = rng.uniform(-2, 2, (80, 2))
+    th = 0.8 * x[:, 0]
+    y = np.stack([0.1 * x[:, 0], 0.05 * x[:, 1], np.sin(th), np.cos(th)], 1) + 0.03 * rng.normal(size=(80, 4))
+    shared = tuple(gp.SharedSparseGP.build(gp.fit_shared(x, y[:, list(g)], key=jax.random.key(i), restarts=1), 80, 20)
+                   for i, g in enumerate(groups))
+    one = PoseRegressor(shared=tuple(g.astype(jnp.float32) for g in shared),
+                        var_scale=jnp.asarray([2.0, 3.0, 4.0], jnp.float32))
+    apart = PoseRegressor(*one.outputs(), var_scale=one.var_scale)
+    assert one.has_heading and apart.has_heading and apart.shared is None
+    assert one.n_kernel_rows == len(groups) and apart.n_kernel_rows == 4
+    xs = jnp.asarray(rng.uniform(-2, 2, (10, 2)), jnp.float32)
+    a, b = regress_one_class(one, xs), regress_one_class(apart, xs)
+    # Each float32 form against the float64 one (the two round differently, each about 5e-5 off: the
+    # exact mean's weights run to 1e2, and float32 sums of their products cancel).
+    want = regress_one_class(eqx.tree_at(lambda r: r.shared, one, shared), xs.astype(jnp.float64))
+    for got in (a, b):
+        np.testing.assert_allclose(np.asarray(got[0]), np.asarray(want[0]), atol=3e-4)
+        # the DTC variance is σf² less a sum plus a sum: in float32 the heading's is good to about 1 %
+        np.testing.assert_allclose(np.asarray(got[1]), np.asarray(want[1]), rtol=2e-2, atol=1e-8)
+    scores = jnp.asarray(np.column_stack([np.zeros(10), rng.uniform(0.5, 1, 10)]), jnp.float32)
+    ok, cls = jnp.ones(10, bool), jnp.ones(10, jnp.int32)
+    ra = regress((None, one), xs, cls, ok, scores, 4, 4)
+    rb = regress((None, apart), xs, cls, ok, scores, 4, 4)
+    np.testing.assert_array_equal(np.asarray(ra[2]), np.asarray(rb[2]))
+    np.testing.assert_allclose(np.asarray(ra[0]), np.asarray(rb[0]), atol=6e-4)

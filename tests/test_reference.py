@@ -36,7 +36,7 @@ def test_sklearn_gps_predict_what_the_model_predicts(spl):
     log, model = spl
     rng = np.random.default_rng(0)
     reg = model.pose[model.class_index("robot")]
-    for gp in (*model.classifier.gps, reg.x, reg.y, reg.sin, reg.cos):
+    for gp in (*model.classifier.gps, *reg.outputs()):
         d = gp.x_mean.shape[0]
         x = np.asarray(gp.x_mean, np.float64) + np.asarray(gp.x_scale, np.float64) * rng.normal(0, 0.7, (40, d))
         ref = sklearn_gp(gp)

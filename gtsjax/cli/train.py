@@ -37,6 +37,10 @@ def train_cmd(
                                  help="Inducing points of the mobile classes' pose GPs (exact mean up to this size)."),
     inducing_class: int = typer.Option(TrainConfig.n_inducing_class,
                                        help="Inducing points of the classifier's and landmark GPs."),
+    pose_kernels: int = typer.Option(TrainConfig.pose_kernels, "--pose-kernels", min=1, max=4,
+                                     help="Kernels of a tracked class's four pose GPs (x, y, sin θ, cos θ): 2 = one for "
+                                          "the position, one for the heading (two kernel rows per candidate in the "
+                                          "step), 1 = one for all, 4 = each its own. 3 is not a layout."),
     restarts: int = typer.Option(TrainConfig.restarts, help="Optimiser starts per GP fit."),
     seed: int = typer.Option(TrainConfig.seed, help="Seed for sampling, the held-out split and restarts."),
     report: Path | None = typer.Option(None, "--report", help="Also write the training report as JSON."),
@@ -63,7 +67,7 @@ def train_cmd(
     site_obj = load_site(site)
     _check_out(out)
     cfg = dataclasses.replace(TrainConfig(), max_per_class=max_per_class, max_pose_examples=max_pose,
-                              max_pose_fit=max_pose_fit,
+                              max_pose_fit=max_pose_fit, pose_kernels=pose_kernels,
                               max_landmark_examples=max_landmark, n_inducing=inducing, n_inducing_class=inducing_class,
                               restarts=restarts, seed=seed, max_background=max_background, max_mobile=max_mobile,
                               max_speed=_per_class(max_speed, "--max-speed"),

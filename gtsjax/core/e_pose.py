@@ -14,8 +14,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from ..gp import GP, SparseGP
-from ..gp.sparse import predict_many
+from ..gp import GP, SharedSparseGP, SparseGP
+from ..gp.sparse import _stacked, predict_many
 from .buckets import bucketed, slots_of
 from .geometry import compose
 
@@ -24,33 +24,71 @@ MAX_THETA_VAR = float(jnp.pi**2 / 3)
 
 
 class PoseRegressor(eqx.Module):
-    """GPs of one class: ``x``, ``y`` (ORS-relative position) and, if the class has a heading, ``sin``, ``cos``.
+    """GPs of one class: ``x``, ``y`` (ORS-relative position) and, if the class has a heading, ``sin``,
+    ``cos``; each on its own (``x``, ``y``, ``sin``, ``cos``), or in groups that share one kernel
+    (``shared``: :class:`~gtsjax.gp.SharedSparseGP` groups whose outputs, in order, are ``x``, ``y``
+    (, ``sin``, ``cos``); one kernel row per candidate and group, issue 16). Training makes two
+    groups, the position and the heading (:attr:`gtsjax.train.TrainConfig.pose_kernels`); models
+    trained before hold the separate GPs and still load.
 
     ``var_scale`` multiplies the predictive variances of ``(x̃, ỹ, θ̃)``, set at training
     (:func:`gtsjax.train.calibrate.calibrate`). ``heading_var_max``: the largest (calibrated) heading
     variance of a read the tracker trusts for the heading; a candidate above it is *vague* and updates
     a track's position only (set by the same calibration; ``None``: every heading is used)."""
 
-    x: SparseGP | GP
-    y: SparseGP | GP
+    x: SparseGP | GP | None = None
+    y: SparseGP | GP | None = None
     sin: SparseGP | GP | None = None
     cos: SparseGP | GP | None = None
     var_scale: Float[Array, "3"] | None = None
     heading_var_max: Float[Array, ""] | None = None
+    shared: tuple[SharedSparseGP, ...] | None = None
+
+    @property
+    def has_heading(self) -> bool:
+        """Whether the class has heading GPs (``sin``, ``cos``)."""
+        if self.shared is not None:
+            return sum(g.n_outputs for g in self.shared) == 4
+        return self.sin is not None and self.cos is not None
+
+    @property
+    def n_kernel_rows(self) -> int:
+        """Kernel rows the step computes per candidate: one per group or separate GP."""
+        return len(self.shared) if self.shared is not None else (4 if self.has_heading else 2)
+
+    def outputs(self) -> tuple[SparseGP | GP, ...]:
+        """The GPs of ``x``, ``y`` (and ``sin``, ``cos``) one by one (a shared group's outputs as
+        :class:`~gtsjax.gp.SparseGP` with the same predictions)."""
+        if self.shared is not None:
+            return tuple(g.output(j) for g in self.shared for j in range(g.n_outputs))
+        return (self.x, self.y, self.sin, self.cos) if self.has_heading else (self.x, self.y)
+
+    def predict(self, vectors: Float[Array, "cands features"], *, include_noise: bool = False,
+                mean_only: bool = False):
+        """Means ``[outputs, cands]`` of ``x``, ``y`` (, ``sin``, ``cos``) and, unless ``mean_only``,
+        their variances: one kernel row per shared group (groups of one shape batched), or the
+        separate GPs batched (:func:`~gtsjax.gp.sparse.predict_many`)."""
+        if self.shared is None:
+            return predict_many(self.outputs(), vectors, include_noise=include_noise, mean_only=mean_only)
+        if _stacked(self.shared) is not None:  # [groups, outputs, cands] → [all outputs, cands]
+            outs = predict_many(self.shared, vectors, include_noise=include_noise, mean_only=mean_only)
+            return tuple(o.reshape(-1, o.shape[-1]) for o in outs)
+        parts = [(g.predict_mean(vectors),) if mean_only else g.predict(vectors, include_noise=include_noise)
+                 for g in self.shared]
+        return tuple(jnp.concatenate(o) for o in zip(*parts, strict=True))
 
 
 def regress_one_class(
     reg: PoseRegressor, vectors: Float[Array, "cands features"]
 ) -> tuple[Float[Array, "cands 3"], Float[Array, "cands 3"]]:
     """ORS-relative pose ``(x̃, ỹ, θ̃)`` and its variances for every candidate under one class's GPs
-    (eq. 15), the class's GPs batched (:func:`~gtsjax.gp.sparse.predict_many`). A class without
-    heading GPs reports θ̃ = 0 with zero variance."""
+    (eq. 15), all outputs at once (:meth:`PoseRegressor.predict`). A class without heading GPs
+    reports θ̃ = 0 with zero variance."""
     dt = vectors.dtype
-    if reg.sin is None or reg.cos is None:
-        m, v = predict_many((reg.x, reg.y), vectors, include_noise=True)
+    m, v = reg.predict(vectors, include_noise=True)
+    if not reg.has_heading:
         zero = jnp.zeros_like(m[0], dt)
         return jnp.stack([m[0].astype(dt), m[1].astype(dt), zero], -1), jnp.stack([v[0].astype(dt), v[1].astype(dt), zero], -1)
-    m, v = predict_many((reg.x, reg.y, reg.sin, reg.cos), vectors, include_noise=True)
     (mx, my, ms, mc), (vx, vy, vs, vc) = m.astype(dt), v.astype(dt)
     theta = jnp.arctan2(ms, mc)
     # dθ = (c ds − s dc) / (s² + c²): first-order propagation of the two predictive variances.
@@ -113,11 +151,11 @@ def regress(
         if reg is None:
             continue
         sel = ok & (cls == k)
-        if reg.sin is None or reg.cos is None:
+        if not reg.has_heading:
             idx, chosen = _top(sel, scores[:, k], min(max_landmarks, n))
 
             def means(v, reg=reg):
-                (m,) = predict_many((reg.x, reg.y), v, mean_only=True)
+                (m,) = reg.predict(v, mean_only=True)
                 mx, my = m.astype(dt)
                 return (jnp.stack([mx, my, jnp.zeros_like(mx)], -1),)
 

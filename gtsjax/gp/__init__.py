@@ -16,8 +16,10 @@ from .exact import GP as GP
 from .exact import condition as condition
 from .exact import predict_mean as predict_mean
 from .fit import fit as fit
+from .fit import fit_shared as fit_shared
 from .kernel import Hyperparameters as Hyperparameters
 from .kernel import gram as gram
 from .kernel import kernel as kernel
 from .kernel import log_marginal_likelihood as log_marginal_likelihood
+from .sparse import SharedSparseGP as SharedSparseGP
 from .sparse import SparseGP as SparseGP

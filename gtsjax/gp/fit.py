@@ -33,10 +33,30 @@ from .kernel import DEFAULT_JITTER, Hyperparameters, log_marginal_likelihood
 # ------------------------------------------------------------------------------ one start (jitted)
 
 
+class _SharedHyperparameters(eqx.Module):
+    """The hyperparameters :func:`fit_shared` optimises: length scales shared by ``k`` outputs, a signal
+    and a noise variance per output (log space, as :class:`~gtsjax.gp.Hyperparameters`)."""
+
+    log_lengthscale: Float[Array, " features"]
+    log_signal_var: Float[Array, " outputs"]
+    log_noise_var: Float[Array, " outputs"]
+
+
 def _neg_lml_per_point(params, args):
-    x, y, mask, jitter = args
+    """-LML/N of eq 5; for targets ``y`` [N, k] (a shared kernel, :func:`fit_shared`) the sum of the
+    outputs' LMLs, each under the shared length scales and its own signal and noise variance, over
+    N times the number of informative outputs (``weight`` 1; a constant output has weight 0)."""
+    x, y, mask, jitter, weight = args
     n_valid = jnp.maximum(jnp.sum(mask), 1).astype(y.dtype)
-    return -log_marginal_likelihood(params, x, y, mask, jitter=jitter) / n_valid
+    if y.ndim == 1:
+        return -log_marginal_likelihood(params, x, y, mask, jitter=jitter) / n_valid
+
+    def one(log_sf, log_sn, yk):
+        return log_marginal_likelihood(Hyperparameters(params.log_lengthscale, log_sf, log_sn), x, yk, mask,
+                                       jitter=jitter)
+
+    lml = jax.vmap(one, in_axes=(0, 0, 1))(params.log_signal_var, params.log_noise_var, y)
+    return -jnp.sum(weight * lml) / (n_valid * jnp.maximum(jnp.sum(weight), 1))
 
 
 # Upper end of the log length scale (standardised units) that each start is clamped to; scikit-learn's
@@ -44,9 +64,9 @@ def _neg_lml_per_point(params, args):
 LOG_LENGTHSCALE_CLAMP = math.log(1e5)
 
 
-def _clamp(params: Hyperparameters) -> Hyperparameters:
+def _clamp(params: "Hyperparameters | _SharedHyperparameters") -> "Hyperparameters | _SharedHyperparameters":
     ls = jnp.minimum(params.log_lengthscale, jnp.asarray(LOG_LENGTHSCALE_CLAMP, params.log_lengthscale.dtype))
-    return Hyperparameters(ls, params.log_signal_var, params.log_noise_var)
+    return type(params)(ls, params.log_signal_var, params.log_noise_var)
 
 
 # How much looser the convergence test on the hyperparameters is than on the objective. optimistix's
@@ -58,12 +78,12 @@ _PARAM_TOL_FACTOR = 1e3
 
 
 def _convergence_norm(tree) -> Float[Array, ""]:
-    scale = 1.0 / _PARAM_TOL_FACTOR if isinstance(tree, Hyperparameters) else 1.0
+    scale = 1.0 / _PARAM_TOL_FACTOR if isinstance(tree, (Hyperparameters, _SharedHyperparameters)) else 1.0
     return optx.max_norm(tree) * scale
 
 
 @eqx.filter_jit
-def _optimise(params0, x, y, mask, jitter, rtol, atol, max_steps: int):
+def _optimise(params0, x, y, mask, jitter, weight, rtol, atol, max_steps: int):
     """Maximise eq 5 (eq 4) from one start: BFGS, then, if a log length scale ended past
     ``LOG_LENGTHSCALE_CLAMP``, BFGS again from the optimum with the log length scales clamped there;
     the better successful stage is kept.
@@ -75,7 +95,7 @@ def _optimise(params0, x, y, mask, jitter, rtol, atol, max_steps: int):
     which bounded L-BFGS-B, i.e. scikit-learn, was ahead). The objective is -LML/N so that BFGS's unit
     first step and the tolerances do not depend on the training-set size."""
     solver = optx.BFGS(rtol=rtol, atol=atol, norm=_convergence_norm)
-    args = (x, y, mask, jitter)
+    args = (x, y, mask, jitter, weight)
     inf = jnp.asarray(jnp.inf, y.dtype)
 
     def stage(p):
@@ -96,19 +116,21 @@ def _optimise(params0, x, y, mask, jitter, rtol, atol, max_steps: int):
     return value, jnp.isfinite(nll), nll, n1 + n2
 
 
-def _initial_params(key, restart: int, d: int, y_var, dtype) -> Hyperparameters:
+def _initial_params(key, restart: int, d: int, y_var, dtype) -> "Hyperparameters | _SharedHyperparameters":
     """Restart 0: length scales sqrt(d) in standardised units (so the summed squared distance is O(1)),
-    sigma_f^2 = var(y), sigma_n^2 = var(y)/10. Later restarts: log-uniform jitter around that."""
+    sigma_f^2 = var(y), sigma_n^2 = var(y)/10. Later restarts: log-uniform jitter around that. With
+    ``y_var`` [k] (one per output of a shared kernel) the signal and noise variances are [k] too."""
     base_ls = jnp.full((d,), 0.5 * math.log(max(d, 1)), dtype)
     base_sf = jnp.log(y_var)
     base_sn = jnp.log(y_var) - jnp.asarray(math.log(10.0), dtype)
+    kind = Hyperparameters if jnp.ndim(y_var) == 0 else _SharedHyperparameters
     if restart == 0:
-        return Hyperparameters(base_ls, base_sf, base_sn)
+        return kind(base_ls, base_sf, base_sn)
     k1, k2, k3 = jax.random.split(jax.random.fold_in(key, restart), 3)
     ls = base_ls + jax.random.uniform(k1, (d,), dtype, -1.5, 1.5)
-    sf = base_sf + jax.random.uniform(k2, (), dtype, -1.0, 1.0)
-    sn = base_sn + jax.random.uniform(k3, (), dtype, -4.0, 1.5)
-    return Hyperparameters(ls, sf, sn)
+    sf = base_sf + jax.random.uniform(k2, jnp.shape(y_var), dtype, -1.0, 1.0)
+    sn = base_sn + jax.random.uniform(k3, jnp.shape(y_var), dtype, -4.0, 1.5)
+    return kind(ls, sf, sn)
 
 
 # --------------------------------------------------------------------------- several starts (host)
@@ -120,6 +142,7 @@ class _Starts:
     failed start in ``failures`` (for :class:`GPFitError`)."""
 
     jitter: Float[Array, ""]
+    weight: Float[Array, "..."]  # per output of a shared kernel: 1 informative, 0 constant (1 for one output)
     rtol: float
     atol: float
     max_steps: int
@@ -129,7 +152,7 @@ class _Starts:
         """``(objective, restart, params)`` of the successful starts, best first."""
         done = []
         for r, p0 in starts:
-            p, ok, nll, steps = _optimise(p0, x, y, mask, self.jitter, self.rtol, self.atol, self.max_steps)
+            p, ok, nll, steps = _optimise(p0, x, y, mask, self.jitter, self.weight, self.rtol, self.atol, self.max_steps)
             nll = float(nll)
             if bool(ok) and np.isfinite(nll):
                 done.append((nll, r, p))
@@ -147,7 +170,7 @@ def _screen_then_refine(runs: _Starts, starts, xs, yc, fit_set, screen_points: i
     if screening found it better than the default. A warm start from a subset's optimum can settle in
     a basin that is worse on all the data, so the default is never skipped."""
     pick = np.sort(np.asarray(jax.random.choice(key_screen, xs.shape[0], (screen_points,), replace=False)))
-    ys = yc[pick] - yc[pick].mean()
+    ys = yc[pick] - yc[pick].mean(axis=0)
     screened = runs.run(starts, jnp.asarray(xs[pick]), jnp.asarray(ys), jnp.ones((screen_points,), bool), "screening")
     sub_default = next((f for f, r, _ in screened if r == 0), np.inf)
     better = [(r, p) for f, r, p in screened if r != 0 and f < sub_default]
@@ -162,51 +185,53 @@ def _screen_then_refine(runs: _Starts, starts, xs, yc, fit_set, screen_points: i
 # ------------------------------------------------------------------------------------ data (host)
 
 
-def _checked(x, y, restarts: int, max_fit_points: int | None) -> tuple[np.ndarray, np.ndarray]:
-    """``x`` and ``y`` as float64 arrays, once the arguments are known to be usable."""
+def _checked(x, y, restarts: int, max_fit_points: int | None, outputs: int, where: str) -> tuple[np.ndarray, np.ndarray]:
+    """``x`` and ``y`` as float64 arrays, once the arguments are known to be usable; ``y`` is [N] when
+    ``outputs`` is 1, else [N, k] with k >= 1."""
     if not jax.config.read("jax_enable_x64"):
-        raise GPArgumentError("gp.fit", "GP fitting runs in float64: enable jax_enable_x64")
+        raise GPArgumentError(where, "GP fitting runs in float64: enable jax_enable_x64")
     x = np.asarray(x, dtype=np.float64)
     y = np.asarray(y, dtype=np.float64)
-    if x.ndim != 2 or y.ndim != 1 or x.shape[0] != y.shape[0]:
-        raise GPArgumentError("gp.fit", f"need x [N, d] and y [N], got {x.shape} and {y.shape}")
+    want = "[N]" if outputs == 1 else "[N, k]"
+    if x.ndim != 2 or y.ndim != (1 if outputs == 1 else 2) or x.shape[0] != y.shape[0] or y.size == 0:
+        raise GPArgumentError(where, f"need x [N, d] and y {want}, got {x.shape} and {y.shape}")
     if restarts < 1:
-        raise GPArgumentError("gp.fit", f"restarts must be >= 1, got {restarts}")
+        raise GPArgumentError(where, f"restarts must be >= 1, got {restarts}")
     if max_fit_points is not None and max_fit_points < 1:
-        raise GPArgumentError("gp.fit", f"max_fit_points must be >= 1, got {max_fit_points}")
+        raise GPArgumentError(where, f"max_fit_points must be >= 1, got {max_fit_points}")
     return x, y
 
 
-def _valid_rows(x, y, mask) -> np.ndarray:
-    """Indices of the rows that are unmasked and finite; at least one."""
-    valid = np.ones(y.shape, bool) if mask is None else np.asarray(mask, bool).copy()
-    valid &= np.isfinite(y) & np.all(np.isfinite(x), axis=1)
+def _valid_rows(x, y, mask, where: str) -> np.ndarray:
+    """Indices of the rows that are unmasked and finite (every output of a row); at least one."""
+    valid = np.ones(y.shape[:1], bool) if mask is None else np.asarray(mask, bool).copy()
+    valid &= np.all(np.isfinite(y.reshape(len(y), -1)), axis=1) & np.all(np.isfinite(x), axis=1)
     rows = np.flatnonzero(valid)
     if rows.size == 0:
-        raise GPArgumentError("gp.fit", "no valid (finite, unmasked) training rows")
+        raise GPArgumentError(where, "no valid (finite, unmasked) training rows")
     return rows
 
 
 class _Standardised(NamedTuple):
     x: np.ndarray  # standardised inputs
-    y: np.ndarray  # centred targets
+    y: np.ndarray  # centred targets ([N], or [N, k] for a shared kernel)
     x_mean: np.ndarray
     x_scale: np.ndarray
-    y_mean: np.floating
-    y_var: float  # 1 for constant targets
-    constant: bool  # the targets carry no information on the hyperparameters
+    y_mean: np.ndarray  # [] or [k]
+    y_var: np.ndarray  # [] or [k]; 1 for constant targets
+    constant: np.ndarray  # [] or [k]: the targets carry no information on the hyperparameters
 
 
 def _standardised(x, y) -> _Standardised:
     x_mean = x.mean(axis=0)
     x_std = x.std(axis=0)
     x_scale = np.where(x_std > 1e-12 * np.maximum(np.abs(x_mean), 1.0), x_std, 1.0)
-    y_mean = y.mean()
+    y_mean = y.mean(axis=0)
     xs = (x - x_mean) / x_scale
     yc = y - y_mean
-    y_var = float(yc.var())
-    constant = not y_var > (1e-12 * max(1.0, abs(y_mean))) ** 2
-    y_var = 1.0 if constant else y_var
+    y_var = yc.var(axis=0)
+    constant = ~(y_var > (1e-12 * np.maximum(1.0, np.abs(y_mean))) ** 2)
+    y_var = np.where(constant, 1.0, y_var)
     return _Standardised(xs, yc, x_mean, x_scale, y_mean, y_var, constant)
 
 
@@ -214,7 +239,7 @@ def _padded(xs, yc, size: int):
     """Inputs, targets and mask padded (masked) to ``size`` rows, on the device."""
     n, d = xs.shape
     xp = np.zeros((size, d))
-    yp = np.zeros((size,))
+    yp = np.zeros((size, *yc.shape[1:]))
     mp = np.zeros((size,), bool)
     xp[:n], yp[:n], mp[:n] = xs, yc, True
     return jnp.asarray(xp), jnp.asarray(yp), jnp.asarray(mp)
@@ -228,7 +253,7 @@ def _fit_rows(xs, yc, padded, max_fit_points: int | None, key_sub):
     if max_fit_points is None or n <= max_fit_points:
         return xs, yc, padded
     sub = np.sort(np.asarray(jax.random.choice(jax.random.fold_in(key_sub, 1), n, (max_fit_points,), replace=False)))
-    xs, yc = xs[sub], yc[sub] - yc[sub].mean()
+    xs, yc = xs[sub], yc[sub] - yc[sub].mean(axis=0)
     return xs, yc, (jnp.asarray(xs), jnp.asarray(yc), jnp.ones((int(max_fit_points),), bool))
 
 
@@ -288,8 +313,61 @@ def fit(
     Requires ``jax_enable_x64``. Host-side entry point (not jittable: it picks rows by value); the
     optimisation and the factorisation inside are jitted.
     """
-    x, y = _checked(x, y, restarts, max_fit_points)
-    rows = _valid_rows(x, y, mask)
+    x, y = _checked(x, y, restarts, max_fit_points, 1, "gp.fit")
+    best, padded, data, jit_ = _fit_hyperparameters(
+        x, y, key, restarts, max_points, max_fit_points, screen_points, mask, pad_to, jitter, rtol, atol, max_steps,
+        "gp.fit")
+    y_mean, x_mean, x_scale = (jnp.asarray(a) for a in (data.y_mean, data.x_mean, data.x_scale))
+    return _condition(best, *padded, y_mean, x_mean, x_scale, jit_)
+
+
+@exact_products
+def fit_shared(
+    x,
+    y,
+    *,
+    key: PRNGKeyArray,
+    restarts: int = 3,
+    max_points: int = 3000,
+    max_fit_points: int | None = None,
+    screen_points: int = 500,
+    mask=None,
+    pad_to: int | None = None,
+    jitter: float = DEFAULT_JITTER,
+    rtol: float = 1e-6,
+    atol: float = 1e-6,
+    max_steps: int = 1000,
+) -> tuple[GP, ...]:
+    """Fit ``k`` GP regressors of the same inputs with one shared kernel: one set of ARD length scales,
+    each output its own signal and noise variance, maximising the sum of the outputs' LMLs (eq 5)
+    with the same BFGS, starts, subsamples and screening as :func:`fit` (whose arguments these are).
+
+    ``y`` is [N, k]. Returns one :class:`GP` per output, each conditioned on its own targets; they
+    share ``x``, ``mask``, the input statistics and the length scales, so that one kernel row of a
+    test input serves them all (:meth:`gtsjax.gp.SharedSparseGP.build`: a class's four pose GPs in
+    one row, issue 16). Each is an ordinary :class:`GP`: predicting with it alone is predicting with
+    that output. Rows with a non-finite target in any output are dropped. An output whose targets are
+    constant carries no information on the shared hyperparameters: it is left out of the objective
+    and keeps its default start (it predicts its constant).
+    """
+    x, y = _checked(x, y, restarts, max_fit_points, 2, "gp.fit_shared")
+    best, padded, data, jit_ = _fit_hyperparameters(
+        x, y, key, restarts, max_points, max_fit_points, screen_points, mask, pad_to, jitter, rtol, atol, max_steps,
+        "gp.fit_shared")
+    xp, yp, mp = padded
+    x_mean, x_scale = jnp.asarray(data.x_mean), jnp.asarray(data.x_scale)
+    return tuple(
+        _condition(Hyperparameters(best.log_lengthscale, best.log_signal_var[j], best.log_noise_var[j]), xp, yp[:, j],
+                   mp, jnp.asarray(data.y_mean[j]), x_mean, x_scale, jit_)
+        for j in range(y.shape[1]))
+
+
+def _fit_hyperparameters(x, y, key, restarts, max_points, max_fit_points, screen_points, mask, pad_to, jitter, rtol,
+                         atol, max_steps, where: str):
+    """The host side of :func:`fit` and :func:`fit_shared` up to the conditioning: rows kept,
+    standardised and padded, then the best hyperparameters over the starts. Returns them with the
+    padded data, its statistics and the jitter."""
+    rows = _valid_rows(x, y, mask, where)
     key_sub, key_init, key_screen = jax.random.split(key, 3)
     if rows.size > max_points:
         pick = np.asarray(jax.random.choice(key_sub, rows.size, (max_points,), replace=False))
@@ -298,24 +376,21 @@ def fit(
     n, d = x.shape
     size = n if pad_to is None else int(pad_to)
     if size < n:
-        raise GPArgumentError("gp.fit", f"pad_to={pad_to} is smaller than the {n} rows kept")
+        raise GPArgumentError(where, f"pad_to={pad_to} is smaller than the {n} rows kept")
 
     data = _standardised(x, y)
     padded = _padded(data.x, data.y, size)
     jit_ = jnp.asarray(jitter, jnp.float64)
     y_var = jnp.asarray(data.y_var, jnp.float64)
     starts = [(r, _initial_params(key_init, r, d, y_var, jnp.float64)) for r in range(restarts)]
-    if data.constant:
-        best = starts[0][1]
+    if np.all(data.constant):
+        return starts[0][1], padded, data, jit_
+    xs, yc, fit_set = _fit_rows(data.x, data.y, padded, max_fit_points, key_sub)
+    runs = _Starts(jit_, jnp.asarray(~data.constant, jnp.float64), rtol, atol, max_steps)
+    if restarts > 1 and xs.shape[0] > screen_points:
+        done = _screen_then_refine(runs, starts, xs, yc, fit_set, screen_points, key_screen)
     else:
-        xs, yc, fit_set = _fit_rows(data.x, data.y, padded, max_fit_points, key_sub)
-        runs = _Starts(jit_, rtol, atol, max_steps)
-        if restarts > 1 and xs.shape[0] > screen_points:
-            done = _screen_then_refine(runs, starts, xs, yc, fit_set, screen_points, key_screen)
-        else:
-            done = runs.run(starts, *fit_set, "full")
-        if not done:
-            raise GPFitError("all GP hyperparameter restarts failed: " + "; ".join(runs.failures))
-        best = done[0][2]
-    y_mean, x_mean, x_scale = (jnp.asarray(a) for a in (data.y_mean, data.x_mean, data.x_scale))
-    return _condition(best, *padded, y_mean, x_mean, x_scale, jit_)
+        done = runs.run(starts, *fit_set, "full")
+    if not done:
+        raise GPFitError("all GP hyperparameter restarts failed: " + "; ".join(runs.failures))
+    return done[0][2], padded, data, jit_

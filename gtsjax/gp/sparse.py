@@ -105,7 +105,7 @@ def _stacked(gps):
     import numpy as np
 
     leaves = [jax.tree.leaves(g) for g in gps]
-    if any(type(g) is not SparseGP for g in gps) or any(
+    if any(type(g) not in (SparseGP, SharedSparseGP) or type(g) is not type(gps[0]) for g in gps) or any(
             [a.shape for a in ls] != [a.shape for a in leaves[0]] for ls in leaves[1:]):
         return None
 
@@ -119,15 +119,136 @@ def _stacked(gps):
 @exact_products
 def predict_many(gps, xs: Float[Array, "tests features"], *, include_noise: bool = False, mean_only: bool = False):
     """Every GP of ``gps`` on the same test inputs: means ``[gps, tests]`` (and, unless ``mean_only``,
-    variances ``[gps, tests]``). GPs of one shape run as one batched computation (``vmap`` over the
-    stacked GPs: each kernel of the prediction once for all of them, not once per GP: the classifier's
-    three score GPs, a class's four pose GPs); others one after the other."""
+    variances ``[gps, tests]``; ``[gps, outputs, tests]`` for :class:`SharedSparseGP` groups). GPs of one
+    shape run as one batched computation (``vmap`` over the stacked GPs: each kernel of the prediction
+    once for all of them, not once per GP: the classifier's three score GPs, a class's pose GPs);
+    others one after the other."""
     one = (lambda g: (g.predict_mean(xs),)) if mean_only else (lambda g: g.predict(xs, include_noise=include_noise))
     st = _stacked(gps)
     if st is not None:
         return jax.vmap(one)(st)
     outs = [one(g) for g in gps]
     return tuple(jnp.stack(o) for o in zip(*outs, strict=True))
+
+
+class SharedSparseGP(eqx.Module):
+    """The DTC predictors of ``k`` outputs that share one kernel (:func:`gtsjax.gp.fit_shared`: the
+    same length scales and training inputs, each output its own signal variance ``s_j`` and noise):
+    one kernel row ``r(x*)`` of unit signal variance serves every output's mean and variance.
+
+    With ``K = s_j R`` the DTC mean of output ``j`` (:class:`SparseGP`) is ``r_zᵀ W[:, j]`` with
+    ``W[:, j] = s_j w_j``, and its variance ``s_j (1 − ‖P_m r_v‖² + ‖P_b,j r_v‖²)`` with
+    ``P_m = √s_j L_m⁻¹`` (the same for every output: ``L_m`` is the factor of ``s_j (R_zz + jitter I)``)
+    and ``P_b,j = √s_j L_b,j⁻¹ L_m⁻¹`` (``L_b,j`` depends on the output's noise-to-signal ratio). The
+    inducing points are the same for all outputs: greedy pivoted Cholesky picks them by the kernel's
+    metric alone, which the outputs share. :meth:`output` gives output ``j`` back as a
+    :class:`SparseGP` (same predictions), for code that takes one GP at a time.
+    """
+
+    z: Float[Array, "inducing features"]
+    z_mask: Bool[Array, " inducing"]
+    log_lengthscale: Float[Array, " features"]
+    log_signal_var: Float[Array, " outputs"]
+    log_noise_var: Float[Array, " outputs"]
+    weights: Float[Array, "inducing outputs"]  # s_j w_j: the mean is r_z(x*)ᵀ W[:, j]
+    proj_m: Float[Array, "var_inducing var_inducing"]  # √s L_m⁻¹, shared
+    proj_b: Float[Array, "outputs var_inducing var_inducing"]  # √s_j L_b,j⁻¹ L_m⁻¹
+    y_mean: Float[Array, " outputs"]
+    x_mean: Float[Array, " features"]
+    x_scale: Float[Array, " features"]
+    noise: Float[Array, " outputs"]  # effective noise σn² + jitter σf², as SparseGP.noise
+
+    @property
+    def n_outputs(self) -> int:
+        return self.weights.shape[1]
+
+    @property
+    def n_variance(self) -> int:
+        return self.proj_m.shape[0]
+
+    def _row(self, xs):
+        """Unit-signal kernel rows ``[inducing, tests]`` of raw inputs ``xs``."""
+        dt = self.z.dtype
+        unit = Hyperparameters(self.log_lengthscale, jnp.zeros((), dt), jnp.zeros((), dt))
+        xs = _standardise(xs.astype(dt), self.x_mean, self.x_scale)
+        return jnp.where(self.z_mask[:, None], gram_matmul(unit, self.z, xs), jnp.zeros((), dt))
+
+    @exact_products
+    def predict(self, xs: Float[Array, "tests features"], *, include_noise: bool = False
+                ) -> tuple[Float[Array, "outputs tests"], Float[Array, "outputs tests"]]:
+        """Every output's DTC predictive mean and variance (clipped at 0; plus its σn² if
+        ``include_noise``), from one kernel row per test input."""
+        r = self._row(xs)
+        mean = self.weights.T @ r + self.y_mean[:, None]
+        rv = r[: self.n_variance]
+        t1 = self.proj_m @ rv
+        t2 = jnp.einsum("jab,bt->jat", self.proj_b, rv)
+        sv = jnp.exp(self.log_signal_var)[:, None]
+        var = sv * (1.0 - jnp.sum(t1 * t1, axis=0)[None, :] + jnp.sum(t2 * t2, axis=1))
+        var = jnp.maximum(var, jnp.zeros((), var.dtype))
+        if include_noise:
+            var = var + jnp.exp(self.log_noise_var)[:, None]
+        return mean, var
+
+    @exact_products
+    def predict_mean(self, xs: Float[Array, "tests features"]) -> Float[Array, "outputs tests"]:
+        """Every output's DTC predictive mean."""
+        return self.weights.T @ self._row(xs) + self.y_mean[:, None]
+
+    def astype(self, dtype) -> "SharedSparseGP":
+        return _cast(self, dtype)
+
+    def output(self, j: int) -> SparseGP:
+        """Output ``j`` as a :class:`SparseGP` with the same predictions."""
+        sv = jnp.exp(self.log_signal_var[j])
+        params = Hyperparameters(self.log_lengthscale, self.log_signal_var[j], self.log_noise_var[j])
+        root = jnp.sqrt(sv)
+        return SparseGP(self.z, self.z_mask, params, self.weights[:, j] / sv, self.proj_m / root,
+                        self.proj_b[j] / root, self.y_mean[j], self.x_mean, self.x_scale, self.noise[j])
+
+    @staticmethod
+    @exact_products
+    def build(gps: "tuple[GP, ...]", n_inducing: int, n_variance: int | None = None) -> "SharedSparseGP":
+        """The shared predictor of GPs fitted by :func:`gtsjax.gp.fit_shared`, on ``n_inducing``
+        inducing points (its variance on the first ``n_variance``) as :meth:`gtsjax.gp.GP.sparse`
+        picks them; each output predicts what its own ``gp.sparse(n_inducing, n_variance)`` would.
+        The GPs must share their training inputs, mask, input statistics, length scales and jitter."""
+        from .errors import GPArgumentError
+
+        g0 = gps[0]
+        for g in gps[1:]:
+            same = (g.x.shape == g0.x.shape and all(bool(jnp.all(a == b)) for a, b in (
+                (g.x, g0.x), (g.mask, g0.mask), (g.x_mean, g0.x_mean), (g.x_scale, g0.x_scale),
+                (g.params.log_lengthscale, g0.params.log_lengthscale), (g.jitter, g0.jitter))))
+            if not same:
+                raise GPArgumentError("SharedSparseGP.build", "the GPs do not share one kernel and training inputs "
+                                      "(fit them with gp.fit_shared)")
+        m = int(min(n_inducing, g0.n_points))
+        mv = m if n_variance is None else int(min(n_variance, m))
+        if m < 1 or mv < 1:
+            raise GPArgumentError("SharedSparseGP.build",
+                                  f"n_inducing and n_variance must be >= 1, got {n_inducing}, {n_variance}")
+        return _build_shared(tuple(gps), m, mv)
+
+
+@eqx.filter_jit
+def _build_shared(gps, m: int, mv: int) -> SharedSparseGP:
+    """:class:`SharedSparseGP` of ``gps``: the inducing points picked once (by the first GP's kernel:
+    the metric is the same for all), then each output's :func:`_build_sparse` on them."""
+    g0 = gps[0]
+    tol = g0.jitter * g0.params.signal_var
+    n = g0.n_points
+    picks = _pivoted_cholesky(g0.params, g0.x, g0.mask, mv if m >= n else m, tol)
+    outs = [_build_sparse(g, m, mv, picks) for g in gps]
+    sv = jnp.stack([g.params.signal_var for g in gps])
+    root = jnp.sqrt(sv)
+    return SharedSparseGP(
+        outs[0].z, outs[0].z_mask, g0.params.log_lengthscale,
+        jnp.stack([g.params.log_signal_var for g in gps]), jnp.stack([g.params.log_noise_var for g in gps]),
+        jnp.stack([o.weights for o in outs], 1) * sv[None, :],
+        outs[0].proj_m * root[0],
+        jnp.stack([o.proj_b for o in outs]) * root[:, None, None],
+        jnp.stack([o.y_mean for o in outs]), g0.x_mean, g0.x_scale, jnp.stack([o.noise for o in outs]))
 
 
 # ------------------------------------------------------------------------------------------ building
@@ -158,16 +279,18 @@ def _pivoted_cholesky(params, x, mask, m: int, tol):
 
 
 @eqx.filter_jit
-def _build_sparse(gp: "GP", m: int, mv: int) -> SparseGP:
+def _build_sparse(gp: "GP", m: int, mv: int, picks=None) -> SparseGP:
     """The :class:`SparseGP` of ``gp`` on ``m`` inducing points, its variance on the first ``mv``
-    (both already clipped to ``1 <= mv <= m <= N``; :meth:`gtsjax.gp.GP.sparse` is the entry point)."""
+    (both already clipped to ``1 <= mv <= m <= N``; :meth:`gtsjax.gp.GP.sparse` is the entry point).
+    ``picks``: the pivoted Cholesky's choice (``mv`` points when ``m`` covers the training set, else
+    ``m``) where the caller made it already."""
     params = gp.params
     dt = gp.x.dtype
     n = gp.n_points
     tol = gp.jitter * params.signal_var
     if m >= n:
         # Every training point: the variance's pivots first, then the rest in order; the exact mean.
-        idx_v, used_v = _pivoted_cholesky(params, gp.x, gp.mask, mv, tol)
+        idx_v, used_v = picks if picks is not None else _pivoted_cholesky(params, gp.x, gp.mask, mv, tol)
         first = jnp.zeros((n,), bool).at[idx_v].set(used_v)
         pos = jnp.zeros((n,), jnp.int32).at[idx_v].set(jnp.arange(mv, dtype=jnp.int32))
         rest = mv + jnp.cumsum(~first, dtype=jnp.int32) - 1
@@ -176,7 +299,7 @@ def _build_sparse(gp: "GP", m: int, mv: int) -> SparseGP:
         z = jnp.where(z_mask[:, None], gp.x[perm], jnp.zeros((), dt))
         weights = jnp.where(z_mask, gp.alpha[perm], jnp.zeros((), dt))
     else:
-        idx, z_mask = _pivoted_cholesky(params, gp.x, gp.mask, m, tol)
+        idx, z_mask = picks if picks is not None else _pivoted_cholesky(params, gp.x, gp.mask, m, tol)
         z = jnp.where(z_mask[:, None], gp.x[idx], jnp.zeros((), dt))
         weights = _dtc(params, z, z_mask, gp, tol)[0]
     noise = _effective_noise(params, gp.jitter)

@@ -40,7 +40,7 @@ from ..core.e_refine import Outline
 from ..core.frontend import FrontEndConfig
 from ..core.g_track import TrackerParams
 from ..errors import InputError
-from ..gp import GP, Hyperparameters, SparseGP
+from ..gp import GP, Hyperparameters, SharedSparseGP, SparseGP
 from ..model import Model, SiteArrays
 
 FORMAT = "gtsjax-model"
@@ -58,6 +58,7 @@ _TYPES = {
         Outline,
         TrackerParams,
         SparseGP,
+        SharedSparseGP,
         GP,
         Hyperparameters,
         SiteArrays,

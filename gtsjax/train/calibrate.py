@@ -69,12 +69,12 @@ def calibrate(reg: PoseRegressor, vectors, target, *, good_deg: float = 15.0,
     err = rel - target
     err[:, 2] = wrap(err[:, 2])
     scale = np.ones(3)
-    for j in range(3 if reg.sin is not None else 2):
+    for j in range(3 if reg.has_heading else 2):
         ok = np.isfinite(err[:, j]) & (var[:, j] > 0)
         if ok.sum() >= 10:
             scale[j] = robust_variance_scale(err[ok, j] ** 2 / var[ok, j])
     var_max = None
-    if reg.sin is not None:
+    if reg.has_heading:
         vt = np.minimum(var[:, 2] * scale[2], MAX_THETA_VAR)
         good = np.isfinite(err[:, 2]) & (np.abs(err[:, 2]) <= np.radians(good_deg))
         if good.sum() >= 20:

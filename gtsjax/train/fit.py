@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import InputError
-from ..gp import GPArgumentError, SparseGP, fit
+from ..gp import GPArgumentError, SharedSparseGP, SparseGP, fit, fit_shared
 from .config import TrainConfig
 
 
@@ -50,6 +50,37 @@ def fit_gp(x, y, key, cfg: TrainConfig, progress: Callable[[dict], None] | None,
     return sparse, info
 
 
+def fit_shared_gp(x, ys: dict[str, np.ndarray], key, cfg: TrainConfig, progress: Callable[[dict], None] | None,
+                  label: str, n_inducing: int, max_fit: int | None = None) -> tuple[SharedSparseGP, list[dict]]:
+    """The GPs of the targets ``ys`` (name → [n]) on inputs ``x`` with one shared kernel
+    (:func:`gtsjax.gp.fit_shared`: the same length scales, each its own signal and noise), as one
+    float32 :class:`~gtsjax.gp.SharedSparseGP` on ``n_inducing`` inducing points; and a summary per
+    output, labelled ``label.name``, the joint fit's time on the first (the others say which they
+    were fitted with). Otherwise as :func:`fit_gp`."""
+    t0 = time.perf_counter()
+    cap = {} if max_fit is None else {"max_points": x.shape[0], "max_fit_points": max_fit}
+    try:
+        gps = fit_shared(x, np.stack(list(ys.values()), 1), key=key, restarts=cfg.restarts, jitter=cfg.noise_floor,
+                         **cap)
+        shared = SharedSparseGP.build(gps, n_inducing, cfg.n_inducing_var).astype(jnp.float32)
+    except GPArgumentError as err:
+        raise InputError(err.where, err.problem) from None
+    seconds = round(time.perf_counter() - t0, 2)
+    infos = []
+    for j, (name, gp) in enumerate(zip(ys, gps, strict=True)):
+        p = gp.params
+        info = {"gp": f"{label}.{name}", "n": int(x.shape[0]), "n_fit": int(min(x.shape[0], max_fit or x.shape[0])),
+                "seconds": seconds if j == 0 else 0.0, "lml": float(gp.log_marginal_likelihood()),
+                "signal_var": float(p.signal_var), "noise_var": float(p.noise_var),
+                "lengthscale_median": float(np.median(np.asarray(p.lengthscale)))}
+        if j:
+            info["kernel_shared_with"] = f"{label}.{next(iter(ys))}"
+        infos.append(info)
+        if progress is not None:
+            progress(info)
+    return shared, infos
+
+
 class GPFits:
     """The GP fits of one training run: each call fits one GP (:func:`fit_gp`) with the next key of
     the run's stream, and ``fits`` lists their summaries in order."""
@@ -64,4 +95,12 @@ class GPFits:
         self.key, sub = jax.random.split(self.key)
         gp, info = fit_gp(x, y, sub, self.cfg, self.progress, label, n_inducing, max_fit)
         self.fits.append(info)
+        return gp
+
+    def shared(self, x, ys: dict[str, np.ndarray], label: str, n_inducing: int,
+               max_fit: int | None = None) -> SharedSparseGP:
+        """The GPs of ``ys`` with one shared kernel (:func:`fit_shared_gp`), with the next key."""
+        self.key, sub = jax.random.split(self.key)
+        gp, infos = fit_shared_gp(x, ys, sub, self.cfg, self.progress, label, n_inducing, max_fit)
+        self.fits.extend(infos)
         return gp

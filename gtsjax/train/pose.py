@@ -16,6 +16,10 @@ from .config import TrainConfig
 from .fit import GPFits, sample
 from .labels import Examples
 
+# The pose GPs of a mobile class in groups of one kernel (``TrainConfig.pose_kernels``: 1 or 2 groups;
+# 4 is each GP on its own).
+POSE_GROUPS = {1: (("x", "y", "sin", "cos"),), 2: (("x", "y"), ("sin", "cos"))}
+
 
 def fit_landmark_positions(ex: Examples, held: list, classes: tuple[str, ...], landmarks: tuple[str, ...],
                            cfg: TrainConfig, rng: np.random.Generator, gps: GPFits) -> dict[int, PoseRegressor]:
@@ -38,7 +42,8 @@ def fit_pose_regressors(ex: Examples, is_held: np.ndarray, classes: tuple[str, .
                         cfg: TrainConfig, rng: np.random.Generator,
                         gps: GPFits) -> tuple[dict[int, PoseRegressor], dict[str, dict]]:
     """Pose GPs of each mobile class (class index → regressor): ``x̃``, ``ỹ``, ``sin θ̃``, ``cos θ̃``
-    (eq. 15, 17) on up to ``cfg.max_pose_examples`` training examples, hyperparameters fitted on up
+    (eq. 15, 17), in groups of one kernel each (``cfg.pose_kernels``, :data:`POSE_GROUPS`), on up to
+    ``cfg.max_pose_examples`` training examples, hyperparameters fitted on up
     to ``cfg.max_pose_fit``; variances calibrated on the class's held-out examples (on the training
     ones if fewer than 20 are held out). Also returns the calibration's summary per class."""
     out, report = {}, {}
@@ -49,11 +54,16 @@ def fit_pose_regressors(ex: Examples, is_held: np.ndarray, classes: tuple[str, .
             raise InputError("training data", f"only {idx.size} examples of class '{name}'")
         tgt = ex.target[idx]
         comps = {"x": tgt[:, 0], "y": tgt[:, 1], "sin": np.sin(tgt[:, 2]), "cos": np.cos(tgt[:, 2])}
-        fitted = {comp: gps(ex.vectors[idx], y, f"{name}.{comp}", cfg.n_inducing, cfg.max_pose_fit)
-                  for comp, y in comps.items()}
+        if cfg.pose_kernels in POSE_GROUPS:
+            reg = PoseRegressor(shared=tuple(
+                gps.shared(ex.vectors[idx], {c: comps[c] for c in group}, name, cfg.n_inducing, cfg.max_pose_fit)
+                for group in POSE_GROUPS[cfg.pose_kernels]))
+        else:
+            reg = PoseRegressor(**{comp: gps(ex.vectors[idx], y, f"{name}.{comp}", cfg.n_inducing, cfg.max_pose_fit)
+                                   for comp, y in comps.items()})
         cal = np.flatnonzero((ex.cls == k) & is_held)
         cal = cal if cal.size >= 20 else idx
-        reg = calibrate(PoseRegressor(**fitted), ex.vectors[cal], ex.target[cal])
+        reg = calibrate(reg, ex.vectors[cal], ex.target[cal])
         out[k] = reg
         report[name] = {"examples": int(cal.size), "held_out": bool(cal is not idx),
                         "var_scale": [round(float(v), 4) for v in np.asarray(reg.var_scale)]}

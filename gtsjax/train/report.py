@@ -53,7 +53,7 @@ def evaluate_examples(model: Model, ex: Examples) -> dict:
             out["per_class"][name] = {"n": int(sel.sum()), "recall": float(np.mean(pred[sel] == k)), "taken_for": taken,
                                       "unlike": float(np.mean(unlike[sel])), "off_envelope": float(np.mean(off[sel]))}
         reg = model.pose[k]
-        if reg is None or reg.sin is None or not sel.any():
+        if reg is None or not reg.has_heading or not sel.any():
             continue
         rel, _ = regress_one_class(reg, jnp.asarray(ex.vectors[sel], jnp.float32))
         rel = np.asarray(rel, np.float64)

@@ -20,7 +20,7 @@ class PoseRegressors:
         self.pose = [
             None
             if r is None
-            else {c: (None if getattr(r, c) is None else sklearn_gp(getattr(r, c))) for c in ("x", "y", "sin", "cos")}
+            else dict(zip(("x", "y", "sin", "cos"), ([sklearn_gp(g) for g in r.outputs()] + [None, None])[:4], strict=True))
             for r in model.pose
         ]
         self.var_scale = [None if r is None or r.var_scale is None else _f(r.var_scale) for r in model.pose]
