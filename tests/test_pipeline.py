@@ -112,6 +112,70 @@ def test_step_traced_once_per_model_shape_and_replay_equals_stepping(tiny):
         np.testing.assert_array_equal(np.asarray(state.tracker.track_id), np.asarray(f.tracker.track_id))
 
 
+def _same_tracks(a, b, what: str):
+    """Stacked outputs of one log computed two ways: ids and masks equal, poses to float32 round-off."""
+    for name in ("track_id", "track_class", "track_mask", "det_mask"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=f"{what}: {name}")
+    for name in ("track_pose", "track_var", "det_pose", "sensor_pose"):
+        np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=1e-4, atol=1e-5, err_msg=f"{what}: {name}")
+
+
+def test_several_logs_side_by_side_give_each_logs_own_tracks(tiny):
+    """``process_logs`` (logs of different lengths side by side, one tracker each, perception of all
+    their scans batched) gives each log what ``process_log`` gives it alone, vectorised or step by
+    step, and the logs' own final states; a log that ended passes through the later chunks."""
+    from gtsjax.drivers.replay import process_logs
+
+    sims = [simulate("spl-crossing", seed=s, n_scans=n) for s, n in ((21, 40), (22, 23), (23, 9))]
+    model = tiny["model"].with_site(sims[0][1])
+    stacks = [to_scans(log, model.n_beams) for log, _ in sims]
+    for vectorise in (True, False):
+        finals, outs = process_logs(model, stacks, chunk=16, vectorise=vectorise)
+        assert [len(o.track_id) for o in outs] == [40, 23, 9]
+        for k, sc in enumerate(stacks):
+            final, alone = process_log(model, sc, chunk=16, vectorise=vectorise)
+            _same_tracks(alone, outs[k], f"log {k}, vectorise={vectorise}")
+            np.testing.assert_array_equal(np.asarray(final.tracker.track_id), np.asarray(finals[k].tracker.track_id))
+    assert sum(int(o.track_mask.sum()) for o in outs) > 40  # the robots were tracked: the comparison is not empty
+    _, (none, some) = process_logs(model, [None, stacks[2]], chunk=16)
+    assert none is None and len(some.track_id) == 9
+
+
+def test_replay_of_several_logs_writes_one_csv_each(tiny, tmp_path):
+    """``gtsjax replay A B --out FOLDER`` writes FOLDER/A.csv and FOLDER/B.csv with the rows each log's
+    own replay writes; two logs of one name, or a file as the folder, are one line and exit 2 before
+    anything is written."""
+    paths = []
+    for seed, n in ((41, 30), (42, 18)):
+        log, site = simulate("spl-trajectory", seed=seed, n_scans=n)
+        paths.append(tmp_path / f"walk{seed}.npz")
+        save_log(log, paths[-1])
+    save_site(site, tmp_path / "site.json")
+    common = ("--site", tmp_path / "site.json", "--model", tiny["path"])
+    res = run_cli("replay", *paths, *common, "--out", tmp_path / "gtd", "--sensor-out", tmp_path / "sensor")
+    assert res.returncode == 0, res.stderr
+    for p in paths:
+        alone = run_cli("replay", p, *common, "--out", tmp_path / f"{p.stem}-alone.csv")
+        assert alone.returncode == 0, alone.stderr
+        with open(tmp_path / "gtd" / f"{p.stem}.csv") as f, open(tmp_path / f"{p.stem}-alone.csv") as g:
+            both, one = list(csv.reader(f)), list(csv.reader(g))
+        assert len(both) == len(one) > 10
+        assert [r[:3] for r in both] == [r[:3] for r in one]  # stamps, ids, classes
+        np.testing.assert_allclose(np.array([r[3:] for r in both[1:]], float), np.array([r[3:] for r in one[1:]], float),
+                                   rtol=1e-4, atol=1e-5)
+        assert (tmp_path / "sensor" / f"{p.stem}.csv").exists()
+    (tmp_path / "twin").mkdir()
+    twin = tmp_path / "twin" / paths[0].name
+    twin.write_bytes(paths[0].read_bytes())
+    for args, words in (((paths[0], twin), "both write walk41.csv"), ((*paths,), "is a file")):
+        out = tmp_path / "afile.csv"
+        out.write_text("")
+        res = run_cli("replay", *args, *common, "--out", out if words == "is a file" else tmp_path / "new")
+        lines = res.stderr.strip().splitlines()
+        assert res.returncode == 2 and len(lines) == 1 and words in lines[0], res.stderr
+    assert not (tmp_path / "new").exists()
+
+
 def test_replay_writes_spec_csv(tiny, tmp_path):
     log, site = simulate("spl-trajectory", seed=31, n_scans=60)
     save_log(log, tmp_path / "log.npz")

@@ -48,6 +48,14 @@ def test_sklearn_gps_predict_what_the_model_predicts(spl):
         rm, rv = ref.predict(x)
         np.testing.assert_allclose(rm, mean, atol=1e-6 * scale)
         np.testing.assert_allclose(rv, var, rtol=1e-4, atol=1e-7 * scale**2)
+    for g in reg.shared or ():  # a group of one kernel as one multi-output GPR (one kernel row per input)
+        d = g.x_mean.shape[0]
+        x = np.asarray(g.x_mean, np.float64) + np.asarray(g.x_scale, np.float64) * rng.normal(0, 0.7, (40, d))
+        mean, var = (np.asarray(a).T for a in g.astype(jnp.float64).predict(jnp.asarray(x), include_noise=True))
+        rm, rv = sklearn_gp(g).predict(x)
+        scale = np.exp(np.asarray(g.log_signal_var, np.float64))[None, :] ** 0.5
+        assert np.all(np.abs(rm - mean) <= 1e-6 * scale)
+        np.testing.assert_allclose(rv, var, rtol=1e-4, atol=1e-7 * float(scale.max()) ** 2)
 
 
 def test_reference_gives_the_same_tracks(spl):

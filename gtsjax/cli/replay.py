@@ -1,6 +1,7 @@
-"""``gtsjax replay LOG --site SITE.json --model MODEL --out GTD.csv [--topic T] [--crop-fov]``: batch
-re-processing of a logged scan file (a ``.npz`` log, or a ROS bag, CARMEN or BreezySLAM log read as
-``gtsjax convert`` reads it) through the same jitted pipeline as the live loop.
+"""``gtsjax replay LOG [LOG ...] --site SITE.json --model MODEL --out GTD.csv|FOLDER [--topic T] [--crop-fov]``:
+batch re-processing of logged scan files (a ``.npz`` log, or a ROS bag, CARMEN or BreezySLAM log read as
+``gtsjax convert`` reads it) through the same jitted pipeline as the live loop. Several logs run side by side, one tracker each
+(:func:`~gtsjax.drivers.replay.replay_logs`), into one CSV each in the ``--out`` folder.
 
 The log is checked against the scanner geometry the model was trained on before anything is written
 (:func:`~gtsjax.io.logs.fit_to_model`): another angular step is refused, and so is a wider field of
@@ -14,7 +15,8 @@ import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-from ..drivers.replay import replay_log
+from ..drivers.replay import replay_log, replay_logs
+from ..errors import InputError
 from ..io.importers import detect_format, format_name
 from ..io.logs import fit_to_model
 from ._app import CONFIRM_HELP, app
@@ -23,11 +25,15 @@ from ._common import INPUT_HELP, TOPIC_HELP, describe, load_for_run, load_input,
 
 @app.command("replay")
 def replay_cmd(
-    log: Path = typer.Argument(..., help=INPUT_HELP),
+    logs: list[Path] = typer.Argument(..., help=INPUT_HELP + " Several logs of one scanner run side by side (independent "
+                                               "trackers, one compiled program); --out is then a folder."),
     site: Path = typer.Option(..., "--site", help="Site file (.json)."),
     model: Path = typer.Option(..., "--model", help="Model file from gtsjax train."),
-    out: Path = typer.Option(..., "--out", help="Ground-truth CSV to write."),
-    sensor_out: Path | None = typer.Option(None, "--sensor-out", help="Also write the estimated sensor pose per scan (CSV)."),
+    out: Path = typer.Option(..., "--out", help="Ground-truth CSV to write; with several logs, the folder that gets one "
+                                                "LOG-NAME.csv per log."),
+    sensor_out: Path | None = typer.Option(None, "--sensor-out", help="Also write the estimated sensor pose per scan "
+                                                                      "(CSV; with several logs, a folder of "
+                                                                      "LOG-NAME.csv)."),
     chunk: int = typer.Option(256, min=1, help="Scans per compiled chunk."),
     topic: str | None = typer.Option(None, "--topic", help=TOPIC_HELP),
     crop_fov: bool = typer.Option(False, "--crop-fov",
@@ -38,10 +44,73 @@ def replay_cmd(
                                            "instead of perceiving groups of scans at once (faster; equal to float32 round-off, "
                                            "which can tip a near-tie of heading hypotheses)."),
 ):
-    """Process a logged scan file into ground truth (GTD CSV)."""
+    """Process logged scan files into ground truth (GTD CSV)."""
     console = Console(stderr=True)
-    raw = load_input(log, topic, console)
     m = load_for_run(model, site).with_confirmation(confirm_scans)
+    outs, sensor_outs = _outputs(logs, out, sensor_out)
+    scan_logs = [_load_fitted(log, topic, m, crop_fov, console) for log in logs]
+    t0 = time.perf_counter()
+    total = sum(lg.n_scans for lg in scan_logs)
+    with Progress(TextColumn("replay"), BarColumn(), MofNCompleteColumn(), TextColumn("scans"),
+                  TimeRemainingColumn(), console=console, transient=True) as bar:
+        task = bar.add_task("replay", total=total)
+
+        def done(n: int) -> None:
+            bar.update(task, completed=n)
+
+        if len(scan_logs) == 1:
+            results = [replay_log(scan_logs[0], m, outs[0], chunk=chunk, sensor_out=sensor_outs[0],
+                                  vectorise=not step_by_step, progress=done)]
+        else:
+            results = replay_logs(scan_logs, m, outs, chunk=chunk, sensor_outs=sensor_outs, vectorise=not step_by_step,
+                                  progress=done)
+    dt = time.perf_counter() - t0
+    if len(results) > 1:
+        console.print(f"{len(results)} logs, {total} scans in {dt:.1f} s ({total / max(dt, 1e-9):.0f} scans/s, "
+                      "compilation included)")
+    for log, o, totals in zip(logs, outs, results, strict=True):
+        head = (f"{totals['scans']} scans in {dt:.1f} s ({totals['scans'] / max(dt, 1e-9):.0f} scans/s, "
+                "compilation included)" if len(results) == 1 else f"{log.name}: {totals['scans']} scans")
+        console.print(f"{head}: {totals['rows']} track rows written to {o}; "
+                      f"{totals['degraded']} scans without a new map transformation, "
+                      f"{totals['n_overflow']} segments over the candidate limit, {totals['n_too_long']} over-long segments")
+        console.print(track_summary(m, totals["track_ids"], totals["unlike"], totals["off_envelope"]), soft_wrap=True)
+
+
+def _outputs(logs: list[Path], out: Path, sensor_out: Path | None) -> tuple[list[Path], list[Path | None]]:
+    """Where each log's CSV (and sensor CSV) goes: ``out`` itself for one log; for several, one
+    ``NAME.csv`` per log in the folders ``out`` (and ``sensor_out``), created if missing. Checked
+    before any log is read, so that a bad place costs nothing."""
+    if len(logs) == 1:
+        return [out], [sensor_out]
+    names = [_name(log) for log in logs]
+    if len(set(names)) < len(names):
+        dup = next(n for n in names if names.count(n) > 1)
+        raise InputError(out, f"two logs would both write {dup}.csv; give logs with different names")
+    folders = [out] + ([sensor_out] if sensor_out is not None else [])
+    for folder in folders:
+        if folder.exists() and not folder.is_dir():
+            raise InputError(folder, "is a file; with several logs --out and --sensor-out name folders")
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise InputError(folder, f"cannot create the folder ({err.strerror})") from None
+    return ([out / f"{n}.csv" for n in names],
+            [None if sensor_out is None else sensor_out / f"{n}.csv" for n in names])
+
+
+def _name(log: Path) -> str:
+    """A log's name without its format's suffixes (``run1.log.gz`` → ``run1``)."""
+    name = log.name.rstrip("/")
+    for suffix in (".gz", ".npz", ".bag", ".log", ".dat", ".mcap", ".db3"):
+        name = name.removesuffix(suffix)
+    return name or log.name
+
+
+def _load_fitted(log: Path, topic: str | None, m, crop_fov: bool, console: Console):
+    """A log read, checked against the model's scanner (cropped with ``crop_fov``), described when it
+    came from another program's format."""
+    raw = load_input(log, topic, console)
     scan_log = fit_to_model(raw, m, log, crop=crop_fov, hint="" if crop_fov else "; crop it with --crop-fov")
     if detect_format(log) != "npz":  # what was read from another program's log, once it is known to fit
         console.print(f"{log} ({format_name(log)}): {describe(raw)}", soft_wrap=True)
@@ -49,18 +118,7 @@ def replay_cmd(
             console.print(f"  source: {src}", soft_wrap=True)
     if crop_fov:
         last = scan_log.angle_min + (scan_log.n_beams - 1) * scan_log.angle_increment
-        console.print(f"cropped to the model's field of view: {scan_log.n_beams} of {raw.n_beams} beams "
+        console.print(f"{log}: cropped to the model's field of view: {scan_log.n_beams} of {raw.n_beams} beams "
                       f"({np.degrees(scan_log.angle_min):.1f}° … {np.degrees(last):.1f}°), returns in "
                       f"[{scan_log.range_min:g}, {scan_log.range_max:g}] m", soft_wrap=True)
-    t0 = time.perf_counter()
-    with Progress(TextColumn("replay"), BarColumn(), MofNCompleteColumn(), TextColumn("scans"),
-                  TimeRemainingColumn(), console=console, transient=True) as bar:
-        task = bar.add_task("replay", total=scan_log.n_scans)
-        totals = replay_log(scan_log, m, out, chunk=chunk, sensor_out=sensor_out, vectorise=not step_by_step,
-                            progress=lambda n: bar.update(task, completed=n))
-    dt = time.perf_counter() - t0
-    console.print(f"{totals['scans']} scans in {dt:.1f} s ({totals['scans'] / max(dt, 1e-9):.0f} scans/s, "
-                  f"compilation included): {totals['rows']} track rows written to {out}; "
-                  f"{totals['degraded']} scans without a new map transformation, "
-                  f"{totals['n_overflow']} segments over the candidate limit, {totals['n_too_long']} over-long segments")
-    console.print(track_summary(m, totals["track_ids"], totals["unlike"], totals["off_envelope"]), soft_wrap=True)
+    return scan_log

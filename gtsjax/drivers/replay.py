@@ -100,6 +100,36 @@ def process_chunk(model: Model, state: PipelineState, scans: Scan, n_real: Int[A
     return jax.lax.scan(body, state, (percepts, scans, idx))
 
 
+@jax.jit(static_argnames=("vectorise", "sub"))
+def process_chunks(model: Model, states: PipelineState, scans: Scan, n_real: Int[Array, " logs"],
+                   vectorise: bool = True, sub: int = SUB_CHUNK) -> tuple[PipelineState, Output]:
+    """Chunks of several logs side by side (leading axis: logs, then scans), each log with its own
+    state (independent trackers); scans at index ``>= n_real[log]`` leave that log's state as it was.
+
+    ``vectorise=True``: perception of every scan of every log at once (:func:`perceive_batch` over
+    the logs' scans laid end to end, groups of ``sub`` within one log), then one ``lax.scan`` over
+    time whose body is ``update`` ``vmap``ped over the logs: each kernel's fixed cost is shared by
+    the logs as well as the scans. ``vectorise=False``: :func:`_run_scans` ``vmap``ped over the
+    logs. Each log's outputs equal those of :func:`process_chunk` on it alone, to float32 round-off."""
+    n_logs, size = scans.dt.shape[:2]
+    if not vectorise:
+        return jax.vmap(lambda st, sc, n: _run_scans(model, st, sc, n))(states, scans, n_real)
+    flat = jax.tree.map(lambda a: a.reshape((n_logs * size,) + a.shape[2:]), scans)
+    percepts = perceive_batch(model, flat, math.gcd(sub, size))
+    by_time = jax.tree.map(lambda a: jnp.swapaxes(a.reshape((n_logs, size) + a.shape[1:]), 0, 1), percepts)
+    scans_t = jax.tree.map(lambda a: jnp.swapaxes(a, 0, 1), scans)
+
+    def body(s, inp):
+        p, sc, i = inp
+        new, out = jax.vmap(lambda s1, p1, sc1: update(model, s1, p1, sc1))(s, p, sc)
+        keep = i < n_real
+        return jax.tree.map(lambda a, b: jnp.where(keep.reshape(keep.shape + (1,) * (a.ndim - 1)), a, b), new, s), out
+
+    idx = jnp.arange(size, dtype=jnp.int32)
+    states, outs = jax.lax.scan(body, states, (by_time, scans_t, idx))
+    return states, jax.tree.map(lambda a: jnp.swapaxes(a, 0, 1), outs)
+
+
 def process_log(model: Model, scans: Scan, *, chunk: int = 256, state: PipelineState | None = None,
                 callback=None, vectorise: bool = False, sub: int = SUB_CHUNK) -> tuple[PipelineState, Output]:
     """Run a stack of scans through the pipeline ``chunk`` at a time. Returns the final state and the
@@ -124,6 +154,83 @@ def process_log(model: Model, scans: Scan, *, chunk: int = 256, state: PipelineS
     return state, jax.tree.map(lambda *a: np.concatenate(a), *outs)
 
 
+def process_logs(model: Model, scans: "list[Scan | None]", *, chunk: int = 256,
+                 states: list[PipelineState] | None = None, vectorise: bool = True,
+                 sub: int = SUB_CHUNK) -> tuple[list[PipelineState], list[Output | None]]:
+    """Several stacks of scans (logs of one scanner, any lengths) through the pipeline side by side,
+    ``chunk`` scans of each at a time (:func:`process_chunks`): the final state and the stacked
+    outputs (NumPy, on the host) of each, as :func:`process_log` gives them one log at a time.
+
+    An entry ``None`` is a log with nothing to process in this call (one that ended before the
+    others): its state passes through and its output is ``None``, and the number of logs, hence the
+    compiled program, stays the same. The chunk size is used as given (not shrunk to the logs), so
+    that one program serves every call of a replay."""
+    n_logs = len(scans)
+    states = [init_state(model) for _ in range(n_logs)] if states is None else states
+    present = [sc for sc in scans if sc is not None]
+    if not present:
+        return states, [None] * n_logs
+    filler = jax.tree.map(lambda a: a[:1], present[0])  # any scan: shapes only, n_real 0
+    stacks = [filler if sc is None else sc for sc in scans]
+    lengths = [0 if sc is None else int(sc.ranges.shape[0]) for sc in scans]
+    state = jax.tree.map(lambda *a: jnp.stack(a), *states)
+    outs: list[list] = [[] for _ in range(n_logs)]
+    for start in range(0, max(lengths), chunk):
+        real = [max(0, min(chunk, n - start)) for n in lengths]
+        firsts = [min(start, int(sc.ranges.shape[0]) - 1) for sc in stacks]  # an ended log: its last scan
+        parts = [_pad_chunk(sc, a, a + max(r, 1), chunk) for sc, a, r in zip(stacks, firsts, real, strict=True)]
+        stacked = jax.tree.map(lambda *a: jnp.stack(a), *parts)
+        state, out = process_chunks(model, state, stacked, jnp.asarray(real, jnp.int32), vectorise=vectorise, sub=sub)
+        host = jax.tree.map(np.asarray, out)
+        for k in range(n_logs):
+            if real[k]:
+                outs[k].append(jax.tree.map(lambda a, k=k, r=real[k]: a[k, :r], host))
+    final = [jax.tree.map(lambda a, k=k: a[k], state) for k in range(n_logs)]
+    return final, [jax.tree.map(lambda *a: np.concatenate(a), *o) if o else None for o in outs]
+
+
+class _Sink:
+    """One log's outputs as they come, block by block: its GTD CSV (rows flushed per scan), its
+    sensor-pose rows, and the totals ``replay`` reports."""
+
+    def __init__(self, model: Model, out: Path, sensor_out: Path | None):
+        self.model, self.sensor_out = model, sensor_out
+        self.writer = GTDWriter(out)
+        self.totals = {"scans": 0, "rows": 0, "degraded": 0, "n_overflow": 0, "n_too_long": 0, "unlike": 0,
+                       "off_envelope": 0, "track_ids": {}}
+        self.sensor_rows = []
+
+    def add(self, part, out_arrays) -> None:
+        """The outputs of the scans ``part`` (a slice of the log) as stacked arrays."""
+        totals = self.totals
+        for i in range(part.n_scans):
+            rows = rows_from_output(part.stamps[i], out_arrays.track_id[i], out_arrays.track_class[i],
+                                    out_arrays.track_pose[i], out_arrays.track_var[i], out_arrays.track_mask[i],
+                                    self.model.classes)
+            self.writer.write(rows)
+            for row in rows:
+                totals["track_ids"].setdefault(row.cls, set()).add(row.track_id)
+        if self.sensor_out is not None:
+            tf, sp = out_arrays.transform, out_arrays.sensor_pose.astype(np.float64)
+            for i in range(part.n_scans):
+                self.sensor_rows.append((repr(float(part.stamps[i])), f"{sp[i, 0]:.6f}", f"{sp[i, 1]:.6f}",
+                                         f"{float(wrap(sp[i, 2])):.6f}", int(tf.degraded[i]), int(tf.n_landmarks[i])))
+        totals["scans"] += part.n_scans
+        for k in ("degraded", "n_overflow", "n_too_long", "unlike", "off_envelope"):
+            totals[k] += int(np.sum(getattr(out_arrays, k)))
+
+    def close(self) -> dict:
+        """Closes the CSV, writes the sensor-pose CSV; returns the totals."""
+        self.writer.close()
+        self.totals["rows"] = self.writer.rows
+        if self.sensor_out is not None:
+            with open(self.sensor_out, "w", newline="") as f:
+                w = csv.writer(f, lineterminator="\n")
+                w.writerow(("stamp", "x", "y", "theta", "degraded", "n_landmarks"))
+                w.writerows(self.sensor_rows)
+        return self.totals
+
+
 def replay_log(log, model, out: Path, *, chunk: int = 256, sensor_out: Path | None = None, progress=None,
                vectorise: bool = True):
     """Run ``log`` through ``model`` (site attached) and write the GTD CSV; returns stacked outputs'
@@ -131,37 +238,43 @@ def replay_log(log, model, out: Path, *, chunk: int = 256, sensor_out: Path | No
     ``vectorise``: see :func:`process_chunk` (off: bit for bit what the live loop computes)."""
     state = init_state(model)
     block = chunk * 16
-    totals = {"scans": 0, "rows": 0, "degraded": 0, "n_overflow": 0, "n_too_long": 0, "unlike": 0, "off_envelope": 0,
-              "track_ids": {}}
-    sensor_rows = []
-    with GTDWriter(out) as writer:
+    sink = _Sink(model, out, sensor_out)
+    try:
         for start in range(0, log.n_scans, block):
             part = log.slice(start, start + block)
             scans = to_scans(part, model.n_beams, prev_stamp=log.stamps[start - 1] if start else None)
             cb = None if progress is None else (lambda n, s=start: progress(s + n))
             state, out_arrays = process_log(model, scans, chunk=chunk, state=state, callback=cb, vectorise=vectorise)
-            for i in range(part.n_scans):
-                rows = rows_from_output(part.stamps[i], out_arrays.track_id[i], out_arrays.track_class[i],
-                                        out_arrays.track_pose[i], out_arrays.track_var[i], out_arrays.track_mask[i],
-                                        model.classes)
-                writer.write(rows)
-                for row in rows:
-                    totals["track_ids"].setdefault(row.cls, set()).add(row.track_id)
-            if sensor_out is not None:
-                tf, sp = out_arrays.transform, out_arrays.sensor_pose.astype(np.float64)
-                for i in range(part.n_scans):
-                    sensor_rows.append((repr(float(part.stamps[i])), f"{sp[i, 0]:.6f}", f"{sp[i, 1]:.6f}",
-                                        f"{float(wrap(sp[i, 2])):.6f}", int(tf.degraded[i]), int(tf.n_landmarks[i])))
-            totals["scans"] += part.n_scans
-            totals["degraded"] += int(np.sum(out_arrays.degraded))
-            totals["n_overflow"] += int(np.sum(out_arrays.n_overflow))
-            totals["n_too_long"] += int(np.sum(out_arrays.n_too_long))
-            totals["unlike"] += int(np.sum(out_arrays.unlike))
-            totals["off_envelope"] += int(np.sum(out_arrays.off_envelope))
-        totals["rows"] = writer.rows
-    if sensor_out is not None:
-        with open(sensor_out, "w", newline="") as f:
-            w = csv.writer(f, lineterminator="\n")
-            w.writerow(("stamp", "x", "y", "theta", "degraded", "n_landmarks"))
-            w.writerows(sensor_rows)
+            sink.add(part, out_arrays)
+    finally:
+        totals = sink.close()
+    return totals
+
+
+def replay_logs(logs, model, outs: list[Path], *, chunk: int = 256, sensor_outs: list[Path | None] | None = None,
+                progress=None, vectorise: bool = True) -> list[dict]:
+    """Several logs of one scanner through ``model`` side by side (:func:`process_logs`: independent
+    trackers, one compiled program for all), each into its own GTD CSV (and sensor-pose CSV); returns
+    each log's totals as :func:`replay_log` does. ``progress(n)``: scans done, all logs together."""
+    sensor_outs = sensor_outs or [None] * len(logs)
+    states = [init_state(model) for _ in logs]
+    longest = max(lg.n_scans for lg in logs)
+    chunk = max(1, min(chunk, longest))
+    block = chunk * 16
+    sinks = [_Sink(model, o, so) for o, so in zip(outs, sensor_outs, strict=True)]
+    done = 0
+    try:
+        for start in range(0, longest, block):
+            parts = [lg.slice(start, start + block) if start < lg.n_scans else None for lg in logs]
+            scans = [None if p is None else to_scans(p, model.n_beams, prev_stamp=lg.stamps[start - 1] if start else None)
+                     for lg, p in zip(logs, parts, strict=True)]
+            states, out_arrays = process_logs(model, scans, chunk=chunk, states=states, vectorise=vectorise)
+            for sink, p, o in zip(sinks, parts, out_arrays, strict=True):
+                if p is not None:
+                    sink.add(p, o)
+                    done += p.n_scans
+            if progress is not None:
+                progress(done)
+    finally:
+        totals = [s.close() for s in sinks]
     return totals

@@ -27,8 +27,8 @@ def _f(a) -> np.ndarray:
 _FITTED: dict[tuple[int, ...], tuple[list, "SklearnGP"]] = {}
 
 
-def sklearn_gp(gp) -> "SklearnGP":
-    """:class:`SklearnGP` of ``gp``, built once per set of arrays: carrying a pose GP over 6 000 examples
+def sklearn_gp(gp) -> "SklearnGP | SklearnSharedGP":
+    """:class:`SklearnGP` of ``gp`` (:class:`SklearnSharedGP` of a shared group), built once per set of arrays: carrying a pose GP over 6 000 examples
     into scikit-learn costs seconds (two Cholesky factorisations), and a model changed elsewhere
     (``eqx.tree_at`` on its tracker) keeps the same GP arrays. Keyed by the identity of the arrays,
     which the entry keeps alive, so a key is never reused by other arrays."""
@@ -38,7 +38,8 @@ def sklearn_gp(gp) -> "SklearnGP":
     key = tuple(id(x) for x in leaves)
     hit = _FITTED.get(key)
     if hit is None:
-        hit = _FITTED[key] = (leaves, SklearnGP(gp))
+        hit = _FITTED[key] = (leaves, SklearnSharedGP(gp) if hasattr(gp, "proj_b") and gp.proj_b.ndim == 3
+                              else SklearnGP(gp))
     return hit[1]
 
 
@@ -99,3 +100,46 @@ class SklearnGP:
             t2 = self.var_gpr.kernel_(xs, self.var_gpr.X_train_) @ self.proj_b.T
             var = var + np.sum(t2 * t2, axis=1)
         return mean + self.y_mean, np.maximum(var, 0.0) + self.noise_var
+
+
+class SklearnSharedGP:
+    """A group of the model's pose GPs that share one kernel (:class:`gtsjax.gp.SharedSparseGP`) as
+    one multi-output scikit-learn ``GaussianProcessRegressor``: what a careful user of scikit-learn
+    does with GPs of one kernel, one kernel row per test input for every output.
+
+    In unit-signal terms (``K_j = s_j R``) every output's mean is ``r_Z(x)ᵀ W[:, j]``, and the DTC
+    predictor's jitter is the same fraction of each output's signal, so one GPR with kernel ``R``
+    (``ConstantKernel(1) × RBF``), ``alpha`` = that fraction and the targets ``(R_ZZ + a I) W`` [M, k]
+    has ``alpha_ = W`` and predicts every mean at once; the variance of output ``j`` is ``s_j`` times the
+    unit GPR's ``1 − r_vᵀ (R_vv + a I)⁻¹ r_v`` plus ``s_j ‖P_b,j r_v‖²`` (the group's stored unit
+    ``P_b``), plus the output's ``σn²``."""
+
+    def __init__(self, g):
+        with np.errstate(over="ignore"):
+            lengthscale = np.exp(_f(g.log_lengthscale))
+        kernel = ConstantKernel(1.0, constant_value_bounds="fixed") * RBF(lengthscale, length_scale_bounds="fixed")
+        self.signal = np.exp(_f(g.log_signal_var))
+        self.noise_var = np.exp(_f(g.log_noise_var))
+        a = max(float(_f(g.noise)[0] - self.noise_var[0]) / float(self.signal[0]), 1e-12)  # the jitter fraction
+        self.x_mean, self.x_scale, self.y_mean = _f(g.x_mean), _f(g.x_scale), _f(g.y_mean)
+        use = np.asarray(g.z_mask, bool)
+        z, w = _f(g.z)[use], _f(g.weights)[use]
+        self.gpr = GaussianProcessRegressor(kernel, alpha=a, optimizer=None, normalize_y=False, copy_X_train=False)
+        self.gpr.fit(z, (kernel(z) + a * np.eye(len(z))) @ w)
+        mv = int(g.proj_m.shape[0])
+        use_v = use[:mv]
+        self.proj_b = _f(g.proj_b)[:, use_v][:, :, use_v]
+        self.var_gpr = GaussianProcessRegressor(kernel, alpha=a, optimizer=None, normalize_y=False,
+                                                copy_X_train=False).fit(_f(g.z)[:mv][use_v], np.zeros(int(use_v.sum())))
+
+    def predict(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Every output's predictive mean and variance (noise included), each [n, k]."""
+        xs = (x - self.x_mean) / self.x_scale
+        mean = self.gpr.predict(xs).reshape(len(xs), -1)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            _, std = self.var_gpr.predict(xs, return_std=True)
+        rv = self.var_gpr.kernel_(xs, self.var_gpr.X_train_)
+        t2 = np.einsum("jab,nb->nja", self.proj_b, rv)
+        var = self.signal[None, :] * (std[:, None] ** 2 + np.sum(t2 * t2, axis=2))
+        return mean + self.y_mean[None, :], np.maximum(var, 0.0) + self.noise_var[None, :]

@@ -17,12 +17,7 @@ class PoseRegressors:
     without a pose)."""
 
     def __init__(self, model, max_landmarks: int):
-        self.pose = [
-            None
-            if r is None
-            else dict(zip(("x", "y", "sin", "cos"), ([sklearn_gp(g) for g in r.outputs()] + [None, None])[:4], strict=True))
-            for r in model.pose
-        ]
+        self.pose = [None if r is None else _ClassGPs(r) for r in model.pose]
         self.var_scale = [None if r is None or r.var_scale is None else _f(r.var_scale) for r in model.pose]
         self.heading_var_max = np.array(
             [np.inf if r is None or r.heading_var_max is None else float(r.heading_var_max) for r in model.pose]
@@ -40,20 +35,18 @@ class PoseRegressors:
             rows = np.flatnonzero(ok & (cls == k))
             if reg is None or rows.size == 0:
                 continue
-            cap = self.max_objects if reg["sin"] is not None else self.max_landmarks
+            cap = self.max_objects if reg.heading else self.max_landmarks
             if rows.size > cap:
                 keep = rows[np.argsort(-scores[rows, k], kind="stable")[:cap]]
                 ok[np.setdiff1d(rows, keep)] = False
                 rows = np.sort(keep)
-            v = x[rows]
-            mx, vx = reg["x"].predict(v)
-            my, vy = reg["y"].predict(v)
-            if reg["sin"] is None or reg["cos"] is None:
+            mean, var_all = reg.predict(x[rows])
+            (mx, my), (vx, vy) = mean[:, :2].T, var_all[:, :2].T
+            if not reg.heading:
                 rel[rows, :2] = np.stack([mx, my], 1)
                 var[rows, :2] = np.stack([vx, vy], 1)
                 continue
-            ms, vs = reg["sin"].predict(v)
-            mc, vc = reg["cos"].predict(v)
+            (ms, mc), (vs, vc) = mean[:, 2:].T, var_all[:, 2:].T
             r2 = ms**2 + mc**2
             with np.errstate(divide="ignore", invalid="ignore"):
                 vt = np.where(r2 > 1e-6, (mc**2 * vs + ms**2 * vc) / r2**2, MAX_THETA_VAR)
@@ -67,3 +60,21 @@ class PoseRegressors:
     def vague(self, var, cls):
         """Headings read with a variance above their class's ``heading_var_max`` (good reads rarely have one)."""
         return var[:, 2] > self.heading_var_max[cls]
+
+
+class _ClassGPs:
+    """One class's pose GPs in scikit-learn: each GP on its own (:func:`~.gp.sklearn_gp`), or each
+    group of one kernel as one multi-output GPR (:class:`~.gp.SklearnSharedGP`: one kernel row per
+    group, as a careful scikit-learn user would predict GPs of one kernel)."""
+
+    def __init__(self, reg):
+        if reg.shared is not None:
+            self.parts = [sklearn_gp(g) for g in reg.shared]
+        else:
+            self.parts = [sklearn_gp(g) for g in reg.outputs()]
+        self.heading = reg.has_heading
+
+    def predict(self, x):
+        """Means and variances ``[n, outputs]`` of ``x``, ``y`` (, ``sin``, ``cos``)."""
+        outs = [p.predict(x) for p in self.parts]
+        return (np.column_stack([m for m, _ in outs]), np.column_stack([v for _, v in outs]))
