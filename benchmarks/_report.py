@@ -171,6 +171,7 @@ SUMMARY = [
     ("step.utm-30lx.stage.frontend_a_to_c", "front end only (stages a–c), UTM-30LX"),
     ("batch.urg-04lx.exact", "batch replay, step by step (`replay --step-by-step`: bit for bit the live loop's)"),
     ("batch.urg-04lx.vmap", "batch replay, vectorised (`replay`'s default: perception vmapped over groups of 8 scans)"),
+    ("batch.urg-04lx.logs4", "batch replay, four logs side by side (`replay A B C D`: one tracker each, one program)"),
     ("batch.urg-04lx.frontend", "front end in batch, URG-04LX"),
     ("reference.urg-04lx.numpy_sklearn_filterpy", "NumPy + scikit-learn + filterpy reference, per scan (spl-trajectory, one robot)"),
     ("reference.urg-04lx.gtsjax_step", "whole step on the reference's log, same run (the ratios below divide by this)"),

@@ -28,7 +28,7 @@ from gtsjax.core.frontend import front_end, front_end_batch
 from gtsjax.core.g_track import Detections, track_step
 from gtsjax.core.geometry import wrap
 from gtsjax.core.pipeline import init_state, landmark_cap, perceive
-from gtsjax.drivers.replay import process_log
+from gtsjax.drivers.replay import process_log, process_logs
 from gtsjax.io import to_scans
 
 from . import _data
@@ -211,6 +211,13 @@ def bench_batch(ctx, model, n_scans: int, runs: int) -> None:
         res.add_rate(f"batch.urg-04lx.{key}", log.n_scans, samples, section=SECTION,
                      label=f"batch replay, URG-04LX, chunk 256, {'step by step' if not vec else 'vectorised (default)'}",
                      chunk=256, vectorise=vec)
+    # Four logs side by side (replay A B C D): the same log four times, one tracker each.
+    n_logs = 4
+    part = jax.tree.map(lambda a: a[: max(256, n_scans // n_logs)], scans)
+    samples = ctx.time_calls(lambda i: process_logs(model, [part] * n_logs, chunk=256), runs, warmup=1)
+    res.add_rate("batch.urg-04lx.logs4", n_logs * int(part.ranges.shape[0]), samples, section=SECTION,
+                 label=f"batch replay, URG-04LX, {n_logs} logs side by side (replay A B C D), chunk 256, vectorised",
+                 chunk=256, logs=n_logs)
     batch = jax.jit(front_end_batch)
     samples = ctx.time_calls(lambda i: batch(model.frontend, scans), runs, warmup=1)
     res.add_rate("batch.urg-04lx.frontend", log.n_scans, samples, section=SECTION,

@@ -25,7 +25,7 @@ from gtsjax.cli import main
 from gtsjax.cli.demo import DEMO_SCENARIO, DEMO_SEED, demo_model_path
 from gtsjax.io import load_log, save_log, save_site
 from gtsjax.io.gtd import read_gtd
-from gtsjax.io.modelfile import read_header
+from gtsjax.io.modelfile import load_model, read_header
 from gtsjax.io.record import journal_path
 from gtsjax.io.serial import Link
 from gtsjax.sensors import URG_04LX
@@ -102,7 +102,9 @@ def test_demo_without_a_confirmed_track_fails(tmp_path, capsys):
 
 def test_train_command_line_takes_several_logs_and_caps(tmp_path):
     """``gtsjax train A.npz B.npz ... --max-pose N``: both logs' scans are used, the pose GPs hold the
-    N examples asked for, the classifier and landmark GPs their caps, and the model names the scanner."""
+    N examples asked for, the classifier and landmark GPs their caps, and the model names the scanner.
+    With ``--pose-kernels 2`` the robot's pose GPs are two groups of one kernel (position, heading), and
+    the model replays."""
     a, site = simulate("spl-train", seed=21, n_scans=250)
     b, _ = simulate("spl-legs", seed=22, n_scans=100)
     save_log(a, tmp_path / "a.npz")
@@ -122,6 +124,8 @@ def test_train_command_line_takes_several_logs_and_caps(tmp_path):
         "40",
         "--max-pose",
         "50",
+        "--pose-kernels",
+        "2",
         "--max-landmark",
         "100",
         "--inducing",
@@ -140,6 +144,10 @@ def test_train_command_line_takes_several_logs_and_caps(tmp_path):
     assert all(n[f"class.{c}"] == 40 * len(rep["classes"]) for c in rep["classes"])  # 40 of each class
     header = read_header(tmp_path / "m.npz")
     assert header["sensor_model"] == "URG-04LX"
+    reg = load_model(tmp_path / "m.npz").pose[rep["classes"].index("robot")]
+    assert reg.shared is not None and [g.n_outputs for g in reg.shared] == [2, 2] and reg.sin is None
+    assert run_cli("replay", tmp_path / "b.npz", "--site", tmp_path / "site.json", "--model", tmp_path / "m.npz",
+                   "--out", tmp_path / "gtd.csv").returncode == 0
 
 
 # ------------------------------------------------------------------------------------------ run, recover

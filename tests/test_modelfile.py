@@ -50,8 +50,13 @@ def _cut_features(h, a):
     a[key] = a[key][:, :-1]
 
 
+# The heading GPs' inducing inputs: of the heading group where the pose GPs share kernels, else of sin.
+_HEADING_Z = ("pose[2].shared[1].z" if "shared" in json.loads(str(np.load(DEMO_MODEL)["gtsjax_model"]))["schema"]
+              ["fields"]["pose"]["tuple"][2]["fields"] else "pose[2].sin.z")
+
+
 def _cut_inducing(h, a):
-    key = _node(h["schema"], "pose[2].sin.z")["array"]
+    key = _node(h["schema"], _HEADING_Z)["array"]
     a[key] = a[key][:-1]
 
 
@@ -86,7 +91,7 @@ def _other_classes(h, a):
 
 CASES = {
     "cut-features": (_cut_features, "leaf classifier.gps[1].z has shape (2048, 12), expected (2048, 13)"),
-    "cut-inducing": (_cut_inducing, "leaf pose[2].sin.z has shape (5990, 13), expected (5991, 13)"),
+    "cut-inducing": (_cut_inducing, f"leaf {_HEADING_Z} has shape (5990, 13), expected (5991, 13)"),
     "float64": (_float64, "leaf tracker.gate has dtype float64, expected float32"),
     "string-beams": (_string_beams, "model header field 'n_beams' is str '682', expected an integer"),
     "no-sensor-model": (_no_sensor_model, "model header missing required key(s) 'sensor_model'"),
@@ -176,3 +181,39 @@ def test_a_model_given_as_a_log_is_named_as_such(tmp_path, capsys):
     )
     assert code == 2 and "a gtsjax model file, not a scan log" in capsys.readouterr().err
     assert read_header(DEMO_MODEL)["sensor_model"] == "URG-04LX"
+
+
+def test_both_pose_layouts_save_and_load_with_their_predictions(tmp_path):
+    """A tracked class's pose GPs held one by one (models trained before shared kernels) and in groups
+    of one kernel (``PoseRegressor.shared``) both go through a model file unchanged: every leaf
+    equal, and the loaded regressor predicts what the saved one did."""
+    import equinox as eqx
+    import jax
+    import jax.numpy as jnp
+
+    from gtsjax import gp
+    from gtsjax.core.e_pose import PoseRegressor, regress_one_class
+    from gtsjax.io.modelfile import save_model
+
+    shipped = load_model(DEMO_MODEL)
+    k = shipped.class_index("robot")
+    reg = shipped.pose[k]
+    d = int(reg.outputs()[0].x_mean.shape[0])
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(40, d))
+    y = np.stack([x[:, 0], x[:, 1], np.sin(x[:, 2]), np.cos(x[:, 2])], 1) + 0.05 * rng.normal(size=(40, 4))
+    groups = tuple(gp.SharedSparseGP.build(gp.fit_shared(x, y[:, g], key=jax.random.key(i), restarts=1), 40, 8)
+                   .astype(jnp.float32) for i, g in enumerate(((0, 1), (2, 3))))
+    layouts = {"separate": PoseRegressor(*reg.outputs(), var_scale=reg.var_scale, heading_var_max=reg.heading_var_max),
+               "shared": PoseRegressor(shared=groups, var_scale=reg.var_scale, heading_var_max=reg.heading_var_max)}
+    o = reg.outputs()[0]
+    probe = jnp.asarray(rng.normal(size=(6, d)) * np.asarray(o.x_scale)[None] + np.asarray(o.x_mean)[None], jnp.float32)
+    for name, r in layouts.items():
+        model = eqx.tree_at(lambda m, k=k: m.pose[k], shipped, r)
+        save_model(model, tmp_path / f"{name}.npz")
+        back = load_model(tmp_path / f"{name}.npz").pose[k]
+        assert (back.shared is None) == (name == "separate")
+        for a, b in zip(jax.tree.leaves(r), jax.tree.leaves(back), strict=True):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+        for a, b in zip(regress_one_class(r, probe), regress_one_class(back, probe), strict=True):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))

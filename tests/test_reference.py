@@ -161,3 +161,23 @@ def test_reference_refines_what_the_model_refines(tiny):
         np.testing.assert_allclose(np.exp(np.asarray(p.side_logp, np.float64)[kept][ok]), np.exp(r.sides.side_logp[ok]),
                                    rtol=0, atol=2e-3)
     assert refined >= log.n_scans  # the refinement is exercised: most robots in most scans
+
+
+def test_sklearn_multi_output_gpr_predicts_a_shared_group():
+    """A group of GPs of one kernel carried into one multi-output scikit-learn GPR (the reference's
+    form for models trained with ``--pose-kernels 1`` or ``2``) predicts every output's mean and
+    variance as ``SharedSparseGP`` does, inducing points covering the data or not."""
+    from gtsjax import gp
+
+    rng = np.random.default_rng(5)
+    x = rng.normal(size=(60, 5))
+    y = np.stack([np.sin(x[:, 0]), x[:, 1] * x[:, 2], np.cos(x[:, 3])], 1) + rng.normal(size=(60, 3)) * [0.05, 0.2, 0.01]
+    gps = gp.fit_shared(x, y, key=jax.random.key(1), restarts=1, jitter=1e-2)
+    xs = rng.normal(size=(25, 5)) * 1.2
+    for m, mv in ((60, 12), (30, 10)):
+        g = gp.SharedSparseGP.build(gps, m, mv)
+        mean, var = (np.asarray(a).T for a in g.predict(jnp.asarray(xs), include_noise=True))
+        rm, rv = sklearn_gp(g).predict(xs)
+        scale = np.exp(np.asarray(g.log_signal_var))[None, :] ** 0.5
+        assert np.all(np.abs(rm - mean) <= 1e-6 * scale)
+        np.testing.assert_allclose(rv, var, rtol=1e-6)
