@@ -5,7 +5,9 @@
 
 Beside each case, the live step alone on the same frames, no sensor, no threads: called back to back,
 and called once per sensor period with the thread asleep in between, as the live loop calls it. The
-difference is what an idle period costs the next step (caches, the core's clock), not the host loop.
+difference is what an idle period costs the next step, not the host loop; three more ways of spending
+the period tell where it comes from (:data:`PAUSES`: busy-waiting, the caches emptied on purpose, the
+caches kept warm by a throwaway step).
 
 Two cases: the SPL field with a URG-04LX at 10 Hz (``spl-trajectory``, the shipped demo model), and
 the lab with a UTM-30LX at 40 Hz with intensities (``lab-trajectory``, the benchmark's UTM model).
@@ -53,15 +55,27 @@ def live_case(ctx, key: str, sensor, log, model, duration: float) -> None:
                                          "expected_frames": int(duration * sensor.rate_hz)}
 
 
+# How the step waits between calls in ``step_alone``: what an idle period costs, and why (issue 16,
+# item 5). "sleep" is the live loop's way; "spin" busy-waits instead (the thread and the core never
+# idle: a wake-up cost would vanish); "evict" sleeps after touching 64 MB (the caches emptied on
+# purpose); "rewarm" spends the period stepping a throwaway copy of the state on the last frame (the
+# step's code and constants kept in the caches).
+PAUSES = ("sleep", "spin", "evict", "rewarm")
+
+
 def step_alone(ctx, key: str, sensor, log, model, n: int) -> None:
-    """The live step on ``n`` frames of ``log``: back to back, and with ``sensor.period`` of sleep
-    between calls."""
+    """The live step on ``n`` frames of ``log``: back to back, and once per ``sensor.period`` with
+    the period spent each way of :data:`PAUSES`."""
     step, state0 = warm_up(model, sensor)
     frames = [frame_arrays(log.ranges[i % log.n_scans].astype(np.float64),
                            None if log.intensities is None or not sensor.has_intensity else log.intensities[i % log.n_scans],
                            sensor, model.n_beams) for i in range(n)]
     dt = np.float32(sensor.period)
-    for pause, tag, what in ((0.0, "back_to_back", "back to back"), (sensor.period, "every_period", "once per period")):
+    big = np.zeros(64 * 2**20 // 8)
+    cases = [("back_to_back", None, "back to back")] + [
+        ("every_period" if p == "sleep" else f"every_period_{p}", p, f"once per period, the period spent: {p}")
+        for p in PAUSES]
+    for tag, pause, what in cases:
         state = state0
         out = np.empty(n)
         for i, (r, inten, valid) in enumerate(frames):
@@ -69,8 +83,16 @@ def step_alone(ctx, key: str, sensor, log, model, n: int) -> None:
             state, _, packed = step(state, r, inten, valid, dt)
             np.asarray(packed)
             out[i] = time.perf_counter() - t0
-            if pause:
-                time.sleep(pause)
+            t = time.perf_counter()
+            if pause == "sleep":
+                time.sleep(sensor.period)
+            elif pause == "evict":
+                big += 1.0
+                time.sleep(max(0.0, sensor.period - (time.perf_counter() - t)))
+            elif pause in ("spin", "rewarm"):
+                while time.perf_counter() - t < sensor.period:
+                    if pause == "rewarm":
+                        np.asarray(step(state, r, inten, valid, dt)[2])
         ctx.results.add(f"live.{key}.step_{tag}", "ms", out[10:], section=SECTION,
                         label=f"live step alone, {sensor.name}, called {what}", sensor=sensor.name)
 
