@@ -15,7 +15,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from ..gp import GP, SharedSparseGP, SparseGP
-from ..gp.sparse import _stacked, predict_many
+from ..gp.sparse import predict_many
 from .buckets import bucketed, slots_of
 from .geometry import compose
 
@@ -68,14 +68,8 @@ class PoseRegressor(eqx.Module):
         """Means ``[outputs, cands]`` of ``x``, ``y`` (, ``sin``, ``cos``) and, unless ``mean_only``,
         their variances: one kernel row per shared group (groups of one shape batched), or the
         separate GPs batched (:func:`~gtsjax.gp.sparse.predict_many`)."""
-        if self.shared is None:
-            return predict_many(self.outputs(), vectors, include_noise=include_noise, mean_only=mean_only)
-        if _stacked(self.shared) is not None:  # [groups, outputs, cands] → [all outputs, cands]
-            outs = predict_many(self.shared, vectors, include_noise=include_noise, mean_only=mean_only)
-            return tuple(o.reshape(-1, o.shape[-1]) for o in outs)
-        parts = [(g.predict_mean(vectors),) if mean_only else g.predict(vectors, include_noise=include_noise)
-                 for g in self.shared]
-        return tuple(jnp.concatenate(o) for o in zip(*parts, strict=True))
+        gps = self.shared if self.shared is not None else self.outputs()
+        return predict_many(gps, vectors, include_noise=include_noise, mean_only=mean_only)
 
 
 def regress_one_class(

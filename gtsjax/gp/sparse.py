@@ -118,17 +118,18 @@ def _stacked(gps):
 
 @exact_products
 def predict_many(gps, xs: Float[Array, "tests features"], *, include_noise: bool = False, mean_only: bool = False):
-    """Every GP of ``gps`` on the same test inputs: means ``[gps, tests]`` (and, unless ``mean_only``,
-    variances ``[gps, tests]``; ``[gps, outputs, tests]`` for :class:`SharedSparseGP` groups). GPs of one
-    shape run as one batched computation (``vmap`` over the stacked GPs: each kernel of the prediction
-    once for all of them, not once per GP: the classifier's three score GPs, a class's pose GPs);
-    others one after the other."""
+    """Every GP of ``gps`` on the same test inputs: means ``[outputs, tests]`` (and, unless
+    ``mean_only``, variances ``[outputs, tests]``), a row per GP, or per output of a
+    :class:`SharedSparseGP`, in order. GPs of one shape run as one batched computation (``vmap`` over
+    the stacked GPs: each kernel of the prediction once for all of them, not once per GP: the
+    classifier's three score GPs, a class's pose GPs or groups); others one after the other."""
     one = (lambda g: (g.predict_mean(xs),)) if mean_only else (lambda g: g.predict(xs, include_noise=include_noise))
     st = _stacked(gps)
     if st is not None:
-        return jax.vmap(one)(st)
-    outs = [one(g) for g in gps]
-    return tuple(jnp.stack(o) for o in zip(*outs, strict=True))
+        outs = jax.vmap(one)(st)
+    else:
+        outs = tuple(jnp.concatenate([a.reshape(-1, a.shape[-1]) for a in o]) for o in zip(*map(one, gps), strict=True))
+    return tuple(o.reshape(-1, o.shape[-1]) for o in outs)
 
 
 class SharedSparseGP(eqx.Module):

@@ -39,12 +39,7 @@ def fit_gp(x, y, key, cfg: TrainConfig, progress: Callable[[dict], None] | None,
         sparse = gp.sparse(n_inducing, cfg.n_inducing_var).astype(jnp.float32)
     except GPArgumentError as err:  # the GP library is core code; to the user it is a bad setting
         raise InputError(err.where, err.problem) from None
-    p = gp.params
-    info = {"gp": label, "n": int(x.shape[0]), "n_fit": int(min(x.shape[0], max_fit or x.shape[0])),
-            "seconds": round(time.perf_counter() - t0, 2),
-            "lml": float(gp.log_marginal_likelihood()),
-            "signal_var": float(p.signal_var), "noise_var": float(p.noise_var),
-            "lengthscale_median": float(np.median(np.asarray(p.lengthscale)))}
+    info = _summary(label, gp, x.shape[0], max_fit, round(time.perf_counter() - t0, 2))
     if progress is not None:
         progress(info)
     return sparse, info
@@ -68,17 +63,21 @@ def fit_shared_gp(x, ys: dict[str, np.ndarray], key, cfg: TrainConfig, progress:
     seconds = round(time.perf_counter() - t0, 2)
     infos = []
     for j, (name, gp) in enumerate(zip(ys, gps, strict=True)):
-        p = gp.params
-        info = {"gp": f"{label}.{name}", "n": int(x.shape[0]), "n_fit": int(min(x.shape[0], max_fit or x.shape[0])),
-                "seconds": seconds if j == 0 else 0.0, "lml": float(gp.log_marginal_likelihood()),
-                "signal_var": float(p.signal_var), "noise_var": float(p.noise_var),
-                "lengthscale_median": float(np.median(np.asarray(p.lengthscale)))}
+        info = _summary(f"{label}.{name}", gp, x.shape[0], max_fit, seconds if j == 0 else 0.0)
         if j:
             info["kernel_shared_with"] = f"{label}.{next(iter(ys))}"
         infos.append(info)
         if progress is not None:
             progress(info)
     return shared, infos
+
+
+def _summary(label: str, gp, n: int, max_fit: int | None, seconds: float) -> dict:
+    """A fit's line of the training report."""
+    p = gp.params
+    return {"gp": label, "n": int(n), "n_fit": int(min(n, max_fit or n)), "seconds": seconds,
+            "lml": float(gp.log_marginal_likelihood()), "signal_var": float(p.signal_var),
+            "noise_var": float(p.noise_var), "lengthscale_median": float(np.median(np.asarray(p.lengthscale)))}
 
 
 class GPFits:
