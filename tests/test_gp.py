@@ -458,7 +458,11 @@ def test_fit_shared_of_one_output_is_fit():
     x, y = _three_outputs(rng, 50)
     (one,) = gp.fit_shared(x, y[:, :1], key=jax.random.key(3), restarts=2)
     ref = gp.fit(x, y[:, 0], key=jax.random.key(3), restarts=2)
-    for a, b in zip(jax.tree.leaves(one), jax.tree.leaves(ref), strict=True):
+    # a feature the fit finds irrelevant ends on a flat stretch of the LML (log l of about 19, where
+    # W = exp(-2 log l) is 1e-17) wherever rounding stops it: compare W there, not log l
+    np.testing.assert_allclose(np.asarray(one.params.w), np.asarray(ref.params.w), rtol=1e-6, atol=1e-12)
+    same_w = eqx.tree_at(lambda g: g.params.log_lengthscale, one, ref.params.log_lengthscale)
+    for a, b in zip(jax.tree.leaves(same_w), jax.tree.leaves(ref), strict=True):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-6, atol=1e-9)
 
 

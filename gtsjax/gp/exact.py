@@ -114,7 +114,7 @@ def _predict_exact(gp: GP, xs, include_noise: bool):
 
 @eqx.filter_jit
 def _condition(params, x, y, mask, y_mean, x_mean, x_scale, jitter) -> GP:
-    x, y, chol, alpha = _factor(params, x, y, mask, jitter)
+    x, y, _, chol, alpha = _factor(params, x, y, mask, jitter)
     return GP(x, y, mask, params, alpha, chol, y_mean, x_mean, x_scale, jitter)
 
 

@@ -82,58 +82,125 @@ def _convergence_norm(tree) -> Float[Array, ""]:
     return optx.max_norm(tree) * scale
 
 
-@eqx.filter_jit
-def _optimise(params0, x, y, mask, jitter, weight, rtol, atol, max_steps: int):
-    """Maximise eq 5 (eq 4) from one start: BFGS, then, if a log length scale ended past
-    ``LOG_LENGTHSCALE_CLAMP``, BFGS again from the optimum with the log length scales clamped there;
-    the better successful stage is kept.
+class _ArmijoToRounding(optx.BacktrackingArmijo):
+    """Optimistix's backtracking Armijo search, except that a step whose objective differs from the last
+    accepted one by no more than rounding (``_ROUNDING`` times its size) is accepted too.
+
+    Why: BFGS stops only on an accepted step that moved little in both the objective and the
+    parameters. At an optimum, or on a plateau (a signal variance collapsing under the noise), the
+    steps shrink until the objective no longer changes at all; plain Armijo then demands a decrease
+    that a change of zero cannot give, rejects every step, and the loop runs to ``max_steps``. Which
+    start met this was down to rounding: the same starts run one at a time stopped, vmapped together
+    (a batched product rounds differently) three of four ran to 1 000 steps."""
+
+    def step(self, first_step, y, y_eval, f_info, f_eval_info, state):
+        y_diff = jtu.tree_map(lambda a, b: a - b, y_eval, y)
+        predicted = f_info.compute_grad_dot(y_diff)
+        f_old = f_info.as_min()
+        f_diff = f_eval_info.as_min() - f_old
+        rounding = jnp.asarray(_ROUNDING, f_old.dtype) * jnp.maximum(jnp.abs(f_old), jnp.ones((), f_old.dtype))
+        armijo = (f_diff <= self.slope * predicted) & (predicted <= 0)
+        accept = first_step | armijo | (jnp.abs(f_diff) <= rounding)
+        step_size = jnp.where(accept, self.step_init, self.decrease_factor * state.step_size)
+        return step_size, accept, optx.RESULTS.successful, type(state)(step_size=step_size)
+
+
+# A change of the objective (-LML/N, order 1) that is rounding: 64 ulps of float64.
+_ROUNDING = 64 * float(np.finfo(np.float64).eps)
+
+
+def _solver(rtol: float, atol: float) -> optx.AbstractMinimiser:
+    """Optimistix BFGS with the convergence norm above and the search of :class:`_ArmijoToRounding`."""
+    bfgs = optx.BFGS(rtol=rtol, atol=atol, norm=_convergence_norm)
+    return eqx.tree_at(lambda s: s.search, bfgs, _ArmijoToRounding())
+
+
+def _stage(params0, x, y, mask, jitter, weight, rtol: float, atol: float, max_steps: int):
+    """Maximise eq 5 (eq 4) from one start, its log length scales clamped at ``LOG_LENGTHSCALE_CLAMP``:
+    Optimistix BFGS on -LML/N. Returns the optimum, its objective (inf if BFGS did not succeed or the
+    objective is not finite) and the number of steps. The objective is -LML/N so that BFGS's unit
+    first step and the tolerances do not depend on the training-set size."""
+    solver = _solver(rtol, atol)
+    args = (x, y, mask, jitter, weight)
+    sol = optx.minimise(_neg_lml_per_point, solver, _clamp(_params(*params0)), args, max_steps=max_steps,
+                        throw=False)
+    ok = sol.result == optx.RESULTS.successful
+    nll = _neg_lml_per_point(sol.value, args)
+    nll = jnp.where(ok & jnp.isfinite(nll), nll, jnp.asarray(jnp.inf, y.dtype))
+    return _fields(sol.value), nll, sol.stats["num_steps"]
+
+
+# Several starts as one optimisation: the starts are a leading axis of the parameters, the data shared.
+# One compiled program per (number of starts, data shape); the loop runs until the last start stops,
+# the others' states held.
+_stages = eqx.filter_jit(eqx.filter_vmap(_stage, in_axes=(0, None, None, None, None, None, None, None, None)))
+
+
+def _optimise(starts, x, y, mask, jitter, weight, rtol: float, atol: float, max_steps: int):
+    """Maximise eq 5 (eq 4) from each of ``starts`` (parameters stacked on a leading axis), all in one
+    vmapped BFGS (:func:`_stage`); then, for the starts whose log length scales ended past
+    ``LOG_LENGTHSCALE_CLAMP``, BFGS again from there with them clamped; the better stage of each
+    start is kept. Returns the optima, objectives (inf where a start failed) and step counts, stacked.
 
     Why two stages: the LML is flat in an irrelevant feature's length scale, BFGS's steps grow along
     flat directions, and a feature that wants a long but finite scale (a near-linear trend, ``log l ~
     8``) is thrown to ``log l ~ 300``, where its gradient underflows and it cannot come back. The
     clamped second start gives it a gradient again (on 20-D data this recovered the 0.1-1 nats by
-    which bounded L-BFGS-B, i.e. scikit-learn, was ahead). The objective is -LML/N so that BFGS's unit
-    first step and the tolerances do not depend on the training-set size."""
-    solver = optx.BFGS(rtol=rtol, atol=atol, norm=_convergence_norm)
-    args = (x, y, mask, jitter, weight)
-    inf = jnp.asarray(jnp.inf, y.dtype)
-
-    def stage(p):
-        sol = optx.minimise(_neg_lml_per_point, solver, _clamp(p), args, max_steps=max_steps, throw=False)
-        ok = sol.result == optx.RESULTS.successful
-        nll = _neg_lml_per_point(sol.value, args)
-        nll = jnp.where(ok & jnp.isfinite(nll), nll, inf)
-        return sol.value, nll, sol.stats["num_steps"]
-
-    p1, f1, n1 = stage(params0)
-    # The second stage only matters when a length scale ran past the clamp (it is a no-op otherwise,
-    # at the cost of a second convergence test's worth of evaluations).
-    past = jnp.any(p1.log_lengthscale > jnp.asarray(LOG_LENGTHSCALE_CLAMP, p1.log_lengthscale.dtype))
-    p2, f2, n2 = jax.lax.cond(past, stage, lambda p: (p, inf, jnp.zeros_like(n1)), p1)
-    second = f2 <= f1
-    value = jtu.tree_map(lambda a, b: jnp.where(second, b, a), p1, p2)
-    nll = jnp.minimum(f1, f2)
-    return value, jnp.isfinite(nll), nll, n1 + n2
+    which bounded L-BFGS-B, i.e. scikit-learn, was ahead). The host decides whether the second stage
+    runs (one look at the first stage's optima), so the program holds one BFGS loop, not two."""
+    p1, f1, n1 = _stages(starts, x, y, mask, jitter, weight, rtol, atol, max_steps)
+    clamp = np.asarray(LOG_LENGTHSCALE_CLAMP)
+    past = np.any(np.asarray(p1[0]) > clamp, axis=-1)
+    if not past.any():
+        return p1, f1, n1
+    p2, f2, n2 = _stages(p1, x, y, mask, jitter, weight, rtol, atol, max_steps)
+    second = jnp.asarray(past) & (f2 <= f1)
+    value = tuple(jnp.where(second.reshape(-1, *([1] * (a.ndim - 1))), b, a) for a, b in zip(p1, p2, strict=True))
+    return value, jnp.where(second, f2, f1), n1 + jnp.where(jnp.asarray(past), n2, 0)
 
 
-def _initial_params(key, restart: int, d: int, y_var, dtype) -> "Hyperparameters | _SharedHyperparameters":
-    """Restart 0: length scales sqrt(d) in standardised units (so the summed squared distance is O(1)),
-    sigma_f^2 = var(y), sigma_n^2 = var(y)/10. Later restarts: log-uniform jitter around that. With
-    ``y_var`` [k] (one per output of a shared kernel) the signal and noise variances are [k] too."""
-    base_ls = jnp.full((d,), 0.5 * math.log(max(d, 1)), dtype)
-    base_sf = jnp.log(y_var)
-    base_sn = jnp.log(y_var) - jnp.asarray(math.log(10.0), dtype)
-    kind = Hyperparameters if jnp.ndim(y_var) == 0 else _SharedHyperparameters
-    if restart == 0:
-        return kind(base_ls, base_sf, base_sn)
-    k1, k2, k3 = jax.random.split(jax.random.fold_in(key, restart), 3)
-    ls = base_ls + jax.random.uniform(k1, (d,), dtype, -1.5, 1.5)
-    sf = base_sf + jax.random.uniform(k2, jnp.shape(y_var), dtype, -1.0, 1.0)
-    sn = base_sn + jax.random.uniform(k3, jnp.shape(y_var), dtype, -4.0, 1.5)
-    return kind(ls, sf, sn)
+def _rng(key, salt: int) -> np.random.Generator:
+    """A NumPy generator drawn from ``key`` (row subsamples are chosen on the host: as JAX ops, each new
+    count compiled a program of its own)."""
+    return np.random.default_rng([int(v) for v in np.asarray(jax.random.key_data(key)).ravel()] + [salt])
+
+
+def _subsample(key, salt: int, n: int, size: int) -> np.ndarray:
+    """``size`` of ``n`` row indices, without replacement, sorted; the same for the same key."""
+    return np.sort(_rng(key, salt).choice(n, size, replace=False))
+
+
+def _initial_params(key, restarts: int, d: int, y_var) -> tuple:
+    """Every start's ``(log l, log sigma_f^2, log sigma_n^2)``, stacked on a leading axis of ``restarts``. Start 0: length scales sqrt(d) in
+    standardised units (so the summed squared distance is O(1)), sigma_f^2 = var(y), sigma_n^2 =
+    var(y)/10. Later starts: log-uniform jitter around that, drawn from ``key`` (on the host: as JAX
+    ops they compiled a program of their own per shape). With ``y_var`` [k] (one per output of a
+    shared kernel) the signal and noise variances are [restarts, k]."""
+    y_var = np.asarray(y_var, np.float64)
+    rng = _rng(key, 2)
+    jittered = (np.arange(restarts) > 0)[:, None]
+    ls = np.full((restarts, d), 0.5 * math.log(max(d, 1))) + jittered * rng.uniform(-1.5, 1.5, (restarts, d))
+    shape = (restarts, *y_var.shape)
+    jittered = jittered.reshape(restarts, *([1] * y_var.ndim))
+    sf = np.log(y_var) + jittered * rng.uniform(-1.0, 1.0, shape)
+    sn = np.log(y_var) - math.log(10.0) + jittered * rng.uniform(-4.0, 1.5, shape)
+    return jnp.asarray(ls), jnp.asarray(sf), jnp.asarray(sn)
 
 
 # --------------------------------------------------------------------------- several starts (host)
+
+
+# On a CPU, the most training rows at which the starts run vmapped. A vmapped loop runs until its last
+# start stops, so it costs the number of starts times the longest start's steps; one after another
+# costs the sum of their steps. Where each evaluation is a few small kernels (N ~ 100) the shared
+# per-kernel overhead wins; where it is an O(N^3) factorisation the sum does (at N = 450, d = 17:
+# steps 300, 57, 125 and 49, vmapped 9.7 s, one after another about 4 s). On a GPU the starts always
+# run vmapped. Either way one program serves every start of a data shape.
+VMAP_MAX_ROWS = 200
+
+
+def _vmapped(n_rows: int) -> bool:
+    return n_rows <= VMAP_MAX_ROWS or jax.default_backend() != "cpu"
 
 
 @dataclasses.dataclass
@@ -148,20 +215,49 @@ class _Starts:
     max_steps: int
     failures: list[str] = dataclasses.field(default_factory=list)
 
-    def run(self, starts, x, y, mask, label: str) -> list:
-        """``(objective, restart, params)`` of the successful starts, best first."""
+    def run(self, restarts, starts, x, y, mask, label: str) -> list:
+        """``(objective, restart, params)`` of the successful ``starts`` (parameters stacked on a leading
+        axis, one row per entry of ``restarts``), best first. They run as one vmapped optimisation,
+        except on a CPU past ``VMAP_MAX_ROWS`` rows (see there), where they run one after another."""
+        if _vmapped(x.shape[0]):
+            params, nlls, steps = _optimise(starts, x, y, mask, self.jitter, self.weight, self.rtol, self.atol,
+                                            self.max_steps)
+        else:
+            each = [_optimise(_one(_row(starts, i)), x, y, mask, self.jitter, self.weight, self.rtol, self.atol,
+                              self.max_steps) for i in range(len(restarts))]
+            params = tuple(jnp.concatenate(a) for a in zip(*(e[0] for e in each), strict=True))
+            nlls, steps = (jnp.concatenate(a) for a in zip(*(e[1:] for e in each), strict=True))
+        params = tuple(np.asarray(a) for a in params)
+        nlls, steps = np.asarray(nlls), np.asarray(steps)
         done = []
-        for r, p0 in starts:
-            p, ok, nll, steps = _optimise(p0, x, y, mask, self.jitter, self.weight, self.rtol, self.atol, self.max_steps)
-            nll = float(nll)
-            if bool(ok) and np.isfinite(nll):
-                done.append((nll, r, p))
+        for i, r in enumerate(restarts):
+            if np.isfinite(nlls[i]):
+                done.append((float(nlls[i]), int(r), _row(params, i)))
             else:
-                self.failures.append(
-                    f"{label} restart {r}: converged={bool(ok)} -LML/N={nll:.6g} after {int(steps)} steps"
-                )
+                self.failures.append(f"{label} restart {r}: not converged to a finite -LML/N after {int(steps[i])} steps")
         done.sort(key=lambda t: (t[0], t[1]))
         return done
+
+
+def _row(stacked, i: int):
+    """Start ``i`` of parameters stacked on a leading axis, as hyperparameters."""
+    return _params(*(jnp.asarray(np.asarray(a)[i]) for a in stacked))
+
+
+def _one(params):
+    """One start's hyperparameters as a stack of one."""
+    return tuple(jnp.asarray(a)[None] for a in _fields(params))
+
+
+def _params(log_lengthscale, log_signal_var, log_noise_var) -> "Hyperparameters | _SharedHyperparameters":
+    """Hyperparameters of one start from its three arrays; per-output variances make them shared.
+    (Starts travel stacked as plain tuples: the modules' annotations describe one start.)"""
+    kind = Hyperparameters if jnp.ndim(log_signal_var) == 0 else _SharedHyperparameters
+    return kind(log_lengthscale, log_signal_var, log_noise_var)
+
+
+def _fields(params) -> tuple:
+    return params.log_lengthscale, params.log_signal_var, params.log_noise_var
 
 
 def _screen_then_refine(runs: _Starts, starts, xs, yc, fit_set, screen_points: int, key_screen) -> list:
@@ -169,16 +265,19 @@ def _screen_then_refine(runs: _Starts, starts, xs, yc, fit_set, screen_points: i
     all of them (``fit_set``), the default start from scratch and the best random start, warm, only
     if screening found it better than the default. A warm start from a subset's optimum can settle in
     a basin that is worse on all the data, so the default is never skipped."""
-    pick = np.sort(np.asarray(jax.random.choice(key_screen, xs.shape[0], (screen_points,), replace=False)))
+    pick = _subsample(key_screen, 0, xs.shape[0], screen_points)
     ys = yc[pick] - yc[pick].mean(axis=0)
-    screened = runs.run(starts, jnp.asarray(xs[pick]), jnp.asarray(ys), jnp.ones((screen_points,), bool), "screening")
+    n_starts = starts[0].shape[0]
+    screened = runs.run(range(n_starts), starts, jnp.asarray(xs[pick]), jnp.asarray(ys),
+                        jnp.ones((screen_points,), bool), "screening")
     sub_default = next((f for f, r, _ in screened if r == 0), np.inf)
     better = [(r, p) for f, r, p in screened if r != 0 and f < sub_default]
-    done = runs.run(starts[:1] + better[:1], *fit_set, "refining")
-    for r, p in better[1:] if not done else []:
-        done = runs.run([(r, p)], *fit_set, "refining")
-        if done:
-            break
+    # one start at a time: one compiled program for the fit set, whatever number of starts is refined
+    done = runs.run([0], _one(_row(starts, 0)), *fit_set, "refining")
+    for r, p in better:
+        found = runs.run([r], _one(p), *fit_set, "refining")
+        if found:
+            return sorted(done + found, key=lambda t: (t[0], t[1]))
     return done
 
 
@@ -252,7 +351,7 @@ def _fit_rows(xs, yc, padded, max_fit_points: int | None, key_sub):
     n = xs.shape[0]
     if max_fit_points is None or n <= max_fit_points:
         return xs, yc, padded
-    sub = np.sort(np.asarray(jax.random.choice(jax.random.fold_in(key_sub, 1), n, (max_fit_points,), replace=False)))
+    sub = _subsample(key_sub, 1, n, int(max_fit_points))
     xs, yc = xs[sub], yc[sub] - yc[sub].mean(axis=0)
     return xs, yc, (jnp.asarray(xs), jnp.asarray(yc), jnp.ones((int(max_fit_points),), bool))
 
@@ -283,10 +382,11 @@ def fit(
       are dropped too.
     - ``key``: jax PRNG key for the subsamples and the random restarts. Same key, same GP.
     - ``restarts``: number of starts (the first a fixed default, the rest random around it, drawn
-      from ``key``). Each start runs :class:`optimistix.BFGS` (``throw=False``) and then again from
-      its optimum with the log length scales clamped at log 1e5 (see ``_optimise``). A start whose
-      ``sol.result`` is not successful or whose objective is not finite is skipped; the best
-      remaining one is kept. If all fail, :class:`GPFitError` is raised, naming each failure.
+      from ``key``). The starts run together as one vmapped :class:`optimistix.BFGS` optimisation
+      (``throw=False``), and those whose log length scales ran past log 1e5 run again from there,
+      clamped (see ``_optimise``). A start that does not succeed or whose objective is not finite is
+      skipped; the best remaining one is kept. If all fail, :class:`GPFitError` is raised, naming
+      each failure.
     - ``max_points``: above this many valid rows, a seeded random subsample of ``max_points`` rows is
       used (cost cap: fit O(max_points^3); exact prediction O(max_points) per test point for the mean,
       O(max_points^2) for the variance; :meth:`GP.sparse` for a smaller cap).
@@ -296,10 +396,12 @@ def fit(
       O(max_fit_points^3) and the conditioning one O(N^3) factorisation, so a GP can predict from
       several times the examples its fit could afford (the hyperparameters, a few dozen numbers, are
       well determined by a few thousand examples; the posterior mean gains from every one).
-    - ``screen_points``: with more valid rows than this and ``restarts > 1``, the restarts run on a
+    - ``screen_points``: with more valid rows than this and ``restarts > 1``, the starts run on a
       seeded subsample of ``screen_points`` rows; on all rows, the default start is then refined from
       scratch, and the best random start (warm, from its subset optimum) only if it beat the default
-      on the subset. More restarts therefore never end below one.
+      on the subset. More restarts therefore never end below one. (Screening on half the rows at
+      every size was tried: 1.6 times faster at N = 300, but on a 450-point, 17-feature problem it
+      ended 4.7 nats below running every start on all the rows.)
     - ``pad_to``: pad the training set to this fixed size (masked) so that GPs fitted on different
       data share shapes (one compilation; stackable). Must be >= the number of rows kept.
     - ``rtol``/``atol``/``max_steps``: :class:`optimistix.BFGS` tolerances on -LML/N and step cap.
@@ -370,8 +472,7 @@ def _fit_hyperparameters(x, y, key, restarts, max_points, max_fit_points, screen
     rows = _valid_rows(x, y, mask, where)
     key_sub, key_init, key_screen = jax.random.split(key, 3)
     if rows.size > max_points:
-        pick = np.asarray(jax.random.choice(key_sub, rows.size, (max_points,), replace=False))
-        rows = np.sort(rows[pick])
+        rows = rows[_subsample(key_sub, 0, rows.size, max_points)]
     x, y = x[rows], y[rows]
     n, d = x.shape
     size = n if pad_to is None else int(pad_to)
@@ -381,16 +482,15 @@ def _fit_hyperparameters(x, y, key, restarts, max_points, max_fit_points, screen
     data = _standardised(x, y)
     padded = _padded(data.x, data.y, size)
     jit_ = jnp.asarray(jitter, jnp.float64)
-    y_var = jnp.asarray(data.y_var, jnp.float64)
-    starts = [(r, _initial_params(key_init, r, d, y_var, jnp.float64)) for r in range(restarts)]
+    starts = _initial_params(key_init, restarts, d, data.y_var)
     if np.all(data.constant):
-        return starts[0][1], padded, data, jit_
+        return _row(starts, 0), padded, data, jit_
     xs, yc, fit_set = _fit_rows(data.x, data.y, padded, max_fit_points, key_sub)
     runs = _Starts(jit_, jnp.asarray(~data.constant, jnp.float64), rtol, atol, max_steps)
     if restarts > 1 and xs.shape[0] > screen_points:
         done = _screen_then_refine(runs, starts, xs, yc, fit_set, screen_points, key_screen)
     else:
-        done = runs.run(starts, *fit_set, "full")
+        done = runs.run(range(restarts), starts, *fit_set, "full")
     if not done:
         raise GPFitError("all GP hyperparameter restarts failed: " + "; ".join(runs.failures))
     return done[0][2], padded, data, jit_

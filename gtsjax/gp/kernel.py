@@ -110,33 +110,48 @@ def _safe_rows(x, y, mask):
     return x, y
 
 
-def _masked_gram(params, x, mask, noise):
+def _masked_gram(params, x, mask, noise, form=gram):
     """``K_X + noise I`` on valid rows, the identity on padded ones (so they add nothing to eq 5)."""
-    k = gram(params, x, x)
+    return _with_noise(_masked_kernel(params, x, mask, form), mask, noise)
+
+
+def _masked_kernel(params, x, mask, form=gram):
+    """``K_X`` on valid rows, zero on padded ones, computed by ``form`` (:func:`gram` or
+    :func:`gram_matmul`)."""
     both = mask[:, None] & mask[None, :]
-    k = jnp.where(both, k, jnp.zeros((), k.dtype))
+    return jnp.where(both, form(params, x, x), jnp.zeros((), x.dtype))
+
+
+def _with_noise(k, mask, noise):
     diag = jnp.where(mask, noise, jnp.ones((), k.dtype))
     return k + jnp.diag(diag)
 
 
 def _factor(params, x, y, mask, jitter):
-    """The Cholesky factor ``L`` of ``K_X + s I`` and ``alpha = (K_X + s I)^-1 y``, padding made safe."""
+    """The Cholesky factor ``L`` of ``K_X + s I`` and ``alpha = (K_X + s I)^-1 y``, padding made safe;
+    also ``K_X`` itself (masked), which the LML's gradient reuses.
+
+    The training Gram matrix is formed as one matrix product (:func:`gram_matmul`): fitting runs in
+    float64, where the product form's cancellation (about 1e-16 of ``|a|^2``, standardised inputs)
+    is far below the jitter, and the pairwise-difference form materialised an [N, N, d] tensor in
+    the fit's compiled gradient (at N = 500, d = 21 the LML and its gradient took 46 ms instead of
+    12)."""
     x, y = _safe_rows(x, y, mask)
-    cov = _masked_gram(params, x, mask, _effective_noise(params, jitter))
-    chol, _ = jsl.cho_factor(cov, lower=True)
+    k = _masked_kernel(params, x, mask, gram_matmul)
+    chol, _ = jsl.cho_factor(_with_noise(k, mask, _effective_noise(params, jitter)), lower=True)
     alpha = jsl.cho_solve((chol, True), y)
-    return x, y, chol, alpha
+    return x, y, k, chol, alpha
 
 
 # ------------------------------------------------------------------------------ log marginal likelihood
 
 
 def _lml_forward(params, x, y, mask, jitter):
-    _, _, chol, alpha = _factor(params, x, y, mask, jitter)
+    _, _, k, chol, alpha = _factor(params, x, y, mask, jitter)
     n_valid = jnp.sum(mask).astype(y.dtype)
     logdet = jnp.sum(jnp.log(jnp.diagonal(chol)))  # padded diagonal entries are exactly 1
     lml = -0.5 * jnp.dot(y, alpha) - logdet - 0.5 * n_valid * jnp.asarray(_LOG_2PI, y.dtype)
-    return lml, (chol, alpha)
+    return lml, (k, chol, alpha)
 
 
 @jax.custom_vjp
@@ -145,8 +160,8 @@ def _lml(params, x, y, mask, jitter):
 
 
 def _lml_fwd(params, x, y, mask, jitter):
-    lml, (chol, alpha) = _lml_forward(params, x, y, mask, jitter)
-    return lml, (params, x, mask, jitter, chol, alpha)
+    lml, (k, chol, alpha) = _lml_forward(params, x, y, mask, jitter)
+    return lml, (params, x, mask, jitter, k, chol, alpha)
 
 
 def _lml_bwd(res, g):
@@ -155,11 +170,9 @@ def _lml_bwd(res, g):
     solves); it is needed only here, for the trace, never for the solve of eq 5 itself. This costs
     one O(N^3) solve and O(N^2 d) contractions, several times cheaper than differentiating through
     the factorisation, and never forms the [N, N, d] kernel-derivative tensor."""
-    params, x, mask, jitter, chol, alpha = res
+    params, x, mask, jitter, kf, chol, alpha = res
     dt = x.dtype
     n = x.shape[0]
-    both = mask[:, None] & mask[None, :]
-    kf = jnp.where(both, gram(params, x, x), jnp.zeros((), dt))
     kinv = jsl.cho_solve((chol, True), jnp.eye(n, dtype=dt))
     q = alpha[:, None] * alpha[None, :] - kinv
     tr_q = jnp.sum(jnp.where(mask, jnp.diagonal(q), jnp.zeros((), dt)))
