@@ -148,16 +148,35 @@ def evaluate_targets(res) -> None:
         why = (f"One LML-and-gradient evaluation costs {fmt(1e3 * e_g, 'ms')} in gtsjax and {fmt(1e3 * e_s, 'ms')} in "
                f"scikit-learn ({e_s / e_g:.1f}× cheaper: closed-form gradient, no N×N×d tensor), but gtsjax's fit "
                f"lasts {n_g} such evaluations against scikit-learn's {n_s} ({n_g / max(n_s, 1):.1f}×): three BFGS "
-               "starts, each to convergence (a second, clamped stage only where a length scale ran past its clamp)"
+               "starts, each to convergence (vmapped together up to 200 rows, one after another above on a CPU; a "
+               "second, clamped stage only where a length scale ran past its clamp)"
                + (f"; SciPy's L-BFGS-B on tinygp's objective made {prof['tinygp_lbfgsb_evaluations_counted']} "
                   "evaluations in all" if "tinygp_lbfgsb_evaluations_counted" in prof else "")
                + ". LML difference (gtsjax − scikit-learn, same function): "
-               f"{diff:+.3f} nats. What would close it: fewer evaluations (a looser tolerance on −LML/N, and the "
-               "random starts screened on a subset at every size, not only above 500 points).")
+               f"{diff:+.3f} nats. What would close it: fewer evaluations. Screening the starts on half the rows "
+               "at every size was tried (1.6× faster at N = 300) and lost 4.7 nats on a 450-point set of the cold "
+               "comparison, so screening stays above 500 rows; a looser tolerance on −LML/N ends short of the "
+               "optimum (3.6 nats at N = 450).")
         targets.append({"name": f"gp_fit_speedup_{tag}", "target": f"≥ {TARGET_GP_SPEEDUP:.0f}× scikit-learn, LML ≥ "
                         f"scikit-learn's − {LML_TOLERANCE} nats", "measured": r["value"], "unit": "×",
                         "lml_difference": diff, "met": r["value"] >= TARGET_GP_SPEEDUP and ok_lml, "why": why,
                         "profile": f"gp_fit.{tag}"})
+    cold = res.checks.get("gp_cold")
+    if cold:
+        sets = cold["sets"]
+        wins = [c["sklearn_s"] / c["gtsjax_s"] for c in sets]
+        worst = min(c["gtsjax_minus_sklearn_lml"] for c in sets)
+        listing = ", ".join(f"N={c['n']}: {c['gtsjax_s']:.1f} s against {c['sklearn_s']:.1f} s" for c in sets)
+        why = (f"Cold fit and prediction, every set a new shape, one fresh process per library ({listing}). "
+               "A new shape costs gtsjax about 2.5 s before its first evaluation: tracing Optimistix's BFGS "
+               "loop (0.6–0.8 s) and XLA's compilation of it (1.6–1.8 s), then conditioning and prediction; "
+               "scikit-learn compiles nothing. Where that dominates (N ≤ 450 here) gtsjax is slower. What "
+               "helps a user: `gtsjax train` keeps compiled programs in a persistent cache (GTSJAX_CACHE_DIR), "
+               "and the GPs of a model share one padded shape. LML difference, worst set: "
+               f"{worst:+.2f} nats.")
+        targets.append({"name": "gp_fit_cold", "target": "cold fit faster than scikit-learn at every N ≥ 100",
+                        "measured": min(wins), "unit": "× (worst set)", "met": min(wins) > 1.0, "why": why,
+                        "profile": "gp_cold"})
     res.targets = targets
 
 
