@@ -495,3 +495,30 @@ def test_shared_sparse_predicts_what_each_outputs_own_predictor_does():
     apart = [gp.fit(x, y[:, j], key=jax.random.key(j), restarts=1) for j in range(2)]
     with pytest.raises(gp.GPArgumentError, match="share one kernel"):
         gp.SharedSparseGP.build(apart, 20, 8)
+
+
+def test_starts_vmapped_end_where_they_end_one_by_one(monkeypatch):
+    """The starts run as one vmapped BFGS (below ``VMAP_MAX_ROWS`` on a CPU) or one after another: each
+    start reaches the same optimum either way, every one within ``max_steps`` (vmapped, a plain
+    Armijo search rejected every step at the optimum and ran to the cap), and ``fit`` keeps the same
+    GP."""
+    import importlib
+
+    fit_module = importlib.import_module("gtsjax.gp.fit")
+    x, y = _friedman3(np.random.default_rng(31))
+    data = fit_module._standardised(x[:80], y[:80])
+    xp, yp, mp = fit_module._padded(data.x, data.y, 80)
+    starts = fit_module._initial_params(jax.random.key(5), 4, x.shape[1], data.y_var)
+    args = (xp, yp, mp, jnp.asarray(1e-8), jnp.asarray(1.0), 1e-6, 1e-6, 1000)
+    p_all, f_all, n_all = fit_module._optimise(starts, *args)
+    for i in range(4):
+        p_one, f_one, n_one = fit_module._optimise(fit_module._one(fit_module._row(starts, i)), *args)
+        assert np.isfinite(float(f_one[0])) and np.isfinite(float(f_all[i]))
+        assert int(n_all[i]) < 1000 and int(n_one[0]) < 1000
+        np.testing.assert_allclose(float(f_all[i]), float(f_one[0]), rtol=1e-6)
+    fits = []
+    for rows in (10**6, 0):
+        monkeypatch.setattr(fit_module, "VMAP_MAX_ROWS", rows)
+        fits.append(gp.fit(x[:80], y[:80], key=jax.random.key(5), restarts=4))
+    np.testing.assert_allclose(float(fits[0].log_marginal_likelihood()), float(fits[1].log_marginal_likelihood()),
+                               rtol=1e-7)
