@@ -1,7 +1,9 @@
 """Command line: ``gtsjax COMMAND ...``. One module per command; parsing, progress, tables and exit
 codes live here and nowhere else."""
 
+import signal
 import sys
+import threading
 
 from ..errors import InputError
 
@@ -58,6 +60,47 @@ def use_compile_cache() -> None:
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
 
 
+# Signals that stop a command as Ctrl-C does: service managers and containers stop a program with
+# SIGTERM, a closed terminal or SSH session sends SIGHUP.
+STOP_SIGNALS = (signal.SIGTERM, signal.SIGHUP)
+
+
+def _stop_on_signals() -> list[int]:
+    """Make SIGTERM and SIGHUP raise KeyboardInterrupt in the main thread, as SIGINT does, so that every
+    command stops the way Ctrl-C stops it: ``run`` sends QT, flushes its CSV and finalises its
+    recording and reports, ``emulate`` removes its link, ``replay`` keeps the rows written, ``train``
+    writes nothing half-done. Returns the list the handler appends each signal number to (the exit
+    status then says which signal, 128 + its number, where the command did not end by itself).
+    Only in the main thread (a signal handler cannot be set elsewhere)."""
+    seen: list[int] = []
+    if threading.current_thread() is not threading.main_thread():
+        return seen
+
+    def stop(signum, frame):
+        seen.append(signum)
+        raise KeyboardInterrupt
+
+    for sig in STOP_SIGNALS:
+        _restore.append((sig, signal.signal(sig, stop)))
+    return seen
+
+
+_restore: list = []  # (signal, handler before main) pairs, put back when main returns
+
+# Typer turns a KeyboardInterrupt raised inside a command into exit status 130, silently.
+_TYPER_INTERRUPTED = 130
+
+
+def _interrupted(stopped: list[int]) -> int:
+    """One line and the exit status of a command stopped before its end: 128 + the signal's number
+    for SIGTERM/SIGHUP, 130 for Ctrl-C."""
+    if stopped:
+        print(f"gtsjax: stopped by {signal.Signals(stopped[-1]).name}", file=sys.stderr)
+        return 128 + stopped[-1]
+    print("gtsjax: interrupted", file=sys.stderr)
+    return 130
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``gtsjax`` console script. A user's mistake (:class:`InputError`) is one
     line on stderr and exit status 2, never a traceback; usage errors are Click's, also status 2."""
@@ -66,15 +109,20 @@ def main(argv: list[str] | None = None) -> int:
     # Stamps and GP fitting need float64; the real-time core is float32 by explicit dtypes.
     jax.config.update("jax_enable_x64", True)
     use_compile_cache()
+    stopped = _stop_on_signals()
     try:
         app(args=_spread(sys.argv[1:] if argv is None else list(argv)), prog_name="gtsjax")
     except InputError as err:
         print(f"gtsjax: {err}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("gtsjax: interrupted", file=sys.stderr)
-        return 130
+        return _interrupted(stopped)
     except SystemExit as exc:
         code = exc.code
+        if code == _TYPER_INTERRUPTED:
+            return _interrupted(stopped)
         return code if isinstance(code, int) else (0 if code is None else 2)
+    finally:
+        while _restore:
+            signal.signal(*_restore.pop())
     return 0

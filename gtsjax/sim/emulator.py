@@ -580,8 +580,8 @@ def serve(
     if isinstance(model, str):
         model = get_model(model)
     with SensorEmulator(model, source, faults=faults, link_dir=link_dir) as emu:
-        print_fn(f"{model.name} emulator on {emu.path} (pty {emu.pty_name}); Ctrl-C to stop")
-        try:
+        try:  # the stop may come as soon as the path is out
+            print_fn(f"{model.name} emulator on {emu.path} (pty {emu.pty_name}); Ctrl-C to stop")
             while not (stop is not None and stop.wait(0.2)):
                 if stop is None:
                     time.sleep(0.2)
