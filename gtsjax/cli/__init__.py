@@ -2,8 +2,9 @@
 codes live here and nowhere else."""
 
 import sys
+import warnings
 
-from ..errors import InputError
+from ..errors import InputError, InputWarning
 
 # Each import registers its command(s) on ``app``.
 from . import convert as _convert  # noqa: E402,F401
@@ -66,6 +67,15 @@ def main(argv: list[str] | None = None) -> int:
     # Stamps and GP fitting need float64; the real-time core is float32 by explicit dtypes.
     jax.config.update("jax_enable_x64", True)
     use_compile_cache()
+    shown = warnings.showwarning
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if issubclass(category, InputWarning):  # one line, as an error is, without the source line
+            print(f"gtsjax: warning: {message}", file=sys.stderr)
+        else:
+            shown(message, category, filename, lineno, file, line)
+
+    warnings.showwarning = show
     try:
         app(args=_spread(sys.argv[1:] if argv is None else list(argv)), prog_name="gtsjax")
     except InputError as err:
@@ -77,4 +87,6 @@ def main(argv: list[str] | None = None) -> int:
     except SystemExit as exc:
         code = exc.code
         return code if isinstance(code, int) else (0 if code is None else 2)
+    finally:
+        warnings.showwarning = shown
     return 0
