@@ -17,3 +17,14 @@ class InputError(ValueError):
         self.where = str(where)
         self.problem = " ".join(str(problem).split())
         super().__init__(f"{self.where}: {self.problem}")
+
+
+class InputWarning(UserWarning):
+    """Something in the user's input was left out or repaired, and the work goes on: a text log's last
+    line cut short (as a crash leaves it). ``str(warning)`` is one line, ``"<where>: <what>"``; the
+    command line prints it as ``gtsjax: warning: <where>: <what>``."""
+
+    def __init__(self, where: object, problem: str):
+        self.where = str(where)
+        self.problem = " ".join(str(problem).split())
+        super().__init__(f"{self.where}: {self.problem}")

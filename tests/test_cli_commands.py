@@ -452,6 +452,32 @@ EXIT_2 = {
         "a_folder.npz",
         "is a directory",
     ),
+    "train, model path under a file": (
+        ["train", "{d}/log.npz", "--site", "{d}/site.json", "--out", "{d}/log.npz/m.npz"],
+        "log.npz",
+        "is a file, not a folder",
+    ),
+    "train, model path where nothing can be written": (
+        ["train", "{d}/log.npz", "--site", "{d}/site.json", "--out", "/proc/m.npz"],
+        "/proc",
+        "cannot write in this folder",
+    ),
+    "replay, out a folder": (
+        ["replay", "{d}/log.npz", "--site", "{d}/site.json", "--model", str(DEMO_MODEL), "--out", "{d}/a_folder.npz"],
+        "a_folder.npz",
+        "is a directory",
+    ),
+    "replay, sensor-out a folder": (
+        ["replay", "{d}/log.npz", "--site", "{d}/site.json", "--model", str(DEMO_MODEL), "--out", "{o}/o.csv",
+         "--sensor-out", "{d}/a_folder.npz"],
+        "a_folder.npz",
+        "is a directory",
+    ),
+    "replay, out under a file": (
+        ["replay", "{d}/log.npz", "--site", "{d}/site.json", "--model", str(DEMO_MODEL), "--out", "{d}/log.npz/o.csv"],
+        "log.npz",
+        "is a file, not a folder",
+    ),
     "evaluate, bad site": (
         ["evaluate", "--model", str(DEMO_MODEL), "{d}/log.npz", "--site", "{d}/bad_site.json", "--out-dir", "{o}/ev"],
         "bad_site.json",
@@ -483,3 +509,20 @@ def test_bad_site_or_model_is_one_line_and_exit_2(inputs, tmp_path, capsys, case
     assert code == 2, err
     assert len(err) == 1 and err[0].startswith("gtsjax: ") and names in err[0] and fragment in err[0], err
     assert sorted(p.name for p in inputs.iterdir()) == before and list(tmp_path.iterdir()) == []  # nothing written
+
+
+def test_train_makes_a_missing_model_folder_before_reading_anything(inputs, tmp_path, capsys):
+    """The model's folder is made (and checked) before any log is read: with a log that does not
+    exist, the command fails on the log, and the folder is already there, empty."""
+    out = tmp_path / "new" / "models" / "m.npz"
+    code = main(["train", str(inputs / "missing.npz"), "--site", str(inputs / "site.json"), "--out", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "missing.npz" in err[0], err
+    assert out.parent.is_dir() and list(out.parent.iterdir()) == []
+
+
+def test_replay_writes_into_a_missing_folder(inputs, tmp_path):
+    out, sensor = tmp_path / "a" / "b" / "gtd.csv", tmp_path / "c" / "sensor.csv"
+    code = main(["replay", str(inputs / "log.npz"), "--site", str(inputs / "site.json"), "--model", str(DEMO_MODEL),
+                 "--out", str(out), "--sensor-out", str(sensor)])
+    assert code == 0 and out.read_text().startswith("stamp,track_id,class,") and sensor.is_file()

@@ -12,6 +12,8 @@ import numpy as np
 import pytest
 
 from gtsjax import InputError
+from gtsjax.cli import main
+from gtsjax.errors import InputWarning
 from gtsjax.io import load_log, save_log, to_scans
 from gtsjax.io.importers import (
     FLASER_RANGE_MAX,
@@ -334,6 +336,54 @@ def test_carmen_without_laser_lines_and_binary_files(tmp_path):
         import_log(r)
 
 
+def _flaser(i: int) -> str:
+    return f"FLASER 3 {i + 1} {i + 2} {i + 3} 0 0 0 0 0 0 {5 + 0.1 * i:.1f} h {5 + 0.1 * i:.1f}"
+
+
+@pytest.mark.parametrize("gz", [False, True])
+def test_carmen_cut_last_line_is_skipped_with_a_warning(tmp_path, gz):
+    """A log that ends mid-line, as after a crash, reads as the same log without that line, with a
+    warning naming it; the same line ended by a newline is still refused, and a whole last line
+    without a newline is kept."""
+    def write(name, text):
+        p = tmp_path / (name + (".log.gz" if gz else ".log"))
+        if gz:
+            with gzip.open(p, "wt") as f:
+                f.write(text)
+        else:
+            p.write_text(text)
+        return p
+
+    head = "".join(_flaser(i) + "\n" for i in range(3))
+    whole, cut = write("whole", head), write("cut", head + _flaser(3)[:14])  # "FLASER 3 4 5 6" and nothing more
+    with pytest.warns(InputWarning, match=r"line 4 is cut short") as rec:
+        log = read_carmen(cut)
+    msg = str(rec[0].message)
+    assert msg.startswith(f"{cut}: ") and "\n" not in msg, msg
+    ref = read_carmen(whole)
+    assert log.n_scans == 3
+    np.testing.assert_array_equal(log.ranges, ref.ranges)
+    np.testing.assert_array_equal(log.stamps, ref.stamps)
+    assert "cut short, skipped" in str(log.extra["source"])
+    with pytest.raises(InputError, match="line 4: FLASER with 3 readings needs 12"):
+        read_carmen(write("bad", head + _flaser(3)[:14] + "\n"))  # ended by a newline: not a cut line
+    bad_middle = write("middle", _flaser(0) + "\n" + _flaser(1)[:14] + "\n" + _flaser(2))
+    with pytest.raises(InputError, match="line 2: FLASER"):
+        read_carmen(bad_middle)
+    no_newline = read_carmen(write("nonl", head + _flaser(3)))
+    np.testing.assert_array_equal(no_newline.ranges[:, 0], [1, 2, 3, 4])
+
+
+def test_info_on_a_cut_carmen_log_warns_in_one_line(tmp_path, capsys):
+    p = tmp_path / "crash.log"
+    p.write_text("".join(_flaser(i) + "\n" for i in range(3)) + "FLASER 3 4")
+    assert main(["info", str(p)]) == 0
+    out, err = capsys.readouterr()
+    assert "3 scans × 3 beams" in out
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"gtsjax: warning: {p}: line 4 is cut short"), lines
+
+
 # ------------------------------------------------------------------------------------------ BreezySLAM
 
 
@@ -360,6 +410,14 @@ def test_breezyslam_bad_lines_are_named(tmp_path, logs):
     p.write_text("\n".join(good + [" ".join(good[0].split()[:100])]) + "\n")
     with pytest.raises(InputError, match=r"line 4 has 100 fields; a BreezySLAM URG-04LX line has 707"):
         read_breezyslam(p)
+    cut = tmp_path / "cut.dat"
+    cut.write_text("\n".join(good) + "\n" + good[0][: len(good[0]) // 2])  # the last line cut mid-way, no newline
+    with pytest.warns(InputWarning, match="line 4 is cut short"):
+        log = read_breezyslam(cut)
+    whole = tmp_path / "whole.dat"
+    whole.write_text("\n".join(good) + "\n")
+    np.testing.assert_array_equal(log.ranges, read_breezyslam(whole).ranges)
+    assert log.n_scans == 3
     q = tmp_path / "garbage.dat"
     q.write_text("hello world\n")
     with pytest.raises(InputError, match="line 1 has 2 fields"):

@@ -1,6 +1,7 @@
 """Site files: the spec's example loads; every broken rule is one line naming the file."""
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -100,3 +101,53 @@ def test_bad_bounds(tmp_path, bounds, match):
 def test_missing_file(tmp_path):
     with pytest.raises(InputError, match="no such file"):
         load_site(tmp_path / "absent.json")
+
+
+def _moved(key, i, value):
+    doc = json.loads(json.dumps(SPL))
+    if key == "landmarks":
+        doc["landmarks"][1]["y"] = value
+    else:
+        doc[key][i] = value
+    return doc
+
+
+@pytest.mark.parametrize(
+    "key, i, value, match",
+    [
+        ("landmarks", None, 1e39, "landmark 1: 'y' is 1e+39"),
+        ("landmarks", None, -2e4, "landmark 1: 'y' is -20000"),
+        ("sensor_pose", 0, 1e39, "'sensor_pose' x is 1e+39"),
+        ("sensor_pose", 2, 1e39, "'sensor_pose' theta is 1e+39"),
+        ("bounds", 3, 1e39, "'bounds' ymax is 1e+39"),
+    ],
+)
+def test_absurd_coordinates_are_refused_naming_the_field(tmp_path, key, i, value, match):
+    """A coordinate of 1e39 is finite in JSON and float64 but infinite in the float32 step: beyond
+    10 km from the origin is refused, naming the field (``1e39`` written as JSON reads that way)."""
+    bad(tmp_path, doc=_moved(key, i, value), match=match)
+
+
+def test_a_large_but_real_field_loads(tmp_path):
+    doc = json.loads(json.dumps(SPL))
+    for lm in doc["landmarks"]:
+        lm["x"] += 9000.0
+    doc["sensor_pose"][0] += 9000.0
+    doc["bounds"] = [9000.0, 0.0, 9006.0, 4.0]
+    assert load_site(write(tmp_path, doc)).landmarks[2].x == 9006.0
+
+
+def test_replay_refuses_a_site_at_1e39_in_one_line(tmp_path, capsys):
+    from gtsjax.cli import main
+    from gtsjax.io import save_log
+    from gtsjax.sim import simulate
+
+    log, _ = simulate("spl-eval", seed=1, n_scans=3)
+    save_log(log, tmp_path / "log.npz")
+    site = write(tmp_path, _moved("landmarks", None, 1e39))
+    demo = Path(__file__).resolve().parents[1] / "gtsjax" / "data" / "demo-model.npz"
+    code = main(["replay", str(tmp_path / "log.npz"), "--site", str(site), "--model", str(demo),
+                 "--out", str(tmp_path / "o.csv")])
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and lines[0].startswith(f"gtsjax: {site}: landmark 1: 'y'"), lines
+    assert not (tmp_path / "o.csv").exists()

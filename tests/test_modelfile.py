@@ -217,3 +217,21 @@ def test_both_pose_layouts_save_and_load_with_their_predictions(tmp_path):
             np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
         for a, b in zip(regress_one_class(r, probe), regress_one_class(back, probe), strict=True):
             np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+@pytest.mark.parametrize("name, content, what", [
+    ("gtd.csv", b"stamp,track_id,class,x,y,theta,var_x,var_y,var_theta\n1.0,1,robot,0,0,0,0,0,0\n",
+     "a ground-truth CSV"),
+    ("report.txt", b'{"accuracy": 0.99}\n', "a JSON file"),
+    ("notes.txt", b"the robot walked twice\n", "a text file"),
+    ("table.csv", b"a,b\n1,2\n", "a CSV file"),
+    ("plot.png", b"\x89PNG\r\n\x1a\n" + bytes(64), "a PNG image"),
+    ("empty.npz", b"", "an empty file"),
+])
+def test_info_says_what_a_file_is_when_it_is_not_a_log(tmp_path, capsys, name, content, what):
+    p = tmp_path / name
+    p.write_bytes(content)
+    assert main(["info", str(p)]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"gtsjax: {p}: {what}"), lines
+    assert lines[0].endswith("not a scan log, site file or model file"), lines

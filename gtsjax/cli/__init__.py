@@ -4,8 +4,9 @@ codes live here and nowhere else."""
 import signal
 import sys
 import threading
+import warnings
 
-from ..errors import InputError
+from ..errors import InputError, InputWarning
 
 # Each import registers its command(s) on ``app``.
 from . import convert as _convert  # noqa: E402,F401
@@ -110,6 +111,15 @@ def main(argv: list[str] | None = None) -> int:
     jax.config.update("jax_enable_x64", True)
     use_compile_cache()
     stopped = _stop_on_signals()
+    shown = warnings.showwarning
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if issubclass(category, InputWarning):  # one line, as an error is, without the source line
+            print(f"gtsjax: warning: {message}", file=sys.stderr)
+        else:
+            shown(message, category, filename, lineno, file, line)
+
+    warnings.showwarning = show
     try:
         app(args=_spread(sys.argv[1:] if argv is None else list(argv)), prog_name="gtsjax")
     except InputError as err:
@@ -125,4 +135,5 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         while _restore:
             signal.signal(*_restore.pop())
+        warnings.showwarning = shown
     return 0

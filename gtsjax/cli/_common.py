@@ -1,12 +1,15 @@
 """Helpers the commands share: reading any scan input, one-line descriptions, a model with its site,
 the track summary. Command modules import these, never one another."""
 
+import os
+import tempfile
 from pathlib import Path
 
 import numpy as np
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
+from ..errors import InputError
 from ..io import load_site
 from ..io.importers import detect_format, import_log
 from ..io.modelfile import load_model
@@ -56,3 +59,26 @@ def load_for_run(model_path: Path, site_path: Path):
     """The model with the site attached (whether it fits the scans is ``fit_to_model``'s check)."""
     site = load_site(site_path)
     return load_model(model_path).with_site(site, where=str(site_path))
+
+
+def check_out_file(path: Path, option: str = "--out") -> None:
+    """A file a command will write, checked before any work: a missing folder is created; the path
+    being a folder, a file where a folder should be, or a place that cannot be written is one line
+    (:class:`InputError`). Nothing is written at ``path`` itself."""
+    if path.is_dir():
+        raise InputError(path, f"is a directory; {option} takes the file to write")
+    parent = path.parent
+    existing = next((p for p in (parent, *parent.parents) if p.exists()), None)
+    if existing is not None and not existing.is_dir():
+        raise InputError(existing, f"is a file, not a folder, so {option} {path} cannot be written")
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise InputError(parent, f"cannot create the folder ({err.strerror})") from None
+    if path.exists() and not os.access(path, os.W_OK):
+        raise InputError(path, "is not writable")
+    try:
+        with tempfile.TemporaryFile(dir=parent):
+            pass
+    except OSError as err:
+        raise InputError(parent, f"cannot write in this folder ({err.strerror})") from None

@@ -1,6 +1,7 @@
 """``gtsjax info FILE...``: validate scan logs, site files and model files and summarise them;
 ``gtsjax sensors``: the sensor models gtsjax knows."""
 
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -9,7 +10,9 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from ..errors import InputError
 from ..io import load_site
+from ..io.gtd import HEADER as GTD_HEADER
 from ..io.importers import detect_format, format_name
 from ..io.modelfile import is_model_file, load_model, read_header
 from ..sensors import MODELS
@@ -42,6 +45,8 @@ def info(
             console.print(f"  sensor pose guess: x={x:.3f} m  y={y:.3f} m  θ={np.degrees(th):.1f}°"
                           f"   bounds: {site.bounds if site.bounds is not None else 'none'}")
         else:
+            if (what := _not_a_log(path)) is not None:
+                raise InputError(path, f"{what}, not a scan log, site file or model file")
             is_bag = detect_format(path) in ("ros1", "ros2")
             log = load_input(path, topic if is_bag else None, Console(stderr=True))
             kind = "" if detect_format(path) == "npz" else f" ({format_name(path)})"
@@ -55,6 +60,35 @@ def info(
                 console.print(f"  labelled objects: {labels}")
             if extra := sorted(k for k in log.extra if k != "source"):
                 console.print(f"  extra keys: {', '.join(extra)}")
+
+
+def _not_a_log(path: Path) -> str | None:
+    """What a file is that would be read as a ``.npz`` log but is not a zip archive (one of gtsjax's
+    own outputs, an image, some text), so that ``info`` names it instead of failing to read a log;
+    ``None`` for anything else (the readers say what is wrong with it)."""
+    if detect_format(path) != "npz" or not path.is_file() or zipfile.is_zipfile(path):
+        return None
+    with open(path, "rb") as f:
+        head = f.read(4096)
+    for magic, kind in ((b"\x89PNG", "a PNG image"), (b"%PDF", "a PDF document"), (b"\xff\xd8\xff", "a JPEG image")):
+        if head.startswith(magic):
+            return kind
+    if not head:
+        return "an empty file"
+    try:
+        text = head.decode("utf-8")
+    except UnicodeDecodeError as err:
+        if err.start < len(head) - 3:  # not just a character cut at the end of the 4 kB
+            return None  # binary, of no kind known here: the log reader's message stands
+        text = head[: err.start].decode("utf-8")
+    if "\x00" in text:
+        return None
+    first = next((line.strip() for line in text.splitlines() if line.strip()), "")
+    if first == ",".join(GTD_HEADER):
+        return "a ground-truth CSV (as replay and run write)"
+    if first.startswith(("{", "[")):
+        return "a JSON file (a site file is read as one when its name ends in .json)"
+    return "a CSV file" if "," in first else "a text file"
 
 
 def describe_model(path: Path) -> list[str]:

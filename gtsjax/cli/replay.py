@@ -20,7 +20,16 @@ from ..errors import InputError
 from ..io.importers import detect_format, format_name
 from ..io.logs import fit_to_model
 from ._app import CONFIRM_HELP, app
-from ._common import INPUT_HELP, TOPIC_HELP, describe, load_for_run, load_input, source_of, track_summary
+from ._common import (
+    INPUT_HELP,
+    TOPIC_HELP,
+    check_out_file,
+    describe,
+    load_for_run,
+    load_input,
+    source_of,
+    track_summary,
+)
 
 
 @app.command("replay")
@@ -82,6 +91,9 @@ def _outputs(logs: list[Path], out: Path, sensor_out: Path | None) -> tuple[list
     ``NAME.csv`` per log in the folders ``out`` (and ``sensor_out``), created if missing. Checked
     before any log is read, so that a bad place costs nothing."""
     if len(logs) == 1:
+        check_out_file(out)
+        if sensor_out is not None:
+            check_out_file(sensor_out, "--sensor-out")
         return [out], [sensor_out]
     names = [_name(log) for log in logs]
     if len(set(names)) < len(names):

@@ -5,7 +5,6 @@ GP fit and summary tables."""
 
 import dataclasses
 import json
-import os
 from pathlib import Path
 
 import typer
@@ -17,7 +16,7 @@ from ..io import load_log, load_site
 from ..io.modelfile import save_model
 from ..train import TrainConfig, fit_background, train
 from ._app import app
-from ._common import load_input
+from ._common import check_out_file, load_input
 
 
 @app.command("train")
@@ -65,7 +64,7 @@ def train_cmd(
     """Train a model from labelled logs (training and held-out evaluation)."""
     console = Console(stderr=True)
     site_obj = load_site(site)
-    _check_out(out)
+    check_out_file(out)  # before the minutes of fitting
     cfg = dataclasses.replace(TrainConfig(), max_per_class=max_per_class, max_pose_examples=max_pose,
                               max_pose_fit=max_pose_fit, pose_kernels=pose_kernels,
                               max_landmark_examples=max_landmark, n_inducing=inducing, n_inducing_class=inducing_class,
@@ -111,19 +110,6 @@ def _is_bag(p: Path) -> bool:
     from ..io.importers import detect_format
 
     return detect_format(p) in ("ros1", "ros2")
-
-
-def _check_out(out: Path) -> None:
-    """The model's path is checked before the minutes of fitting: a folder is created, a folder in
-    the way or an unwritable place is one line."""
-    if out.is_dir():
-        raise InputError(out, "is a directory; --out takes the model file to write")
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise InputError(out.parent, f"cannot create the folder ({err.strerror})") from None
-    if not os.access(out.parent, os.W_OK):
-        raise InputError(out.parent, "not writable")
 
 
 def _per_class(items: list[str], option: str) -> dict[str, float]:

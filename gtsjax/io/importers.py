@@ -25,13 +25,14 @@ import gzip
 import math
 import os
 import tempfile
+import warnings
 import zlib
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, InputWarning
 from ..sensors import URG_04LX
 from .logs import DEFAULT_RANGE_MIN, ScanLog, load_log
 
@@ -332,7 +333,8 @@ def read_carmen(path: str | os.PathLike) -> ScanLog:
     """
     path = Path(path)
     rows: dict[str, list] = {"ROBOTLASER1": [], "FLASER": []}
-    for lineno, toks in _text_lines(path):
+    cut = _CutLine(path)
+    for lineno, toks in _text_lines(path, cut):
         kind = toks[0]
         if kind not in rows:
             continue
@@ -346,7 +348,12 @@ def read_carmen(path: str | os.PathLike) -> ScanLog:
     geom = None
     geom_line = 0
     for lineno, toks in lines:
-        r, i, stamp, g = parse(path, lineno, toks)
+        try:
+            r, i, stamp, g = parse(path, lineno, toks)
+        except InputError as err:
+            if not cut.skip(lineno, err):
+                raise
+            continue
         if geom is None:
             geom, geom_line = g, lineno
         elif g != geom:
@@ -356,6 +363,8 @@ def read_carmen(path: str | os.PathLike) -> ScanLog:
         inten.append(i)
         stamps.append(stamp)
         linenos.append(lineno)
+    if geom is None:  # the one laser line was the cut one
+        raise InputError(path, f"no complete FLASER or ROBOTLASER1 line (line {cut.lineno} is cut short)")
     n, amin, inc, rmax, has_i = geom
     if not inc > 0:
         raise InputError(path, f"line {geom_line}: angular resolution {inc} must be > 0")
@@ -372,8 +381,8 @@ def read_carmen(path: str | os.PathLike) -> ScanLog:
         range_min=DEFAULT_RANGE_MIN,
         range_max=rmax,
         sensor_model=None,
-        extra={"source": np.asarray(f"CARMEN log {path.name}, {len(lines)} {kind} lines{conv}, "
-                                    f"stamps: ipc timestamps{note}")},
+        extra={"source": np.asarray(f"CARMEN log {path.name}, {len(ranges)} {kind} lines{conv}, "
+                                    f"stamps: ipc timestamps{note}{cut.note}")},
     )
     return log.validate(path)
 
@@ -465,9 +474,34 @@ def _open_text(path: Path):
     return gzip.open(path, "rt", encoding="utf-8") if gz else open(path, encoding="utf-8")
 
 
-def _text_lines(path: Path):
+class _CutLine:
+    """The last line of a text log when the file ends in it without a newline, as a crash or a full
+    disk leaves a log: if that line does not parse, it is skipped with a warning
+    (:class:`~gtsjax.errors.InputWarning`) instead of refusing the whole log. A bad line anywhere
+    else, or a last line that ends in a newline, is still an :class:`InputError`."""
+
+    def __init__(self, path: Path):
+        self.path, self.lineno, self.skipped = path, 0, False
+
+    def skip(self, lineno: int, err: InputError) -> bool:
+        """Whether line ``lineno``, which failed with ``err``, is the cut last line (then warn)."""
+        if not self.lineno or lineno != self.lineno:
+            return False
+        self.skipped = True
+        warnings.warn(InputWarning(self.path, f"line {lineno} is cut short (the file ends in it without a newline, "
+                                              f"as after a crash) and does not parse ({err.problem}); skipped"),
+                      stacklevel=2)
+        return True
+
+    @property
+    def note(self) -> str:
+        return f"; last line {self.lineno} cut short, skipped" if self.skipped else ""
+
+
+def _text_lines(path: Path, cut: _CutLine | None = None):
     """(line number, whitespace-split tokens) of every non-blank, non-comment line of a text log, plain
-    or gzip; a file that is not text, or a damaged gzip stream, is one :class:`InputError`."""
+    or gzip; a file that is not text, or a damaged gzip stream, is one :class:`InputError`. ``cut``
+    is told the number of a last line that has no newline at its end."""
     if not path.exists():
         raise InputError(path, "no such file")
     if path.is_dir():
@@ -476,6 +510,8 @@ def _text_lines(path: Path):
     try:
         with _open_text(path) as f:
             for lineno, line in enumerate(f, start=1):
+                if cut is not None and not line.endswith("\n"):
+                    cut.lineno = lineno
                 toks = line.split()
                 if toks and not toks[0].startswith("#"):
                     yield lineno, toks
@@ -513,18 +549,15 @@ def read_breezyslam(path: str | os.PathLike) -> ScanLog:
     so a model trained for that scanner replays the log as it is.
     """
     path = Path(path)
-    n = URG_04LX.n_beams
-    lo, hi = BREEZY_FIRST_RANGE, BREEZY_FIRST_RANGE + n
     ranges, stamps, linenos = [], [], []
-    for lineno, toks in _text_lines(path):
-        if len(toks) not in (hi, hi + 1):
-            raise InputError(path, f"line {lineno} has {len(toks)} fields; a BreezySLAM URG-04LX line has {hi + 1} "
-                                   f"(timestamp in µs, 23 odometry fields, {n} ranges in mm, one trailing field)")
+    cut = _CutLine(path)
+    for lineno, toks in _text_lines(path, cut):
         try:
-            stamp = int(toks[0])
-        except ValueError:
-            raise InputError(path, f"line {lineno}: timestamp {toks[0]!r} is not an integer (µs)") from None
-        r = _floats(path, lineno, toks[lo:hi], "BreezySLAM", "range")
+            stamp, r = _parse_breezy(path, lineno, toks)
+        except InputError as err:
+            if not cut.skip(lineno, err):
+                raise
+            continue
         ranges.append(r)
         stamps.append(stamp)
         linenos.append(lineno)
@@ -540,6 +573,19 @@ def read_breezyslam(path: str | os.PathLike) -> ScanLog:
         range_max=URG_04LX.range_max,
         sensor_model=URG_04LX.name,
         extra={"source": np.asarray(f"BreezySLAM text log {path.name}, {len(ranges)} lines, URG-04LX angles, "
-                                    f"stamps: µs field{note}")},
+                                    f"stamps: µs field{note}{cut.note}")},
     )
     return log.validate(path)
+
+
+def _parse_breezy(path: Path, lineno: int, toks: list[str]) -> tuple[int, np.ndarray]:
+    n = URG_04LX.n_beams
+    lo, hi = BREEZY_FIRST_RANGE, BREEZY_FIRST_RANGE + n
+    if len(toks) not in (hi, hi + 1):
+        raise InputError(path, f"line {lineno} has {len(toks)} fields; a BreezySLAM URG-04LX line has {hi + 1} "
+                               f"(timestamp in µs, 23 odometry fields, {n} ranges in mm, one trailing field)")
+    try:
+        stamp = int(toks[0])
+    except ValueError:
+        raise InputError(path, f"line {lineno}: timestamp {toks[0]!r} is not an integer (µs)") from None
+    return stamp, _floats(path, lineno, toks[lo:hi], "BreezySLAM", "range")

@@ -79,8 +79,21 @@ def parse_site(doc: object, where: object = "site") -> Site:
     return Site(landmarks, tuple(float(v) for v in doc["sensor_pose"]), bounds, extra)  # type: ignore[arg-type]
 
 
+# Coordinates (and the heading) of a site beyond this are a mistake (a unit, an exponent), not a field:
+# 10 km, where float32 still resolves 1 mm, and the step's float32 arithmetic neither overflows nor
+# loses the landmarks' spread.
+MAX_COORD = 1e4
+
+
 def _is_num(v: object) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _check_size(bad, values, names, where: str) -> None:
+    for v, name in zip(values, names, strict=True):
+        if abs(v) > MAX_COORD:
+            unit = "rad" if name == "theta" else "m"
+            bad(f"{where} {name} is {v:g}, beyond ±{MAX_COORD:g} {unit}; site coordinates are metres in the field frame")
 
 
 def _check(doc: object, where: object) -> None:
@@ -105,6 +118,7 @@ def _check(doc: object, where: object) -> None:
             bad(f"landmark {i}: 'class' must be a non-empty string")
         if not (_is_num(lm["x"]) and _is_num(lm["y"])):
             bad(f"landmark {i}: 'x' and 'y' must be finite numbers")
+        _check_size(bad, (lm["x"], lm["y"]), ("'x'", "'y'"), f"landmark {i}:")
     if len(lms) < 3:
         bad(f"needs at least 3 landmarks, got {len(lms)}")
     xy = np.array([[lm["x"], lm["y"]] for lm in lms], dtype=np.float64)
@@ -117,9 +131,11 @@ def _check(doc: object, where: object) -> None:
     pose = doc["sensor_pose"]
     if not (isinstance(pose, list) and len(pose) == 3 and all(_is_num(v) for v in pose)):
         bad("'sensor_pose' must be [x, y, theta], three finite numbers")
+    _check_size(bad, pose, ("x", "y", "theta"), "'sensor_pose'")
     if doc.get("bounds") is not None:
         b = doc["bounds"]
         if not (isinstance(b, list) and len(b) == 4 and all(_is_num(v) for v in b)):
             bad("'bounds' must be [xmin, ymin, xmax, ymax], four finite numbers")
+        _check_size(bad, b, ("xmin", "ymin", "xmax", "ymax"), "'bounds'")
         if not (b[0] < b[2] and b[1] < b[3]):
             bad(f"'bounds' {b} must have xmin < xmax and ymin < ymax")
