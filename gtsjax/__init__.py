@@ -17,6 +17,7 @@ from .core.pipeline import step as step
 from .core.scan import Scan as Scan
 from .drivers.replay import process_log as process_log
 from .errors import InputError as InputError
+from .errors import InputWarning as InputWarning
 from .model import Model as Model
 from .sensors import MODELS as MODELS
 from .sensors import SensorModel as SensorModel

@@ -79,6 +79,15 @@ class Model(eqx.Module):
     def n_classes(self) -> int:
         return len(self.classes)
 
+    @property
+    def uses_intensity(self) -> bool:
+        """Whether the GPs read the intensity profile (eq. 12): the model was trained on scans that
+        carried intensities, and every input it tracks must carry them too. Read from ``gp_columns``
+        (the profile's columns are left out when it never varied, as on a scanner without intensity);
+        a model from before ``gp_columns`` (empty) is not known to need them."""
+        first = 1 + self.frontend.n_dist
+        return any(first <= c < first + self.frontend.n_intensity for c in self.gp_columns)
+
     def class_index(self, name: str) -> int:
         return self.classes.index(name)
 

@@ -262,3 +262,57 @@ def test_evaluate_refuses_a_log_of_another_step(site, tmp_path):
     res = run("evaluate", "--model", DEMO_MODEL, path, "--site", site, "--out-dir", tmp_path / "eval")
     one_line_exit_2(res, path, "angular step 0.500° differs from the model's 0.352° (URG-04LX)")
     assert not (tmp_path / "eval").exists()
+
+
+def _reading_intensities(model):
+    """``model`` as if trained on scans with intensities: its GPs' columns include the intensity profile
+    (eq. 12's cells follow the distance profile's in the characteristic vector)."""
+    first = 1 + model.frontend.n_dist
+    return dataclasses.replace(model, gp_columns=tuple(sorted({*model.gp_columns, first, first + 1})))
+
+
+def test_a_model_reading_intensities_refuses_inputs_without_them(demo_model):
+    """Issue 17: a model whose GPs read the intensity profile refuses, in one line, a log without
+    intensities and a live sensor that gives none (or a stream asked for without them); the shipped
+    URG-04LX model reads none and takes both."""
+    from gtsjax.drivers.live import check_sensor
+
+    assert not demo_model.uses_intensity  # trained on a scanner without intensity
+    needy = _reading_intensities(demo_model)
+    assert needy.uses_intensity
+    rng = np.random.default_rng(3)
+    ranges = rng.uniform(0.5, 4.0, (2, URG_04LX.n_beams)).astype(np.float32)
+    bare = ScanLog(ranges=ranges, stamps=np.arange(2.0), angle_min=URG_04LX.angle_min,
+                   angle_increment=URG_04LX.angle_increment, sensor_model="URG-04LX")
+    fit_to_model(bare, demo_model, "bare.npz")
+    with pytest.raises(InputError, match=r"^bare\.npz: has no intensities, but the model was trained on scans with"):
+        fit_to_model(bare, needy, "bare.npz")
+    fit_to_model(dataclasses.replace(bare, intensities=np.ones_like(ranges)), needy, "with.npz")
+    check_sensor(demo_model, URG_04LX, "/dev/ttyACM0")
+    with pytest.raises(InputError, match=r"^/dev/ttyACM0 \(URG-04LX\): has no intensities"):
+        check_sensor(needy, URG_04LX, "/dev/ttyACM0")  # a URG-04LX reports none
+    bright = dataclasses.replace(URG_04LX, has_intensity=True)
+    check_sensor(needy, bright, "/dev/ttyACM0")
+    with pytest.raises(InputError, match="has no intensities"):
+        check_sensor(needy, bright, "/dev/ttyACM0", intensity=False)  # run --no-intensity
+
+
+def test_train_drops_intensities_a_scanner_cannot_have(tmp_path):
+    """Issue 17: ``train`` on a URG-04LX log that carries intensities (a converter filled them in)
+    warns in one line and trains without them, so the model runs on a real URG-04LX stream."""
+    import warnings
+
+    from gtsjax import InputWarning
+    from gtsjax.sim import simulate
+    from gtsjax.train import TrainConfig, train
+
+    log, site = simulate("spl-train", seed=11, n_scans=200)
+    assert log.sensor_model == "URG-04LX" and log.intensities is None
+    lit = dataclasses.replace(log, intensities=np.random.default_rng(4).uniform(0, 1, log.ranges.shape).astype(np.float32))
+    config = dataclasses.replace(TrainConfig(), max_per_class=40, max_pose_examples=50, n_inducing=16, restarts=1)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        model, _ = train([lit], site, config, names=["lit.npz"])
+    said = [str(w.message) for w in caught if issubclass(w.category, InputWarning)]
+    assert said == ["lit.npz: carries intensities, but a URG-04LX reports none: trained without them"]
+    assert not model.uses_intensity

@@ -58,7 +58,7 @@ def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Pa
     link.start()
     last = {"t": 0.0}
     try:
-        check_sensor(model, link.model, port)  # before anything is printed: a wrong scanner is one line
+        check_sensor(model, link.model, port, intensity=intensity)  # before anything is printed: a wrong scanner is one line
         console.print(f"connected to {link.model.name} on {port} ({link.model.n_beams} beams, "
                       f"{link.model.rate_hz:g} Hz)")
         if view:

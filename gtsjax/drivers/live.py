@@ -110,15 +110,18 @@ def rows_from_packed(stamp: float, packed: np.ndarray, class_names) -> list:
                             t[:, 8] > 0.5, class_names)
 
 
-def check_sensor(model: Model, sensor: SensorModel, where: str) -> None:
+def check_sensor(model: Model, sensor: SensorModel, where: str, *, intensity: bool = True) -> None:
     """Refuse a live sensor that is not the scanner ``model`` was trained for, by the rules a log
     must meet (:func:`~gtsjax.io.logs.fit_geometry`: the model's scanner name unless it is
     ``unknown``, the same angular step within 1 %, every beam inside the model's field of view, at
     most its beams), through the same function on an empty scan with the sensor's geometry. A live
-    scan cannot be cropped, so a wider field of view is refused too."""
+    scan cannot be cropped, so a wider field of view is refused too. A model that reads intensities
+    refuses a sensor that gives none, or a stream asked for without them (``intensity`` False)."""
+    streams = sensor.has_intensity and intensity
     probe = ScanLog(ranges=np.zeros((1, sensor.n_beams), np.float32), stamps=np.zeros(1), angle_min=sensor.angle_min,
                     angle_increment=sensor.angle_increment, range_min=sensor.range_min, range_max=sensor.range_max,
-                    sensor_model=sensor.name)
+                    sensor_model=sensor.name,
+                    intensities=np.zeros((1, sensor.n_beams), np.float32) if streams else None)
     fit_to_model(probe, model, f"{where} ({sensor.name})", crop=False)
 
 
@@ -174,7 +177,7 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
     from ..io.record import Recorder
 
     sensor = link.model
-    check_sensor(model, sensor, str(getattr(link, "port", "sensor")))
+    check_sensor(model, sensor, str(getattr(link, "port", "sensor")), intensity=with_intensity)
     live_step, state = compiled if compiled is not None else warm_up(model, sensor)
     while link.get(timeout=0) is not None:  # frames that queued up while compiling are stale
         pass

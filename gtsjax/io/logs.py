@@ -303,7 +303,12 @@ def fit_geometry(
 
 def fit_to_model(log: ScanLog, model, where: object, *, crop: bool = False, hint: str = "") -> ScanLog:
     """:func:`fit_geometry` with the geometry ``model`` (a :class:`~gtsjax.model.Model`, read only for
-    its scanner attributes) was trained on."""
+    its scanner attributes) was trained on; and, where the model's GPs read intensities, that the log
+    carries them (a model trained with them would see an all-zero profile, find nothing, and say
+    nothing)."""
+    if getattr(model, "uses_intensity", False) and log.intensities is None:
+        raise InputError(where, "has no intensities, but the model was trained on scans with them (its GPs read the "
+                                "intensity profile): give it scans with intensities, or train a model on scans without")
     return fit_geometry(log, angle_min=model.angle_min, angle_increment=model.angle_increment,
                         n_beams=model.n_beams, range_min=model.range_min, range_max=model.range_max, where=where,
                         crop=crop, hint=hint, sensor_model=model.sensor_model)

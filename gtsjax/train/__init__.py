@@ -16,6 +16,8 @@ One module per step, in the order :func:`train` takes them (the paper's stages i
 - :mod:`.config`: :class:`TrainConfig`.
 """
 
+import dataclasses
+import warnings
 from collections.abc import Callable, Sequence
 
 import jax.numpy as jnp
@@ -23,10 +25,11 @@ import numpy as np
 
 from ..core.g_track import TrackerParams
 from ..core.precision import exact_products
-from ..errors import InputError
+from ..errors import InputError, InputWarning
 from ..io.logs import ScanLog
 from ..io.site import Site
 from ..model import Model
+from ..sensors import MODELS
 from .classifier import fit_classifier, fit_support, landmark_lookalikes
 from .classifier import fit_envelope as fit_envelope
 from .config import TrainConfig as TrainConfig
@@ -46,6 +49,18 @@ from .report import evaluate_examples as evaluate_examples
 
 
 @exact_products
+def _without_intensities_it_cannot_have(log: ScanLog, name: str) -> ScanLog:
+    """``log`` without its intensities when it names a scanner that reports none (a URG-04LX log that
+    a converter filled with intensities): a model trained on them would need, live, an input that
+    scanner never gives. Said in an :class:`~gtsjax.errors.InputWarning`."""
+    known = MODELS.get(log.sensor_model or "")
+    if log.intensities is None or known is None or known.has_intensity:
+        return log
+    warnings.warn(InputWarning(name, f"carries intensities, but a {known.name} reports none: trained without them"),
+                  stacklevel=3)
+    return dataclasses.replace(log, intensities=None)
+
+
 def train(logs: Sequence[ScanLog], site: Site, cfg: TrainConfig = TrainConfig(), *,
           progress: Callable[[dict], None] | None = None, names: Sequence[str] | None = None,
           background: Sequence[ScanLog] = (), background_names: Sequence[str] | None = None) -> tuple[Model, dict]:
@@ -59,6 +74,8 @@ def train(logs: Sequence[ScanLog], site: Site, cfg: TrainConfig = TrainConfig(),
     bg_names = list(background_names) if background_names is not None else [
         f"background log {i}" for i in range(len(background))]
     check_logs(logs, names)
+    logs = [_without_intensities_it_cannot_have(log, name) for log, name in zip(logs, names, strict=True)]
+    background = [_without_intensities_it_cannot_have(log, name) for log, name in zip(background, bg_names, strict=True)]
     first = logs[0]
     n_beams = step_beams(first)
     background = fit_background(first, background, bg_names)
