@@ -383,9 +383,15 @@ def test_capture_bad_sums_strict_lenient_and_stream(scip_dir):
     for glue in (b"\n\n", b""):  # with the closing blank line restored, and with the next reply glued on
         dec = scip.StreamDecoder()
         out = dec.decode(data + glue + good)
-        assert [o.command for o in out] == ["MD0046060000001", "GD0044072501"]
+        # the damaged block's lines are all of their length: its good lines are kept (issue 17)
+        assert [o.command for o in out] == ["MD0046060000001", "MD0046060000000", "GD0044072501"]
+        salvaged = out[1]
+        assert salvaged.bad_lines == 5
+        np.testing.assert_array_equal(salvaged.valid, lenient.valid)
+        np.testing.assert_array_equal(salvaged.ranges_mm, lenient.ranges_mm)
         assert out[-1].timestamp_ms == 4106836 and out[-1].n_values == 682
-        assert dec.stats.checksum_errors == 1 and dec.stats.dropped == 1 and dec.stats.frames_ok == 2
+        assert dec.stats.salvaged == 1 and dec.stats.checksum_errors == 0 and dec.stats.dropped == 0
+        assert dec.stats.frames_ok == 2
 
 
 # ----------------------------------------------------------------------------- stream decoder
@@ -451,16 +457,61 @@ def test_stream_garbage_between_frames(garbage, ends):
     assert dec.stats.garbage_bytes <= sum(len(g) + 1 for g in garbage)
 
 
-def test_stream_bad_sum_drops_only_that_frame():
+def _damage(reply: bytes, line: int, at: int = 10) -> bytes:
+    """``reply`` with one character of its ``line``-th line (0: the echo) changed, its length kept."""
+    b = bytearray(reply)
+    start = 0
+    for _ in range(line):
+        start = b.index(b"\n", start) + 1
+    b[start + at] = 0x30 + ((b[start + at] - 0x30 + 1) & 0x3F)
+    return bytes(b)
+
+
+@pytest.mark.parametrize("line", [3, 5, 13])  # the 1st data line, one inside, the last (after the timestamp)
+def test_stream_bad_data_line_keeps_the_frames_other_lines(line):
+    """A data line failing its sum, every line of its length: the frame is delivered with the beams that
+    line touches as no return and every other beam as sent (issue 17); nothing is dropped. The beams of
+    a line: its 64 characters' run of the 3-character values, counted here by hand."""
     parts = _stream(4)
-    bad = bytearray(parts[3])
-    i = bad.index(b"\n", bad.index(b"\n", bad.index(b"\n") + 1) + 1) + 10  # a character of the 1st data line
-    bad[i] = 0x30 + ((bad[i] - 0x30 + 1) & 0x3F)
-    parts[3] = bytes(bad)
+    clean = scip.parse_replies(parts[3])[0]
+    n_lines = parts[3].count(b"\n") - 4  # echo, status, timestamp, data lines, the closing empty line
+    line = min(line, 2 + n_lines)
+    parts[3] = _damage(parts[3], line)
     dec = scip.StreamDecoder()
     out = dec.decode(b"".join(parts))
-    assert len(out) == len(parts) - 1
-    assert dec.stats.checksum_errors == 1 and dec.stats.frames_ok == len(parts) - 1
+    assert len(out) == len(parts)
+    assert dec.stats.salvaged == 1 and dec.stats.checksum_errors == 0 and dec.stats.frames_ok == len(parts) - 1
+    frame = out[3]
+    assert frame.bad_lines == 1 and frame.timestamp_ms == clean.timestamp_ms
+    k = line - 3  # data line index
+    hit = np.zeros(682, bool)
+    for v in range(682):  # value v occupies characters 3v .. 3v + 2 of the joined payload
+        if any(k * 64 <= c < (k + 1) * 64 for c in range(3 * v, 3 * v + 3)):
+            hit[v] = True
+    np.testing.assert_array_equal(frame.valid, clean.valid & ~hit)
+    np.testing.assert_array_equal(frame.ranges_mm[~hit], clean.ranges_mm[~hit])
+    assert np.all(frame.ranges_mm[hit] == 0)
+
+
+@pytest.mark.parametrize("what", ["timestamp", "every data line", "a byte lost"])
+def test_stream_frame_beyond_salvage_is_dropped(what):
+    """A bad timestamp, every data line bad, or a byte lost (the lines no longer hold their known runs
+    of beams): that frame is dropped and counted, the others delivered."""
+    parts = _stream(4)
+    reply = parts[3]
+    n_lines = reply.count(b"\n") - 4
+    if what == "timestamp":
+        reply = _damage(reply, 2, at=1)
+    elif what == "every data line":
+        for line in range(3, 3 + n_lines):
+            reply = _damage(reply, line)
+    else:
+        cut = reply.index(b"\n", reply.index(b"\n", reply.index(b"\n") + 1) + 1) + 20
+        reply = reply[:cut] + reply[cut + 1:]
+    parts[3] = reply
+    dec = scip.StreamDecoder()
+    out = dec.decode(b"".join(parts))
+    assert len(out) == len(parts) - 1 and dec.stats.dropped == 1 and dec.stats.salvaged == 0
     assert [o.timestamp_ms for o in out if isinstance(o, scip.ScanFrame) and o.code == "MD"] == [1000, 1200, 1300]
 
 

@@ -32,7 +32,8 @@ def live_view(model, link, stats, output, stamp) -> Group:
         tf, sp = output.transform, np.asarray(output.sensor_pose)
         lines.append(f"sensor in O: x={sp[0]:.3f} m  y={sp[1]:.3f} m  θ={np.degrees(sp[2]):.2f}°"
                      f"  landmarks {int(tf.n_landmarks)}  {'DEGRADED (kept last transform)' if bool(tf.degraded) else ''}")
-    lines.append(f"link: dropped {ls.dropped}  checksum {ls.checksum_errors}  truncated {ls.truncated}  "
+    lines.append(f"link: dropped {ls.dropped}  checksum {ls.checksum_errors}  salvaged {ls.salvaged}  "
+                 f"truncated {ls.truncated}  "
                  f"malformed {ls.malformed}  garbage bytes {ls.garbage_bytes}  timeouts {ls.timeouts}  "
                  f"reconnects {ls.reconnects}")
     return Group(t, *lines)

@@ -34,7 +34,8 @@ def run_cmd(
     med, p99 = stats.latency()
     Console(stderr=True).print(
         f"{stats.frames} frames, {stats.rows} rows -> {out}; latency median {med:.2f} ms, p99 {p99:.2f} ms; "
-        f"link: {link_stats.bad_frames} bad frames, {link_stats.dropped} dropped, {link_stats.reconnects} reconnects"
+        f"link: {link_stats.bad_frames} bad frames, {link_stats.salvaged} salvaged, {link_stats.dropped} dropped, "
+        f"{link_stats.reconnects} reconnects"
         + (f"; raw scans -> {record}" if record else ""))
     from ..io.modelfile import load_model
 

@@ -23,6 +23,7 @@ class StreamStats:
     """Counters of a :class:`StreamDecoder`. Every dropped reply is counted once, by its first fault."""
 
     frames_ok: int = 0
+    salvaged: int = 0  # scan frames delivered without the beams of data lines that failed their sum
     checksum_errors: int = 0
     truncated: int = 0
     malformed: int = 0
@@ -166,6 +167,8 @@ class StreamDecoder:
                 return
             except ScipError as err:
                 first_err = err
+            if first_err.reason == "checksum" and self._salvage(lines):
+                return
             k, at = self._embedded_start(lines)
             if k < 0:
                 self._count(first_err.reason)
@@ -177,8 +180,24 @@ class StreamDecoder:
                 self._out.append(parse_lines(head, where="SCIP stream"))
                 self.stats.frames_ok += 1
             except ScipError as err:
-                self._count(err.reason)
+                if not (err.reason == "checksum" and self._salvage(head)):
+                    self._count(err.reason)
             lines = [lines[k][at:]] + lines[k + 1 :]
+
+    def _salvage(self, lines: list[bytes]) -> bool:
+        """A scan reply whose only fault is data lines failing their sum, every line of the length it
+        must have (no byte lost, so each line still holds its known run of beams): delivered with the
+        good lines' beams, the bad lines' counted as no return (``ScanFrame.valid``). Not when its
+        timestamp or every data line fails."""
+        try:
+            frame = parse_lines(lines, where="SCIP stream", strict=False)
+        except ScipError:
+            return False
+        if not isinstance(frame, ScanFrame) or not 0 < frame.bad_lines < len(lines) - 3:
+            return False
+        self._out.append(frame)
+        self.stats.salvaged += 1
+        return True
 
     @staticmethod
     def _embedded_start(lines: list[bytes]) -> tuple[int, int]:

@@ -47,13 +47,16 @@ class LinkStats:
     """Counters of a :class:`Link`, cumulative over reconnects (a snapshot from :attr:`Link.stats`).
 
     ``dropped`` counts frames discarded because the queue was full (the consumer fell behind);
-    ``checksum_errors``, ``truncated``, ``malformed`` count frames lost on the wire; ``timeouts``
+    ``checksum_errors``, ``truncated``, ``malformed`` count frames lost on the wire; ``salvaged``
+    frames delivered without the beams of a data line that failed its sum (the frame's other lines
+    intact: see :class:`~gtsjax.io.scip.StreamDecoder`); ``timeouts``
     the periods without frames that forced a reconnect; ``reconnects`` the successful re-handshakes;
     ``sensor_errors`` replies with an error status while streaming.
     """
 
     frames: int = 0
     dropped: int = 0
+    salvaged: int = 0
     checksum_errors: int = 0
     truncated: int = 0
     malformed: int = 0
@@ -235,6 +238,7 @@ class Link:
             return dataclasses.replace(
                 self._stats,
                 checksum_errors=b.checksum_errors + d.checksum_errors,
+                salvaged=b.salvaged + d.salvaged,
                 truncated=b.truncated + d.truncated,
                 malformed=b.malformed + d.malformed + b.oversize + d.oversize,
                 garbage_bytes=b.garbage_bytes + d.garbage_bytes,
