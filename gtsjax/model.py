@@ -80,6 +80,15 @@ class Model(eqx.Module):
         return len(self.classes)
 
     @property
+    def scan_period(self) -> float | None:
+        """The scan period (s) of the scanner the model was trained for; ``None`` for one of unknown
+        rate. The tracker counts missed scans in these periods (:func:`~gtsjax.core.g_track.track_step`)."""
+        from .sensors import MODELS
+
+        known = MODELS.get(self.sensor_model)
+        return None if known is None else 1.0 / known.rate_hz
+
+    @property
     def uses_intensity(self) -> bool:
         """Whether the GPs read the intensity profile (eq. 12): the model was trained on scans that
         carried intensities, and every input it tracks must carry them too. Read from ``gp_columns``

@@ -9,7 +9,16 @@ import numpy as np
 import pytest
 
 from gtsjax.core.e_refine import SIDES
-from gtsjax.core.g_track import Detections, TrackerParams, TrackerState, assign, heading_consistent, predict, track_step
+from gtsjax.core.g_track import (
+    Detections,
+    TrackerParams,
+    TrackerState,
+    assign,
+    heading_consistent,
+    predict,
+    reported,
+    track_step,
+)
 from gtsjax.core.geometry import wrap
 
 F32 = jnp.float32
@@ -797,3 +806,29 @@ def test_mixture_agrees_with_the_reference_on_a_random_sequence(seed):
         fresh &= np.arange(SIDES)[None, :] != np.asarray(b.main)[:, None]
         made += int(np.sum(same[:, None] & fresh))
     assert switched > 0 and made > 0, (switched, made)
+
+
+def test_a_gap_in_the_scans_counts_as_the_periods_it_spans():
+    """Issue 17: with the scanner's period known, a scan that comes 2 s after the last (frames lost, a
+    stall) counts 20 missed periods, not one: a confirmed track whose robot was lifted meanwhile is
+    neither reported (m_report 0.3 s) nor kept (m_delete 1 s). Without the period it counts one scan,
+    as before. The reference tracker, given the same period, agrees."""
+    pytest.importorskip("filterpy")
+    from tests.reference.track import Tracker
+
+    for period, after in ((0.1, {}), (None, {0: (True, 1)})):
+        ref = Tracker(CONFIRM3, 4, period=period)
+        state = TrackerState.empty(4)
+        for i in range(4):  # a robot seen for four scans at 10 Hz: confirmed
+            d, (zz, R, c, o, _) = scan(np.array([[1.0 + 0.01 * i, 2.0, 0.1]]))
+            state, _ = track_step(state, d, jnp.asarray(0.1, F32), CONFIRM3, period)
+            ref.step(zz, R, c, 0.1, o)
+        assert np.asarray(reported(state, CONFIRM3)).sum() == 1
+        d, (zz, R, c, o, _) = scan(np.zeros((0, 3)))  # 2 s later, nothing there
+        state, _ = track_step(state, d, jnp.asarray(2.0, F32), CONFIRM3, period)
+        ref.step(zz, R, c, 2.0, o)
+        live = np.flatnonzero(np.asarray(state.live))
+        g = {int(state.track_id[s]): (bool(state.confirmed[s]), int(state.misses[s])) for s in live}
+        r = {t.track_id: (t.confirmed, t.misses) for t in ref.slots if t is not None}
+        assert g == r == after, (period, g, r)
+        assert np.asarray(reported(state, CONFIRM3)).sum() == (0 if period else 1)

@@ -579,9 +579,15 @@ def reported(state: TrackerState, params: TrackerParams) -> Bool[Array, " tracks
 
 
 def track_step(
-    state: TrackerState, det: Detections, dt: Float[Array, ""], params: TrackerParams
+    state: TrackerState, det: Detections, dt: Float[Array, ""], params: TrackerParams, period: float | None = None
 ) -> tuple[TrackerState, Bool[Array, " dets"]]:
     """Stage g for one scan: predict, gate, assign, update, start, confirm and end tracks.
+
+    ``period``: the scanner's scan period (s), where known. A track without a detection then counts
+    as missed every scan period the ``dt`` spans (``max(1, round(dt / period))``), not one: after
+    frames lost on the link or a stall, a robot lifted meanwhile is not reported past ``m_report``
+    periods, nor kept past ``m_delete``, on the strength of one late scan. Without it (a scanner of
+    unknown rate) each scan counts one.
 
     Returns the new state and, per detection, whether it was used by an existing track.
     """
@@ -685,7 +691,9 @@ def track_step(
     side_heading = jnp.where(onehot, mean[:, 2:3], side_heading)
     side_var = jnp.where(onehot, cov[:, 2:3, 2], side_var)
     hits = state.hits + has.astype(jnp.int32)
-    misses = jnp.where(has, 0, state.misses + 1)
+    spanned = jnp.ones((), jnp.int32) if period is None else jnp.maximum(
+        jnp.round(dt / jnp.asarray(period, dt.dtype)), 1).astype(jnp.int32)
+    misses = jnp.where(has, 0, state.misses + spanned)
     contrary = state.contrary + (~has & ~state.confirmed & other_near).astype(jnp.int32)
     # Plausibility of the motion after this scan: the updated estimate, or for a track without a
     # detection the predicted one (same velocity, larger covariance, turn rate clipped at its last

@@ -183,7 +183,7 @@ def update(model: Model, state: PipelineState, p: Perception, scan: Scan) -> tup
     side_o = jnp.concatenate([tf.apply(p.side_pose[..., :2]), wrap(p.side_pose[..., 2:] + tf.heading())], -1)
     tracked = p.ok & model.tracker.tracked[p.cls] & _inside(site, pose_o)
     det = Detections(pose_o, cov_o, p.cls, tracked, p.kept & ~tracked, p.partial, p.vague, side_o, p.side_logp)
-    tracker, _ = track_step(state.tracker, det, dt, model.tracker)
+    tracker, _ = track_step(state.tracker, det, dt, model.tracker, model.scan_period)
     ts = tracker
     out = Output(
         track_id=ts.track_id,

@@ -64,7 +64,7 @@ class ReferencePipeline:
         )
         self.sensor_pose = _f(s.sensor_pose)
         self.bounds = _f(s.bounds) if bool(s.has_bounds) else None
-        self.tracker = Tracker(model.tracker, model.max_tracks)
+        self.tracker = Tracker(model.tracker, model.max_tracks, period=model.scan_period)
         self.outline = None if model.outline is None else Outline.of(model.outline)
         self.max_objects = model.max_objects
         self.reset()

@@ -90,7 +90,7 @@ class Tracker:
     new track's hypotheses are its detection's sides (variance ``r``, log-weights ``log p_h + log(1 −
     REST_P)``), ``main`` the most probable, its rest ``log REST_P``."""
 
-    def __init__(self, params, max_tracks: int, sides: int = SIDES):
+    def __init__(self, params, max_tracks: int, sides: int = SIDES, period: float | None = None):
         g = {f.name: np.asarray(getattr(params, f.name)) for f in dataclasses.fields(params)}
         self.q_pos, self.q_theta = float(g["q_pos"]), float(g["q_theta"])
         self.vel_var0, self.omega_var0 = float(g["vel_var0"]), float(g["omega_var0"])
@@ -106,6 +106,7 @@ class Tracker:
         self.constant_velocity = bool(g["constant_velocity"])
         self.max_tracks = max_tracks
         self.sides = sides
+        self.period = period  # a scan without a detection counts as the scan periods its dt spans
         self.H = np.hstack([np.eye(3), np.zeros((3, 3))])
         self.reset()
 
@@ -348,7 +349,7 @@ class Tracker:
                 t.hits += 1
                 t.misses = 0
             else:
-                t.misses += 1
+                t.misses += 1 if self.period is None else max(1, round(dt / self.period))
                 if not t.confirmed and other_near[i]:
                     t.contrary += 1
             # the filter's heading is its main hypothesis
