@@ -294,3 +294,53 @@ def test_urg_library_sample_sequence(model):
             assert c.dec.stats.dropped == 0
         finally:
             c.close()
+
+
+def test_gd_is_answered_once_per_scan_with_that_scan(urg):
+    """A real sensor answers each GD when the scan under way ends: asked back to back, the replies are
+    one period apart (sensor clock), each a different scan, the one its timestamp names."""
+    emu, c = urg
+    (r,) = c.ask(scip.bm_command())
+    assert r.status == "00"
+    source = frame_source(URG_04LX)
+    frames, t0 = [], time.monotonic()
+    for _ in range(5):
+        (f,) = c.ask(scip.gd_command(44, 725))
+        frames.append(f)
+    elapsed = time.monotonic() - t0
+    stamps = np.array([f.timestamp_ms for f in frames])
+    gaps = np.diff(stamps)  # 100 ms, not 0-1 ms (a whole number of periods, should the host be slow)
+    assert np.all((gaps >= 100) & (gaps % round(URG_04LX.period * 1000) == 0)), stamps
+    assert elapsed >= 4 * URG_04LX.period  # and in real time too
+    for f in frames:
+        i = round(f.timestamp_ms / (URG_04LX.period * 1000))  # scan i is served at i periods
+        np.testing.assert_array_equal(f.ranges_mm, source(i)[0])
+    assert len({int(f.ranges_mm[0]) for f in frames}) == 5
+    (r,) = c.ask(scip.qt_command())  # a command after a GD is answered after it, in order
+    assert r.command == "QT" and r.ok
+
+
+def test_multiecho_on_the_utm_30lx_only():
+    """ND/NE stream and HD/HE answer one scan on a UTM-30LX, one echo per simulated beam (so no '&');
+    a URG-04LX answers them 0E, as to any command it does not know."""
+    src = frame_source(UTM_30LX)
+    with SensorEmulator(UTM_30LX, src) as emu:
+        c = Client(emu.path)
+        ack, f1, f2 = c.ask(b"NE0000108001002\n", n=3)
+        assert (ack.command, ack.status) == ("NE0000108001002", "00")
+        assert [f.remaining_scans for f in (f1, f2)] == [1, 0] and f1.status == "99"
+        r, inten = src(int(f1.ranges_mm[0]) - 1000)
+        np.testing.assert_array_equal(f1.ranges_mm, r)
+        np.testing.assert_array_equal(f1.intensities, inten)
+        assert b"&" not in c.raw
+        (r,) = c.ask(scip.bm_command())
+        (f,) = c.ask(b"HD0000108001\n")
+        assert f.command == "HD0000108001" and f.status == "00"
+        np.testing.assert_array_equal(f.ranges_mm, src(int(f.ranges_mm[0]) - 1000)[0])
+        c.close()
+    with SensorEmulator(URG_04LX, frame_source(URG_04LX)) as emu:
+        c = Client(emu.path)
+        for cmd in (b"ND0044072501000\n", b"NE0044072501000\n", b"HD0044072501\n", b"HE0044072501\n"):
+            (r,) = c.ask(cmd)
+            assert r.status == "0E" and r.command == cmd[:-1].decode()
+        c.close()

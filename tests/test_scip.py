@@ -645,3 +645,19 @@ def test_scip11_and_tm_replies():
     with pytest.raises(scip.ScipError) as err:
         scip.parse_reply(tm.replace(b"00P", b"00Q"))
     assert err.value.reason == "checksum"
+
+
+def test_multiecho_frames_put_an_ampersand_before_each_further_echo():
+    """HD/HE/ND/NE: each step's first echo, then '&' and each further echo's value(s) (urg_library's
+    format); the decoder keeps each step's first echo."""
+    ranges = np.array([[1000, 1500, 0], [2000, 0, 0], [3000, 3100, 3200]])
+    inten = np.array([[10, 20, 0], [30, 0, 0], [40, 50, 60]])
+    block = scip.format_gd_frame("HE0000000201", 7, ranges, inten)
+    enc = lambda v: scip.encode_value(v, 3)  # noqa: E731
+    payload = (enc(1000) + enc(10) + b"&" + enc(1500) + enc(20) + enc(2000) + enc(30)
+               + enc(3000) + enc(40) + b"&" + enc(3100) + enc(50) + b"&" + enc(3200) + enc(60))
+    assert block.split(b"\n")[3] == scip.format_line(payload).rstrip(b"\n")
+    frame = scip.parse_reply(block)
+    assert frame.ranges_mm.tolist() == [1000, 2000, 3000] and frame.intensities.tolist() == [10, 30, 40]
+    single = scip.parse_reply(scip.format_md_frame("ND0000000201000", 7, ranges[:, 0]))
+    assert single.ranges_mm.tolist() == [1000, 2000, 3000] and single.status == "99"

@@ -21,8 +21,15 @@ SCAN_CODES: dict[str, tuple[int, int]] = {
     "MD": (3, 1),
     "MS": (2, 1),
     "ME": (3, 2),
+    # Multi-echo (UTM-30LX): HD/HE one scan, ND/NE continuous; each step is its first echo's value(s),
+    # then ``&`` and the value(s) of each further echo (see :func:`format_scan_frame`).
+    "HD": (3, 1),
+    "HE": (3, 2),
+    "ND": (3, 1),
+    "NE": (3, 2),
 }
-CONTINUOUS_CODES = frozenset({"MD", "MS", "ME"})
+CONTINUOUS_CODES = frozenset({"MD", "MS", "ME", "ND", "NE"})
+MULTIECHO_CODES = frozenset({"HD", "HE", "ND", "NE"})
 SIMPLE_CODES = frozenset({"VV", "PP", "II", "BM", "QT", "RS", "RT", "SCIP2.0"})
 MAX_STRING = 16
 
@@ -32,8 +39,8 @@ STATUS_DATA = "99"
 _STRING = rb"(?:;[\x20-\x7e]{0,16})?"
 # One pattern per family, anchored at the end so that garbage glued in front of an echo is skipped.
 ECHO_RE = re.compile(
-    rb"(?:(?P<g>G[DSE])(?P<gs>\d{4})(?P<ge>\d{4})(?P<gc>\d{2})"
-    rb"|(?P<m>M[DSE])(?P<ms>\d{4})(?P<me>\d{4})(?P<mc>\d{2})(?P<mi>\d)(?P<mn>\d{2})"
+    rb"(?:(?P<g>G[DSE]|H[DE])(?P<gs>\d{4})(?P<ge>\d{4})(?P<gc>\d{2})"
+    rb"|(?P<m>M[DSE]|N[DE])(?P<ms>\d{4})(?P<me>\d{4})(?P<mc>\d{2})(?P<mi>\d)(?P<mn>\d{2})"
     rb"|(?P<t>TM[012])"
     rb"|(?P<s>VV|PP|II|BM|QT|RS|RT|SCIP2\.0))"
     rb"(?P<str>" + _STRING + rb")\Z"
@@ -71,6 +78,11 @@ class Command:
         return None if spec is None else spec[0]
 
     @property
+    def is_multiecho(self) -> bool:
+        """``HD``/``HE``/``ND``/``NE``: every echo of each step, ``&`` before each after the first."""
+        return self.code in MULTIECHO_CODES
+
+    @property
     def has_intensity(self) -> bool:
         return SCAN_CODES.get(self.code, (0, 1))[1] == 2
 
@@ -101,7 +113,7 @@ class Command:
     def with_remaining(self, remaining: int) -> "Command":
         """This ``Mx`` command as echoed in a data block with ``remaining`` scans still to come."""
         if not self.is_continuous:
-            raise ScipError(self.text, "only MD/MS/ME echoes carry a remaining-scan count")
+            raise ScipError(self.text, "only MD/MS/ME/ND/NE echoes carry a remaining-scan count")
         _check_range("remaining scans", remaining, 0, 99)
         return dataclasses.replace(self, count=remaining)
 
@@ -304,7 +316,7 @@ _STATUS_TABLES: dict[str, dict[str, str]] = {
 
 def status_message(code: str, status: str) -> str:
     """A short description of ``status`` in reply to command ``code`` (e.g. ``"MD"``, ``"GD"``)."""
-    family = code[:1] if code[:1] in ("M", "G") and code in SCAN_CODES else code[:2]
+    family = {"N": "M", "H": "G"}.get(code[:1], code[:1]) if code in SCAN_CODES else code[:2]
     table = _STATUS_TABLES.get(family, {})
     if status in table:
         return table[status]

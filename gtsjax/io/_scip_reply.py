@@ -194,6 +194,9 @@ def _scan_frame(cmd: Command, echo: bytes, status: str, stamp: int, data: np.nda
     chars, per_step = SCAN_CODES[cmd.code]
     n = cmd.n_values
     assert n is not None
+    keep = None
+    if cmd.is_multiecho and np.any(data == 0x26):
+        data, keep = _first_echoes(data, chars * per_step)
     expected = n * chars * per_step
     if len(data) != expected:
         reason = "truncated" if len(data) < expected else "malformed"
@@ -208,10 +211,21 @@ def _scan_frame(cmd: Command, echo: bytes, status: str, stamp: int, data: np.nda
     bad = int(bad_lines.sum())
     if bad:
         per_char = np.repeat(bad_lines, line_chars())
+        if keep is not None:
+            per_char = per_char[keep]
         valid &= ~per_char.reshape(n, chars * per_step).any(axis=1)
     ranges = np.where(valid, raw, np.int32(0))
     remaining = cmd.count if cmd.is_continuous else None
     return ScanFrame(echo.decode("latin-1"), status, stamp, ranges, intensities, remaining, bad, raw, valid)
+
+
+def _first_echoes(data: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """A multi-echo payload cut to each step's first echo: every ``&`` and the ``size`` characters
+    after it are dropped. Returns the kept characters and the mask of them."""
+    keep = np.ones(len(data), bool)
+    for i in np.flatnonzero(data == 0x26):
+        keep[i : i + 1 + size] = False
+    return data[keep], keep
 
 
 _FULL_LINE = LINE_PAYLOAD + 2  # a full data line: 64 characters, its sum, LF
@@ -379,7 +393,9 @@ def format_scan_frame(
 ) -> bytes:
     """A scan reply. ``ranges_mm`` are raw values (error codes below 20 included); ``chars`` defaults
     to the command's encoding and must agree with it; ``intensities`` are required exactly for
-    ``GE``/``ME``; the timestamp is written modulo 2**24."""
+    ``GE``/``ME``/``HE``/``NE``; the timestamp is written modulo 2**24. A multi-echo command
+    (``HD``/``HE``/``ND``/``NE``) also takes ``[n_values, echoes]`` arrays: column 0 the first echo,
+    a later column's 0 range no further echo."""
     cmd = echo if isinstance(echo, Command) else parse_command(_text(echo), where="echo")
     if not cmd.is_scan:
         raise ScipError(cmd.text, "not a scan command")
@@ -387,7 +403,8 @@ def format_scan_frame(
     if chars is not None and chars != cmd.chars:
         raise ScipError(cmd.text, f"{cmd.code} uses {cmd.chars}-character values, not {chars}")
     r = np.asarray(ranges_mm)
-    if r.ndim != 1 or r.shape[0] != cmd.n_values:
+    echoes = cmd.is_multiecho and r.ndim == 2
+    if (r.ndim != 1 and not echoes) or r.shape[0] != cmd.n_values:
         raise ScipError(cmd.text, f"{r.shape} ranges given, the command asks for {cmd.n_values}")
     if cmd.has_intensity:
         if intensities is None:
@@ -395,12 +412,24 @@ def format_scan_frame(
         inten = np.asarray(intensities)
         if inten.shape != r.shape:
             raise ScipError(cmd.text, f"intensities shape {inten.shape} differs from ranges {r.shape}")
-        values = np.stack([r, inten], axis=1)
+        values = np.stack([r, inten], axis=-1)
     else:
         if intensities is not None:
             raise ScipError(cmd.text, f"{cmd.code} carries no intensities (use GE/ME)")
         values = r
-    payload = encode_values(values, cmd.chars)
+    if echoes:
+        # Multi-echo: each step's first echo, then "&" and the value(s) of each further echo that
+        # returned (a range of 0 in a later column is no echo), as urg_library's parser reads them.
+        per = values.reshape(r.shape[0], r.shape[1], -1)
+        parts = []
+        for k in range(r.shape[0]):
+            parts.append(encode_values(per[k, 0], cmd.chars))
+            for j in range(1, r.shape[1]):
+                if r[k, j] > 0:
+                    parts.append(b"&" + encode_values(per[k, j], cmd.chars))
+        payload = b"".join(parts)
+    else:
+        payload = encode_values(values, cmd.chars)
     return format_reply(cmd, status, format_timestamp_line(timestamp_ms) + data_lines(payload))
 
 
@@ -411,7 +440,7 @@ def format_md_frame(
     intensities: "np.ndarray | Sequence[int] | None" = None,
     chars: int | None = None,
 ) -> bytes:
-    """One ``MD``/``MS``/``ME`` data block (status ``99``); the echo carries the remaining-scan count."""
+    """One ``MD``/``MS``/``ME``/``ND``/``NE`` data block (status ``99``); the echo carries the remaining-scan count."""
     return format_scan_frame(echo_with_remaining, STATUS_DATA, timestamp_ms, ranges_mm, intensities, chars)
 
 
@@ -422,5 +451,5 @@ def format_gd_frame(
     intensities: "np.ndarray | Sequence[int] | None" = None,
     chars: int | None = None,
 ) -> bytes:
-    """A ``GD``/``GS``/``GE`` reply (status ``00``)."""
+    """A ``GD``/``GS``/``GE``/``HD``/``HE`` reply (status ``00``)."""
     return format_scan_frame(echo, STATUS_OK, timestamp_ms, ranges_mm, intensities, chars)

@@ -10,7 +10,14 @@ What it answers, as a real sensor does (the replies are built by :mod:`gtsjax.io
 
 * ``SCIP2.0`` (status ``00``), ``VV``, ``PP`` (MODL, DMIN, DMAX, ARES, AMIN, AMAX, AFRT, SCAN), ``II``,
   ``BM`` (``02`` if the laser is already on), ``QT``, ``RS``, ``TM0``/``TM1``/``TM2``;
-* ``GD``/``GS``/``GE`` one-shot (status ``10`` while the laser is off, as the URG does: send ``BM``);
+* ``GD``/``GS``/``GE`` one-shot (status ``10`` while the laser is off, as the URG does: send ``BM``),
+  answered when the scan under way ends, with that scan and its timestamp, so that a client asking
+  again at once gets the next scan one period later (the sensor's scans are tied to its motor);
+  commands that arrive meanwhile wait their turn, as on the sensor;
+* the multi-echo ``HD``/``HE`` (one-shot) and ``ND``/``NE`` (continuous) on a UTM-30LX
+  (:data:`MULTIECHO_MODELS`): the same replies with each step's echoes, ``&`` before each after the
+  first; a simulated scan has one echo per beam, so no ``&`` appears. Other models answer them
+  ``0E``, as a URG-04LX does to a command it does not know;
 * ``MD``/``MS``/``ME`` streaming: an ``00`` acknowledgement, then one ``99`` data block per scan at
   the model's rate (every ``skip + 1``-th scan), the echo carrying the remaining-scan count; a count
   of 0 streams until ``QT``/``RS``; after the last of a finite count the laser goes off;
@@ -62,6 +69,9 @@ FrameSource = Callable[[int], "tuple[np.ndarray, np.ndarray | None]"]
 
 #: Bytes the emulator holds for a client that does not read; beyond it whole blocks are discarded.
 MAX_PENDING = 1 << 18
+
+#: Models that answer the multi-echo commands ``HD``/``HE``/``ND``/``NE`` (the UTM-30LX's SCIP 2.0).
+MULTIECHO_MODELS = frozenset({"UTM-30LX"})
 
 
 @dataclasses.dataclass(frozen=True)
@@ -201,7 +211,8 @@ class SensorEmulator:
     def timestamp_ms(self, t: float | None = None) -> int:
         """The sensor's 24-bit clock at monotonic time ``t`` (now by default)."""
         t = time.monotonic() if t is None else t
-        return (int((t - self._t0) * 1000.0) + self._ts_offset) % scip.TIMESTAMP_MODULUS
+        # Rounded, not truncated: a scan due at t0 + k * 0.1 s must read k * 100 ms, not 99 ms.
+        return (int(round((t - self._t0) * 1000.0)) + self._ts_offset) % scip.TIMESTAMP_MODULUS
 
     # ------------------------------------------------------------------ pty
 
@@ -243,6 +254,7 @@ class SensorEmulator:
         self._remaining = 0
         self._next_due = 0.0
         self._tm_mode = False
+        self._oneshot: tuple[float, scip.Command] | None = None
         self._stall_until = 0.0
         self._realign = False
         self._reopen_at: float | None = None
@@ -272,6 +284,8 @@ class SensorEmulator:
             timeout = 0.05
             if self._stream is not None:
                 timeout = max(0.0, min(timeout, self._next_due - now))
+            if self._oneshot is not None:
+                timeout = max(0.0, min(timeout, self._oneshot[0] - now))
             master = self._master
             try:
                 r, w, _ = select.select([master], [master] if self._outbuf else [], [], timeout)
@@ -289,6 +303,9 @@ class SensorEmulator:
                     self._handle_input()
             if self._master is not None and self._stream is not None and time.monotonic() >= self._next_due:
                 self._emit_scan()
+            if self._master is not None and self._oneshot is not None and time.monotonic() >= self._oneshot[0]:
+                self._emit_oneshot()
+                self._handle_input()  # the commands that waited behind it
             if self._master is not None and self._outbuf:
                 self._flush()
 
@@ -312,6 +329,7 @@ class SensorEmulator:
         self.faults.disconnects += 1
         self._close_pty()
         self._stream = None
+        self._oneshot = None
         self._reopen_at = None if reopen_after_s is None else now + reopen_after_s
 
     def _start_stall(self, now: float, seconds: float) -> None:
@@ -322,7 +340,7 @@ class SensorEmulator:
     # ------------------------------------------------------------------ commands
 
     def _handle_input(self) -> None:
-        while True:
+        while self._oneshot is None:
             i = self._inbuf.find(b"\n")
             j = self._inbuf.find(b"\r")
             ends = [k for k in (i, j) if k >= 0]
@@ -392,7 +410,7 @@ class SensorEmulator:
 
     def _scan_command(self, cmd: scip.Command) -> None:
         m = self.model
-        if cmd.has_intensity and not m.has_intensity:
+        if (cmd.has_intensity and not m.has_intensity) or (cmd.is_multiecho and m.name not in MULTIECHO_MODELS):
             self._send(scip.format_reply(cmd, "0E"))
             return
         if cmd.end > m.amax:
@@ -408,11 +426,9 @@ class SensorEmulator:
             if not self._laser:
                 self._send(scip.format_reply(cmd, "10"))
                 return
-            now = time.monotonic()
-            i = int((now - self._t0) / m.period)
-            ranges, inten = self._values(cmd, i)
-            self._send(scip.format_gd_frame(cmd, self.timestamp_ms(now), ranges, inten))
-            self.frames_sent += 1
+            # The reply goes out when the scan under way ends (the next motor revolution's start).
+            k = int((time.monotonic() - self._t0) / m.period) + 1
+            self._oneshot = (self._t0 + k * m.period, cmd)
             return
         self._send(scip.format_reply(cmd, "00"))
         self._laser = True
@@ -501,6 +517,17 @@ class SensorEmulator:
         if cmd.count and self._remaining <= 0:
             self._stream = None
             self._laser = False
+
+    def _emit_oneshot(self) -> None:
+        assert self._oneshot is not None
+        due, cmd = self._oneshot
+        self._oneshot = None
+        i = int(round((due - self._t0) / self.model.period))
+        ranges, inten = self._values(cmd, i)
+        stamp = self.timestamp_ms(due)
+        self.frames_sent += 1
+        self.sent_log.append((stamp, time.monotonic()))
+        self._send(scip.format_gd_frame(cmd, stamp, ranges, inten))
 
     def _corrupt_sum(self, block: bytes) -> bytes:
         lines = block.split(b"\n")
