@@ -193,8 +193,8 @@ def _initial_params(key, restarts: int, d: int, y_var) -> tuple:
 # On a CPU, the most training rows at which the starts run vmapped. A vmapped loop runs until its last
 # start stops, so it costs the number of starts times the longest start's steps; one after another
 # costs the sum of their steps. Where each evaluation is a few small kernels (N ~ 100) the shared
-# per-kernel overhead wins; where it is an O(N^3) factorisation the sum does (at N = 450, d = 17:
-# steps 300, 57, 125 and 49, vmapped 9.7 s, one after another about 4 s). On a GPU the starts always
+# per-kernel overhead wins; where it is an O(N^3) factorisation the sum does (at N = 450, d = 17, four
+# starts of 258, 256, 242 and 97 steps: vmapped 9.7 s, one after another 8.3 s). On a GPU the starts always
 # run vmapped. Either way one program serves every start of a data shape.
 VMAP_MAX_ROWS = 200
 
