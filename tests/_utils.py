@@ -2,8 +2,10 @@
 user runs it, importing this tree."""
 
 import os
+import select
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -89,3 +91,16 @@ def popen_cli(*args, **kwargs) -> subprocess.Popen:
 
 _RUN_WITH_SIGINT = ("import runpy, signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
                     "sys.argv[0] = 'gtsjax'; runpy.run_module('gtsjax', run_name='__main__', alter_sys=True)")
+
+
+def read_lines(proc, n, timeout):
+    """Up to ``n`` lines of a child's stdout, until it ends or ``timeout`` passes."""
+    lines, deadline = [], time.monotonic() + timeout
+    while len(lines) < n and time.monotonic() < deadline:
+        ready, _, _ = select.select([proc.stdout], [], [], 0.5)
+        if ready:
+            line = proc.stdout.readline()
+            if not line:
+                break
+            lines.append(line)
+    return lines

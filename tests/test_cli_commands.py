@@ -10,7 +10,6 @@ import dataclasses
 import json
 import os
 import re
-import select
 import signal
 import socket
 import subprocess
@@ -31,7 +30,7 @@ from gtsjax.io.serial import Link
 from gtsjax.sensors import URG_04LX
 from gtsjax.sim import simulate
 from gtsjax.sim.emulator import SensorEmulator, log_source
-from tests._utils import popen_cli, run_cli
+from tests._utils import popen_cli, read_lines, run_cli
 
 DEMO_MODEL = demo_model_path()
 PATIENCE_S = 300.0  # a child that compiles the step on a loaded 2-core machine; never a measurement
@@ -44,19 +43,6 @@ def a_picture(png):
 
 def wrap(a):
     return np.angle(np.exp(1j * np.asarray(a)))
-
-
-def read_lines(proc, n, timeout=PATIENCE_S):
-    """Up to ``n`` lines of a child's stdout, until it ends or ``timeout`` passes."""
-    lines, deadline = [], time.monotonic() + timeout
-    while len(lines) < n and time.monotonic() < deadline:
-        ready, _, _ = select.select([proc.stdout], [], [], 0.5)
-        if ready:
-            line = proc.stdout.readline()
-            if not line:
-                break
-            lines.append(line)
-    return lines
 
 
 # ------------------------------------------------------------------------------------------ demo
@@ -249,7 +235,7 @@ def test_run_record_killed_with_sigkill_then_recovered(field, tmp_path):
             stderr=err,
         )
         try:
-            lines = read_lines(proc, 20)
+            lines = read_lines(proc, 20, PATIENCE_S)
         finally:
             os.kill(proc.pid, signal.SIGKILL)
             proc.wait(timeout=30)

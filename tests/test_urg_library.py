@@ -19,11 +19,9 @@ Not run: ``find_port`` (it probes the host's serial devices, ``/dev/ttyACM*``, n
 import math
 import os
 import re
-import select
 import shutil
 import signal
 import subprocess
-import time
 
 import numpy as np
 import pytest
@@ -31,7 +29,7 @@ import pytest
 from gtsjax.io.logs import ScanLog, save_log
 from gtsjax.sensors import URG_04LX, UTM_30LX
 from gtsjax.sim.emulator import log_source
-from tests._utils import popen_cli
+from tests._utils import popen_cli, read_lines
 from tests.conftest import SHARED
 
 SOURCE = SHARED / "clients" / "urg_library"
@@ -69,19 +67,6 @@ def _log(model) -> ScanLog:
         angle_increment=model.angle_increment, intensities=inten, range_min=model.dmin_mm / 1000.0,
         range_max=model.dmax_mm / 1000.0, sensor_model=model.name,
     )
-
-
-def read_lines(proc, n, timeout):
-    """Up to ``n`` lines of a child's stdout, until it ends or ``timeout`` passes."""
-    lines, deadline = [], time.monotonic() + timeout
-    while len(lines) < n and time.monotonic() < deadline:
-        ready, _, _ = select.select([proc.stdout], [], [], 0.5)
-        if ready:
-            line = proc.stdout.readline()
-            if not line:
-                break
-            lines.append(line)
-    return lines
 
 
 def _run(samples, name, path, timeout=30):

@@ -223,8 +223,8 @@ class _Starts:
             params, nlls, steps = _optimise(starts, x, y, mask, self.jitter, self.weight, self.rtol, self.atol,
                                             self.max_steps)
         else:
-            each = [_optimise(_one(_row(starts, i)), x, y, mask, self.jitter, self.weight, self.rtol, self.atol,
-                              self.max_steps) for i in range(len(restarts))]
+            each = [_optimise(tuple(a[i : i + 1] for a in starts), x, y, mask, self.jitter, self.weight, self.rtol,
+                              self.atol, self.max_steps) for i in range(len(restarts))]
             params = tuple(jnp.concatenate(a) for a in zip(*(e[0] for e in each), strict=True))
             nlls, steps = (jnp.concatenate(a) for a in zip(*(e[1:] for e in each), strict=True))
         params = tuple(np.asarray(a) for a in params)
@@ -273,7 +273,7 @@ def _screen_then_refine(runs: _Starts, starts, xs, yc, fit_set, screen_points: i
     sub_default = next((f for f, r, _ in screened if r == 0), np.inf)
     better = [(r, p) for f, r, p in screened if r != 0 and f < sub_default]
     # one start at a time: one compiled program for the fit set, whatever number of starts is refined
-    done = runs.run([0], _one(_row(starts, 0)), *fit_set, "refining")
+    done = runs.run([0], tuple(a[:1] for a in starts), *fit_set, "refining")
     for r, p in better:
         found = runs.run([r], _one(p), *fit_set, "refining")
         if found:
