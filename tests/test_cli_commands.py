@@ -184,6 +184,8 @@ def test_run_json_udp_and_duration(field, tmp_path):
                 "--duration",
                 "3",
                 "--quiet",
+                "--summary",
+                tmp_path / "sub" / "summary.json",
                 timeout=PATIENCE_S,
             )
             sent = emu.frames_sent
@@ -197,6 +199,9 @@ def test_run_json_udp_and_duration(field, tmp_path):
     m = re.search(r"(\d+) frames, (\d+) rows", res.stderr)
     assert m and int(m[1]) == len(lines) > 0 and len(lines) <= sent, res.stderr
     assert [json.loads(d) for d in datagrams] == lines
+    summary = json.loads((tmp_path / "sub" / "summary.json").read_text())
+    assert summary["frames"] == len(lines) and summary["rows"] == int(m[2]) and summary["checksum_errors"] == 0
+    assert 0 < summary["latency_ms_run_median"] <= summary["latency_ms_run_p99"] <= summary["latency_ms_max"]
     stamps = np.array([line["stamp"] for line in lines])
     assert np.all(np.diff(stamps) > 0) and stamps[-1] - stamps[0] <= 3.0 + 0.5
     from_json = [
@@ -400,6 +405,8 @@ def inputs(tmp_path_factory):
     )
     (d / "bad_model.npz").write_text("not a model")
     (d / "gtd.csv").write_text("stamp,track_id,class,x,y,theta,var_x,var_y,var_theta\n")
+    (d / "gtd_rows.csv").write_text("stamp,track_id,class,x,y,theta,var_x,var_y,var_theta\n"
+                                    "1.0,1,robot,1.0,1.0,0.5,0.01,0.01,0.01\n")
     (d / "a_folder.npz").mkdir()
     return d
 
@@ -486,6 +493,38 @@ EXIT_2 = {
         ["plot", "{d}/gtd.csv", "--site", "{d}/bad_site.json", "--out", "{o}/o.png"],
         "bad_site.json",
         SITE,
+    ),
+    "run, out a folder": (
+        ["run", "--port", "{d}/no-tty", "--site", "{d}/site.json", "--model", str(DEMO_MODEL), "--out", "{d}/a_folder.npz"],
+        "a_folder.npz",
+        "is a directory",
+    ),
+    "run, record under a file": (
+        ["run", "--port", "{d}/no-tty", "--site", "{d}/site.json", "--model", str(DEMO_MODEL), "--out", "{o}/o.csv",
+         "--record", "{d}/log.npz/raw.npz"],
+        "log.npz",
+        "is a file, not a folder",
+    ),
+    "run, summary a folder": (
+        ["run", "--port", "{d}/no-tty", "--site", "{d}/site.json", "--model", str(DEMO_MODEL), "--out", "{o}/o.csv",
+         "--summary", "{d}/a_folder.npz"],
+        "a_folder.npz",
+        "is a directory",
+    ),
+    "evaluate, out-dir a file": (
+        ["evaluate", "--model", str(DEMO_MODEL), "{d}/log.npz", "--site", "{d}/site.json", "--out-dir", "{d}/log.npz"],
+        "log.npz",
+        "is a file, not a folder",
+    ),
+    "plot, out a folder": (
+        ["plot", "{d}/gtd_rows.csv", "--site", "{d}/site.json", "--out", "{d}/a_folder.npz"],
+        "a_folder.npz",
+        "is a directory",
+    ),
+    "export-tum, out-dir under a file": (
+        ["export-tum", "{d}/gtd_rows.csv", "--out-dir", "{d}/log.npz/tum"],
+        "log.npz",
+        "is a file, not a folder",
     ),
     "emulate, unknown scanner": (["emulate", "{d}/log.npz", "--model", "LMS-100"], "LMS-100", "unknown sensor model"),
     "emulate, bad log": (["emulate", "{d}/bad_model.npz"], "bad_model.npz", "not a NumPy .npz archive"),

@@ -151,6 +151,29 @@ def test_scan_log_replays_in_a_loop_in_millimetres():
         c.close()
 
 
+def test_line_checksum_faults_hit_several_lines_and_every_one_is_caught():
+    """``line_checksum_p`` draws per data line (a noisy cable), so a frame may carry several bad lines:
+    the decoder counts exactly the lines the emulator corrupted, each frame is delivered (salvaged)
+    with only those lines' beams missing, and the same seed corrupts the same lines."""
+    faults = Faults(line_checksum_p=0.05, seed=4)
+    runs = []
+    for _ in range(2):
+        with SensorEmulator(UTM_30LX, frame_source(UTM_30LX), faults=faults) as emu:
+            c = Client(emu.path)
+            frames = [r for r in c.ask(scip.md_command(0, 1080, count=6)) if isinstance(r, scip.ScanFrame)]
+            deadline = time.monotonic() + 30.0
+            while len(frames) < 6 and time.monotonic() < deadline:
+                frames += [r for r in c.read_replies(1, timeout=0.1) if isinstance(r, scip.ScanFrame)]
+            assert len(frames) == 6 == emu.frames_sent and c.dec.stats.dropped == 0
+            assert sum(f.bad_lines for f in frames) == emu.faults.lines
+            assert max(f.bad_lines for f in frames) >= 2  # 51 lines a frame at 5 %: several per frame
+            for f in frames:  # 1 081 values × 3 characters: each bad line costs at most 22 beams
+                assert (~f.valid).sum() <= 22 * f.bad_lines + np.sum(f.raw_ranges < 20)
+            runs.append([f.bad_lines for f in frames])
+            c.close()
+    assert runs[0] == runs[1]
+
+
 def test_checksum_faults_are_seeded_and_caught_by_the_decoder():
     """A data line's sum corrupted (the emulator's checksum fault) is caught line by line: the frame is
     delivered without that line's beams (issue 17), every other beam as the source gave it."""

@@ -105,3 +105,21 @@ def test_a_robot_put_down_is_reported_with_its_heading_within_half_a_second(tmp_
         checked += 1
     assert checked >= 2, (len(downs), len(rows))
     assert within_5 >= 0.5 * checked, (within_5, checked)
+
+
+def test_whole_run_latency_quantiles_follow_numpy():
+    """``LiveStats``'s whole-run latency (binned, for ``run --summary``) against ``np.quantile`` of every
+    latency: never below it, at most one bin (6 %) above; the recent window keeps its last 2 000."""
+    from gtsjax.drivers.live import LiveStats
+
+    rng = np.random.default_rng(0)
+    lat = np.concatenate([rng.lognormal(0.0, 0.4, 20_000), rng.uniform(20, 300, 60)])  # ms, with a slow tail
+    stats = LiveStats()
+    for v in lat:
+        stats.add_latency(float(v))
+    for q in (0.5, 0.9, 0.99, 0.999):
+        exact = np.quantile(lat, q, method="inverted_cdf")
+        assert exact <= stats.latency_quantile(q) <= exact * 10 ** (1 / 40) + 1e-12, q
+    assert stats.latency_max_ms == lat.max() and stats.latency_quantile(1.0) == lat.max()
+    assert len(stats.latencies_ms) == 2000 and stats.latency()[0] == np.median(lat[-2000:])
+    assert np.isnan(LiveStats().latency_quantile(0.5))

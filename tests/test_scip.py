@@ -483,20 +483,16 @@ def test_stream_bad_data_line_keeps_the_frames_other_lines(line):
     assert dec.stats.salvaged == 1 and dec.stats.checksum_errors == 0 and dec.stats.frames_ok == len(parts) - 1
     frame = out[3]
     assert frame.bad_lines == 1 and frame.timestamp_ms == clean.timestamp_ms
-    k = line - 3  # data line index
-    hit = np.zeros(682, bool)
-    for v in range(682):  # value v occupies characters 3v .. 3v + 2 of the joined payload
-        if any(k * 64 <= c < (k + 1) * 64 for c in range(3 * v, 3 * v + 3)):
-            hit[v] = True
+    hit = _beams_of_lines({line - 3}, 682, 3)  # line - 3: the data line's index
     np.testing.assert_array_equal(frame.valid, clean.valid & ~hit)
     np.testing.assert_array_equal(frame.ranges_mm[~hit], clean.ranges_mm[~hit])
     assert np.all(frame.ranges_mm[hit] == 0)
 
 
-@pytest.mark.parametrize("what", ["timestamp", "every data line", "a byte lost"])
+@pytest.mark.parametrize("what", ["timestamp", "every data line", "a byte lost from the timestamp"])
 def test_stream_frame_beyond_salvage_is_dropped(what):
-    """A bad timestamp, every data line bad, or a byte lost (the lines no longer hold their known runs
-    of beams): that frame is dropped and counted, the others delivered."""
+    """A bad timestamp, every data line bad, or a byte lost from the timestamp: that frame is dropped
+    and counted, the others delivered."""
     parts = _stream(4)
     reply = parts[3]
     n_lines = reply.count(b"\n") - 4
@@ -506,13 +502,70 @@ def test_stream_frame_beyond_salvage_is_dropped(what):
         for line in range(3, 3 + n_lines):
             reply = _damage(reply, line)
     else:
-        cut = reply.index(b"\n", reply.index(b"\n", reply.index(b"\n") + 1) + 1) + 20
+        cut = reply.index(b"\n", reply.index(b"\n") + 1) + 2
         reply = reply[:cut] + reply[cut + 1:]
     parts[3] = reply
     dec = scip.StreamDecoder()
     out = dec.decode(b"".join(parts))
     assert len(out) == len(parts) - 1 and dec.stats.dropped == 1 and dec.stats.salvaged == 0
     assert [o.timestamp_ms for o in out if isinstance(o, scip.ScanFrame) and o.code == "MD"] == [1000, 1200, 1300]
+
+
+def _beams_of_lines(lines, n_values, chars):
+    """Which values the data lines ``lines`` (0: the first) touch: value v occupies characters
+    ``chars * v .. chars * v + chars - 1`` of the joined payload, line k characters 64 k .. 64 k + 63."""
+    hit = np.zeros(n_values, bool)
+    for v in range(n_values):
+        if any(k * 64 <= c < (k + 1) * 64 for k in lines for c in range(chars * v, chars * (v + 1))):
+            hit[v] = True
+    return hit
+
+
+@pytest.mark.parametrize(("line", "at", "n"), [(0, 10, 1), (4, 0, 8), (5, 63, 2), (4, 64, 1), (4, 60, 8),
+                                             (10, 5, 3), (10, 25, 1)])
+def test_stream_bytes_lost_in_a_data_line_keep_the_other_lines(line, at, n):
+    """Bytes lost inside a data line (``at`` 64: its sum character and line feed, so two lines run
+    together; ``(10, 25)``: the last line, 682 × 3 characters = 10 full lines + 42): the frame is
+    delivered with the beams of the lines the loss touched as no return, every other beam as sent."""
+    parts = _stream(4)
+    clean = scip.parse_replies(parts[3])[0]
+    reply = parts[3]
+    start = 0
+    for _ in range(3 + line):  # echo, status, timestamp, then the data lines
+        start = reply.index(b"\n", start) + 1
+    cut = start + at
+    parts[3] = reply[:cut] + reply[cut + n:]
+    touched = {line} | ({line + 1} if at + n > 65 else set())
+    dec = scip.StreamDecoder()
+    out = dec.decode(b"".join(parts))
+    assert len(out) == len(parts) and dec.stats.salvaged == 1 and dec.stats.dropped == 0
+    frame = out[3]
+    assert frame.bad_lines == len(touched) and frame.timestamp_ms == clean.timestamp_ms
+    hit = _beams_of_lines(touched, 682, 3)
+    np.testing.assert_array_equal(frame.valid, clean.valid & ~hit)
+    np.testing.assert_array_equal(frame.ranges_mm[~hit], clean.ranges_mm[~hit])
+
+
+@FUZZ
+@given(at=st.integers(0, 10_000), n=st.integers(1, 8), seed=st.integers(0, 2**16))
+def test_stream_a_lost_run_of_bytes_costs_at_most_its_frame(at, n, seed):
+    """A run of 1–8 bytes lost anywhere in one MD frame of a stream: every frame delivered is one that
+    was sent, with its beams as sent wherever it says they are valid; the frames around are delivered
+    whole; the damaged one is delivered (salvaged) or counted dropped, never both, never silently."""
+    parts = _stream(4, seed=seed)
+    sent = [scip.parse_replies(p)[0] for p in parts]
+    at %= len(parts[3]) - n
+    parts[3] = parts[3][:at] + parts[3][at + n:]
+    dec = scip.StreamDecoder()
+    out = dec.decode(b"".join(parts))
+    assert dec.stats.salvaged + dec.stats.dropped == 1
+    assert len(out) == len(parts) - dec.stats.dropped
+    by_stamp = {getattr(f, "timestamp_ms", None): f for f in sent if isinstance(f, scip.ScanFrame)}
+    for o in out:
+        if isinstance(o, scip.ScanFrame):
+            want = by_stamp[o.timestamp_ms]
+            np.testing.assert_array_equal(o.ranges_mm[o.valid], want.ranges_mm[o.valid])
+            assert o.bad_lines > 0 or np.array_equal(o.valid, want.valid)
 
 
 def test_stream_truncated_frames_resynchronise():

@@ -71,14 +71,27 @@ def check_out_file(path: Path, option: str = "--out") -> None:
     existing = next((p for p in (parent, *parent.parents) if p.exists()), None)
     if existing is not None and not existing.is_dir():
         raise InputError(existing, f"is a file, not a folder, so {option} {path} cannot be written")
-    try:
-        parent.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise InputError(parent, f"cannot create the folder ({err.strerror})") from None
+    _writable_folder(parent)
     if path.exists() and not os.access(path, os.W_OK):
         raise InputError(path, "is not writable")
+
+
+def check_out_dir(path: Path, option: str = "--out-dir") -> None:
+    """A folder a command will write into, checked (and created) before any work: a file in its
+    place or in the place of a folder above it, or a folder that cannot be written, is one line."""
+    existing = next((p for p in (path, *path.parents) if p.exists()), None)
+    if existing is not None and not existing.is_dir():
+        raise InputError(existing, f"is a file, not a folder, so {option} {path} cannot be written")
+    _writable_folder(path)
+
+
+def _writable_folder(folder: Path) -> None:
     try:
-        with tempfile.TemporaryFile(dir=parent):
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise InputError(folder, f"cannot create the folder ({err.strerror})") from None
+    try:
+        with tempfile.TemporaryFile(dir=folder):
             pass
     except OSError as err:
-        raise InputError(parent, f"cannot write in this folder ({err.strerror})") from None
+        raise InputError(folder, f"cannot write in this folder ({err.strerror})") from None

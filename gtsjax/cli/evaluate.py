@@ -10,6 +10,7 @@ from rich.console import Console
 from rich.table import Table
 
 from ._app import CONFIRM_HELP, app, fail
+from ._common import check_out_dir
 
 # The ground truth as written (confirmed tracks), and the paper's per-sample figures (each scan's
 # detections before tracking).
@@ -86,7 +87,7 @@ def evaluate_cmd(
                 raise fail(p, "not a labelled log (no truth_poses)")
             log = fit_to_model(log, base, p)
             jobs.append((str(p), lambda log=log: (log, site_obj)))
-    out_dir.mkdir(parents=True, exist_ok=True)
+    check_out_dir(out_dir)  # after the inputs are checked (a bad one leaves nothing behind), before any replay
     results = {}
     for label, get in jobs:
         log, site_obj = get()

@@ -11,6 +11,7 @@ from rich.table import Table
 
 from ..io.gtd import read_gtd, tracks_of, write_tum
 from ._app import app
+from ._common import check_out_dir
 
 
 def tum_name(cls: str, track_id: int) -> str:
@@ -23,7 +24,7 @@ def export_tum(gtd: Path, out_dir: Path) -> list[tuple[Path, int, str, int, floa
     """Write every track of ``gtd`` into ``out_dir``; per file: (path, track id, class, poses, seconds)."""
     tracks = list(tracks_of(read_gtd(gtd)))
     if tracks:
-        out_dir.mkdir(parents=True, exist_ok=True)
+        check_out_dir(out_dir)  # a file in the folder's place is one line, not a traceback
     written = []
     for tid, cls, arr in tracks:
         path = out_dir / tum_name(cls, tid)

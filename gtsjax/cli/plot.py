@@ -15,6 +15,7 @@ from ..errors import InputError
 from ..io import load_log, load_site
 from ..io.gtd import TrackRow, read_gtd, tracks_of
 from ._app import app
+from ._common import check_out_file
 
 
 def scan_index(row_stamps: np.ndarray, log_stamps: np.ndarray) -> np.ndarray:
@@ -82,6 +83,8 @@ def plot(
     from ..viz import trajectory_figure
 
     console = Console(stderr=True, soft_wrap=True)
+    out = gtd.with_suffix(".png") if out is None else out
+    check_out_file(out)
     site_obj = load_site(site)
     rows = read_gtd(gtd)
     tracks, labels = {}, {}
@@ -118,9 +121,6 @@ def plot(
         title += "\n" + textwrap.fill("; ".join(short), 100)
     fig = trajectory_figure(site_obj, tracks, truth=true_paths, errors=errors, title=title, labels=labels,
                             truth_labels=truth_labels)
-    out = gtd.with_suffix(".png") if out is None else out
-    if out.parent and not out.parent.exists():
-        out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)
     for line in summary:
         console.print(line)

@@ -7,7 +7,7 @@ import typer
 from rich.console import Console
 
 from ._app import CONFIRM_HELP, app
-from ._common import track_summary
+from ._common import check_out_file, track_summary
 from ._live import track_live
 
 
@@ -26,8 +26,13 @@ def run_cmd(
                                    help="Stream intensities (ME) if the sensor has them (models trained with them need them)."),
     quiet: bool = typer.Option(False, help="No live view."),
     confirm_scans: int | None = typer.Option(None, "--confirm-scans", min=1, help=CONFIRM_HELP),
+    summary: Path | None = typer.Option(None, "--summary", help="Write the run's counters (frames, rows, latency, "
+                                        "link faults by cause) as JSON here when it stops."),
 ):
     """Track robots live from a sensor: GTD CSV, optional JSON lines / UDP, optional raw recording."""
+    for path, option in ((out, "--out"), (record, "--record"), (summary, "--summary")):
+        if path is not None:
+            check_out_file(path, option)
     stats, link_stats = track_live(port, model, site, out, record=record, json_lines=json_lines, udp=udp,
                                    duration=duration, frames=frames, intensity=intensity, view=not quiet,
                                    confirm_scans=confirm_scans)
@@ -37,6 +42,10 @@ def run_cmd(
         f"link: {link_stats.bad_frames} bad frames, {link_stats.salvaged} salvaged, {link_stats.dropped} dropped, "
         f"{link_stats.reconnects} reconnects"
         + (f"; raw scans -> {record}" if record else ""))
+    if summary is not None:
+        from ..drivers.live import summary_json
+
+        summary.write_text(summary_json(stats, link_stats) + "\n")
     from ..io.modelfile import load_model
 
     Console(stderr=True).print(track_summary(load_model(model), stats.track_ids, stats.unlike, stats.off_envelope),
@@ -49,14 +58,17 @@ def emulate_cmd(
     sensor: str | None = typer.Option(None, "--model", help="Sensor model to emulate (default: the scenario's)."),
     seed: int = typer.Option(0, help="Scenario seed."),
     checksum_errors: float = typer.Option(0.0, help="Probability of a bad checksum per data block."),
+    line_errors: float = typer.Option(0.0, help="Probability of a bad checksum per data line (several per block)."),
     drop_bytes: float = typer.Option(0.0, help="Probability of dropped bytes per data block."),
-    stalls: float = typer.Option(0.0, help="Probability of a 0.5 s stall per data block."),
+    stalls: float = typer.Option(0.0, help="Probability of a stall per data block."),
+    stall_seconds: float = typer.Option(0.5, min=0.0, help="How long a stall lasts."),
     disconnects: float = typer.Option(0.0, help="Probability of an unplug (and re-plug) per data block."),
 ):
     """Serve a simulated sensor over a pseudo-terminal (SCIP 2.0), printing the path to open."""
     from ..sim.emulator import Faults, serve
 
-    faults = Faults(checksum_p=checksum_errors, drop_p=drop_bytes, stall_p=stalls, disconnect_p=disconnects, seed=seed)
+    faults = Faults(checksum_p=checksum_errors, line_checksum_p=line_errors, drop_p=drop_bytes, stall_p=stalls,
+                    stall_s=stall_seconds, disconnect_p=disconnects, seed=seed)
     serve(scenario, sensor, faults, seed=seed, print_fn=lambda s: print(s, flush=True))
 
 

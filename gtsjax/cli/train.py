@@ -65,6 +65,8 @@ def train_cmd(
     console = Console(stderr=True)
     site_obj = load_site(site)
     check_out_file(out)  # before the minutes of fitting
+    if report is not None:
+        check_out_file(report, "--report")
     cfg = dataclasses.replace(TrainConfig(), max_per_class=max_per_class, max_pose_examples=max_pose,
                               max_pose_fit=max_pose_fit, pose_kernels=pose_kernels,
                               max_landmark_examples=max_landmark, n_inducing=inducing, n_inducing_class=inducing_class,

@@ -33,6 +33,9 @@ from ..io.logs import ScanLog, fit_to_model, scan_dt, valid_beams
 from ..model import Model
 from ..sensors import SensorModel
 
+#: Bin edges (ms) of the whole-run latency histogram: 40 bins a decade from 10 µs to 100 s.
+LATENCY_EDGES_MS = np.geomspace(1e-2, 1e5, 281)
+
 
 @dataclasses.dataclass
 class LiveStats:
@@ -44,6 +47,23 @@ class LiveStats:
     off_envelope: int = 0  # candidates outside their best class's shape envelope
     track_ids: dict = dataclasses.field(default_factory=dict)  # class name -> ids of reported tracks
     latencies_ms: deque = dataclasses.field(default_factory=lambda: deque(maxlen=2000))
+    # Every frame's latency since the start, binned (LATENCY_EDGES_MS; first and last bins open-ended).
+    latency_counts: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(LATENCY_EDGES_MS.size + 1, np.int64))
+    latency_max_ms: float = 0.0
+
+    def add_latency(self, ms: float) -> None:
+        self.latencies_ms.append(ms)
+        self.latency_counts[int(np.searchsorted(LATENCY_EDGES_MS, ms))] += 1
+        self.latency_max_ms = max(self.latency_max_ms, ms)
+
+    def latency_quantile(self, q: float) -> float:
+        """The ``q`` quantile of every latency since the start, to the histogram's resolution (the
+        upper edge of its bin, at most 6 % above the value)."""
+        n = int(self.latency_counts.sum())
+        if n == 0:
+            return float("nan")
+        k = int(np.searchsorted(np.cumsum(self.latency_counts), q * n))
+        return float(min(LATENCY_EDGES_MS[min(k, LATENCY_EDGES_MS.size - 1)], self.latency_max_ms))
 
     def latency(self) -> tuple[float, float]:
         """Median and p99 of the recent frame-to-GTD latencies, ms."""
@@ -207,7 +227,7 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
                 # Bookkeeping after the latency is taken: the recording and the view are not on the path.
                 if recorder is not None:
                     recorder.append_frame(lf)
-                stats.latencies_ms.append(lat)
+                stats.add_latency(lat)
                 stats.frames += 1
                 stats.rows += len(rows)
                 stats.degraded += int(degraded)
@@ -228,8 +248,14 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
 
 
 def summary_json(stats: LiveStats, link_stats) -> str:
+    """The counters of a live run as one JSON object (``gtsjax run --summary``): frames, rows, the
+    recent latency (``latency_ms_*``, last 2 000 frames) and the whole run's (``latency_ms_run_*``,
+    binned), late and degraded scans, tracks per class, and the link's counters by cause."""
     med, p99 = stats.latency()
     return json.dumps({"frames": stats.frames, "rows": stats.rows, "latency_ms_median": med, "latency_ms_p99": p99,
+                       "latency_ms_run_median": stats.latency_quantile(0.5),
+                       "latency_ms_run_p99": stats.latency_quantile(0.99),
+                       "latency_ms_run_p999": stats.latency_quantile(0.999), "latency_ms_max": stats.latency_max_ms,
                        "late": stats.late, "degraded": stats.degraded, "unlike": stats.unlike,
                        "off_envelope": stats.off_envelope,
                        "tracks": {c: len(ids) for c, ids in sorted(stats.track_ids.items())},

@@ -162,6 +162,10 @@ def parse_lines(lines: Sequence[bytes], *, where: str = "SCIP reply", strict: bo
         raise ScipError(where, f"{cmd.text}: no status line", "truncated")
     status = _parse_status(lines[1], where)
     payload = lines[2:]
+    if len(status) == 1 and cmd.code in SCAN_CODES and payload:
+        # A SCIP 1.1 answer is one bare character and nothing after; a scan reply that lost its status
+        # line (the timestamp's sum character left as the "status") must not pass as a reply.
+        raise ScipError(where, f"{cmd.text}: one-character status followed by {len(payload)} line(s)", "malformed")
     data_status = STATUS_DATA if cmd.code in CONTINUOUS_CODES else STATUS_OK
     if cmd.code in SCAN_CODES and status == data_status:
         return _parse_scan(cmd, lines[0], status, payload, where, strict)
@@ -183,8 +187,57 @@ def _parse_scan(
     lines = payload[1:]
     if not lines:
         raise ScipError(where, f"{cmd.text}: no data lines", "truncated")
-    data, bad_lines = data_payload(lines, where=where, strict=strict)
+    try:
+        data, bad_lines = data_payload(lines, where=where, strict=strict)
+    except ScipError as err:
+        relaid = None if strict or err.reason != "truncated" else _relaid(cmd, lines)
+        if relaid is None:
+            raise
+        lines = relaid
+        data, bad_lines = data_payload(lines, where=where, strict=False)
     return _scan_frame(cmd, echo, status, stamp, data, bad_lines, lambda: [len(line) - 1 for line in lines], where)
+
+
+def _relaid(cmd: Command, lines: Sequence[bytes]) -> "list[bytes] | None":
+    """The data lines of a scan reply that lost bytes inside its data (a line short of its length, or
+    two lines run together where a line feed was lost), laid out again as the command implies:
+    every line of the right length kept, each damaged one replaced by as many placeholder lines as
+    it spans, with a sum that fails, so that its beams count as no return. Each line of a reply holds
+    a fixed run of the payload's characters, so the lines around the damage keep their beams. ``None``
+    where the damage cannot be placed (more lines than the command implies, several damaged lines of
+    ambiguous span, multi-echo replies whose length varies)."""
+    chars, per_step = SCAN_CODES[cmd.code]
+    if cmd.is_multiecho or cmd.n_values is None:
+        return None
+    total = cmd.n_values * chars * per_step
+    n_chunks = -(-total // LINE_PAYLOAD)
+    last_len = total - (n_chunks - 1) * LINE_PAYLOAD + 1
+    full_len = LINE_PAYLOAD + 1
+    if not 0 < len(lines) <= n_chunks:
+        return None
+    ok = [len(line) == full_len for line in lines[:-1]] + [len(lines[-1]) == last_len]
+    damaged = [i for i, good in enumerate(ok) if not good]
+    lost_feeds = n_chunks - len(lines)
+    if not damaged:
+        return None
+    if len(damaged) == 1:
+        spans = {damaged[0]: 1 + lost_feeds}
+    else:  # each damaged line spans the whole lines its length nearly fills (at most 8 bytes lost per fault)
+        spans = {i: max(1, round((len(lines[i]) + 1) / (full_len + 1))) for i in damaged}
+        if sum(spans.values()) != len(damaged) + lost_feeds:
+            return None
+    out: list[bytes] = []
+    for i, line in enumerate(lines):
+        if i not in spans:
+            out.append(bytes(line))
+            continue
+        for _ in range(spans[i]):
+            k = len(out)
+            width = LINE_PAYLOAD if k < n_chunks - 1 else last_len - 1
+            out.append(b"0" * width + (b"1" if sum_byte(b"0" * width) != 0x31 else b"2"))
+    if len(out) != n_chunks or out[-1][-1:] == b"" or len(out[-1]) != last_len:
+        return None
+    return out
 
 
 def _scan_frame(cmd: Command, echo: bytes, status: str, stamp: int, data: np.ndarray, bad_lines: np.ndarray,

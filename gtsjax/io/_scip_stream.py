@@ -8,7 +8,8 @@ How it stays in step: a reply starts at a line that *ends* in a command echo (an
 front of it is garbage) and is confirmed by the next line being a status line with a valid sum;
 it ends at an empty line. A reply that fails to parse is dropped whole and counted by reason, but
 first the decoder looks inside it for a later echo-plus-status pair (the previous reply was cut short
-and the next one ran into it), and parses from there, so one damaged reply costs only itself.
+and the next one ran into it), and parses from there, so one damaged reply costs only itself. A scan reply damaged only in its data
+lines (a bad sum, bytes lost inside a line) is salvaged instead: delivered without those lines' beams.
 """
 
 import dataclasses
@@ -17,13 +18,15 @@ from ._scip_codec import ScipError
 from ._scip_commands import find_echo
 from ._scip_reply import Reply, ScanFrame, is_status_line, parse_lines
 
+#: Faults a scan reply is salvaged from when they lie in its data lines (see ``StreamDecoder._salvage``).
+SALVAGEABLE = ("checksum", "truncated")
 
 @dataclasses.dataclass
 class StreamStats:
     """Counters of a :class:`StreamDecoder`. Every dropped reply is counted once, by its first fault."""
 
     frames_ok: int = 0
-    salvaged: int = 0  # scan frames delivered without the beams of data lines that failed their sum
+    salvaged: int = 0  # scan frames delivered without the beams of damaged data lines
     checksum_errors: int = 0
     truncated: int = 0
     malformed: int = 0
@@ -51,6 +54,9 @@ class StreamDecoder:
         self._skipping = False  # inside an over-long line: drop bytes until its LF
         self._lines: list[bytes] = []
         self._out: list[Reply | ScanFrame] = []
+        self._orphan = 0  # lines in a row that were neither an echo nor part of a reply
+        self._held = 0  # the run of such lines before the echo now waiting for its status line
+        self._after_drop = False  # a reply was just dropped: lines without an echo may be its rest
 
     def reset(self) -> None:
         """Forget any partial reply (after reopening the port, say); counters are kept."""
@@ -58,6 +64,8 @@ class StreamDecoder:
         self._partial.clear()
         self._lines = []
         self._skipping = False
+        self._orphan = self._held = 0
+        self._after_drop = False
 
     def feed(self, data: bytes | bytearray | memoryview) -> "list[Reply | ScanFrame]":
         parts = bytes(data).split(b"\n")
@@ -121,6 +129,7 @@ class StreamDecoder:
             self._lines = []
 
     def _count(self, reason: str) -> None:
+        self._after_drop = True
         s = self.stats
         if reason == "checksum":
             s.checksum_errors += 1
@@ -135,9 +144,22 @@ class StreamDecoder:
         at = find_echo(line) if line else -1
         if at < 0:
             self.stats.garbage_bytes += len(line) + 1
+            self._orphan = self._orphan + 1 if line else self._end_orphans()
             return
+        self._held, self._orphan = self._orphan, 0
         self.stats.garbage_bytes += at
         self._lines = [line[at:]]
+
+    def _end_orphans(self, run: int | None = None) -> int:
+        """A run of two or more lines with no echo, ended by an empty line or a confirmed echo, was a
+        reply whose echo was damaged (a status, a timestamp, data lines): counted ``malformed``, so
+        that a frame lost so is counted as a frame, besides its garbage bytes; not when a reply was
+        dropped just before (the run is the rest of it, cut at a lost line feed: counted already)."""
+        if (self._orphan if run is None else run) >= 2 and not self._after_drop:
+            self.stats.malformed += 1
+        self._orphan = 0
+        self._after_drop = False
+        return 0
 
     def _on_line(self, line: bytes) -> None:
         lines = self._lines
@@ -146,9 +168,11 @@ class StreamDecoder:
         elif len(lines) == 1:
             if is_status_line(line) or len(line) == 1:
                 lines.append(line)
+                self._held = self._end_orphans(self._held)
             else:  # the "echo" was not followed by a status: it was garbage; look again at this line
                 self.stats.garbage_bytes += len(lines[0]) + 1
                 self._lines = []
+                self._orphan, self._held = self._held + 1, 0
                 self._start(line)
         elif not line:
             self._lines = []
@@ -167,7 +191,7 @@ class StreamDecoder:
                 return
             except ScipError as err:
                 first_err = err
-            if first_err.reason == "checksum" and self._salvage(lines):
+            if first_err.reason in SALVAGEABLE and self._salvage(lines):
                 return
             k, at = self._embedded_start(lines)
             if k < 0:
@@ -180,15 +204,17 @@ class StreamDecoder:
                 self._out.append(parse_lines(head, where="SCIP stream"))
                 self.stats.frames_ok += 1
             except ScipError as err:
-                if not (err.reason == "checksum" and self._salvage(head)):
+                if not (err.reason in SALVAGEABLE and self._salvage(head)):
                     self._count(err.reason)
             lines = [lines[k][at:]] + lines[k + 1 :]
 
     def _salvage(self, lines: list[bytes]) -> bool:
-        """A scan reply whose only fault is data lines failing their sum, every line of the length it
-        must have (no byte lost, so each line still holds its known run of beams): delivered with the
-        good lines' beams, the bad lines' counted as no return (``ScanFrame.valid``). Not when its
-        timestamp or every data line fails."""
+        """A scan reply whose only faults are in its data lines: lines failing their sum, or bytes lost
+        inside them (a line short of its length, two lines run together): delivered with the good
+        lines' beams, the damaged lines' counted as no return (``ScanFrame.valid``). Each data line
+        holds a known run of the payload, so the lines around the damage keep their beams (see
+        ``parse_lines(strict=False)``). Not when its echo, status or timestamp is damaged, or every
+        data line."""
         try:
             frame = parse_lines(lines, where="SCIP stream", strict=False)
         except ScipError:

@@ -37,7 +37,8 @@ requested steps ``start..end`` out of it (steps outside AMIN..AMAX report 0) and
 (the smallest non-zero value of each group, as the sensor reports the nearest return).
 
 Faults (:class:`Faults`, all drawn from one seeded generator, one draw per data block): a data
-line's sum character corrupted (``checksum_p``), a run of 1..8 bytes dropped (``drop_p``), a stall
+line's sum character corrupted (``checksum_p``; ``line_checksum_p`` draws per data line instead, so
+that a frame may carry several bad lines, as on a noisy cable), a run of 1..8 bytes dropped (``drop_p``), a stall
 (``stall_p``: nothing is read or sent for ``stall_s`` seconds; scans due meanwhile are lost, as a
 blocked USB endpoint loses them), a disconnect (``disconnect_p``: the pty master is closed, so the
 client's next read fails with an I/O error or EOF; after ``reopen_after_s`` a new pty appears under
@@ -79,6 +80,7 @@ class Faults:
     """Probabilities (per data block) and sizes of the injected faults; ``seed`` fixes the draws."""
 
     checksum_p: float = 0.0
+    line_checksum_p: float = 0.0  # per data line, not per block
     drop_p: float = 0.0
     stall_p: float = 0.0
     stall_s: float = 0.5
@@ -92,13 +94,14 @@ class FaultCounts:
     """How many of each fault the emulator injected."""
 
     checksum: int = 0
+    lines: int = 0  # data lines corrupted by ``line_checksum_p``
     dropped: int = 0
     stalls: int = 0
     disconnects: int = 0
 
     @property
     def total(self) -> int:
-        return self.checksum + self.dropped + self.stalls + self.disconnects
+        return self.checksum + self.lines + self.dropped + self.stalls + self.disconnects
 
 
 def log_source(log: ScanLog) -> FrameSource:
@@ -504,6 +507,9 @@ class SensorEmulator:
         if u[0] < f.checksum_p:
             block = self._corrupt_sum(block)
             self.faults.checksum += 1
+        if f.line_checksum_p > 0:  # drawn only when asked for: other seeds' faults stay as they were
+            block, n_bad = self._corrupt_lines(block, f.line_checksum_p)
+            self.faults.lines += n_bad
         if u[1] < f.drop_p:
             n = int(self._rng.integers(1, 9))
             at = int(self._rng.integers(0, max(len(block) - n, 1)))
@@ -529,16 +535,33 @@ class SensorEmulator:
         self.sent_log.append((stamp, time.monotonic()))
         self._send(scip.format_gd_frame(cmd, stamp, ranges, inten))
 
+    def _bad_sum(self, line: bytes) -> bytes:
+        """``line`` with its sum character changed to another valid one."""
+        out = bytearray(line)
+        old = out[-1] - 0x30
+        out[-1] = 0x30 + (old + 1 + int(self._rng.integers(0, 63))) % 64
+        return bytes(out)
+
+    @staticmethod
+    def _data_lines(lines: list[bytes]) -> list[int]:
+        # lines: echo, status, timestamp, data..., "", ""
+        return [k for k in range(3, len(lines)) if lines[k]]
+
     def _corrupt_sum(self, block: bytes) -> bytes:
         lines = block.split(b"\n")
-        # lines: echo, status, timestamp, data..., "", ""; pick a data line.
-        data_idx = [k for k in range(3, len(lines)) if lines[k]]
+        data_idx = self._data_lines(lines)
         k = data_idx[int(self._rng.integers(0, len(data_idx)))]
-        line = bytearray(lines[k])
-        old = line[-1] - 0x30
-        line[-1] = 0x30 + (old + 1 + int(self._rng.integers(0, 63))) % 64
-        lines[k] = bytes(line)
+        lines[k] = self._bad_sum(lines[k])
         return b"\n".join(lines)
+
+    def _corrupt_lines(self, block: bytes, p: float) -> tuple[bytes, int]:
+        """Each data line's sum corrupted with probability ``p``; the block and how many were."""
+        lines = block.split(b"\n")
+        data_idx = self._data_lines(lines)
+        bad = [k for k, u in zip(data_idx, self._rng.random(len(data_idx)), strict=True) if u < p]
+        for k in bad:
+            lines[k] = self._bad_sum(lines[k])
+        return b"\n".join(lines), len(bad)
 
     def _vv_fields(self) -> dict[str, str]:
         return {
