@@ -43,6 +43,7 @@ class LiveStats:
     rows: int = 0
     degraded: int = 0
     late: int = 0  # frames whose processing took longer than one scan period
+    stale: int = 0  # frames that queued up before the loop began (compiling), let go unprocessed
     unlike: int = 0  # candidates dropped as unlike every training example of their class
     off_envelope: int = 0  # candidates outside their best class's shape envelope
     track_ids: dict = dataclasses.field(default_factory=dict)  # class name -> ids of reported tracks
@@ -199,9 +200,9 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
     sensor = link.model
     check_sensor(model, sensor, str(getattr(link, "port", "sensor")), intensity=with_intensity)
     live_step, state = compiled if compiled is not None else warm_up(model, sensor)
-    while link.get(timeout=0) is not None:  # frames that queued up while compiling are stale
-        pass
     stats = LiveStats()
+    while link.get(timeout=0) is not None:  # frames that queued up while compiling are stale
+        stats.stale += 1
     outputs = outputs or Outputs()
     recorder = Recorder(record, model=sensor, intensities=with_intensity and sensor.has_intensity) if record else None
     t_end = None if duration is None else time.monotonic() + duration
@@ -256,7 +257,7 @@ def summary_json(stats: LiveStats, link_stats) -> str:
                        "latency_ms_run_median": stats.latency_quantile(0.5),
                        "latency_ms_run_p99": stats.latency_quantile(0.99),
                        "latency_ms_run_p999": stats.latency_quantile(0.999), "latency_ms_max": stats.latency_max_ms,
-                       "late": stats.late, "degraded": stats.degraded, "unlike": stats.unlike,
+                       "late": stats.late, "stale": stats.stale, "degraded": stats.degraded, "unlike": stats.unlike,
                        "off_envelope": stats.off_envelope,
                        "tracks": {c: len(ids) for c, ids in sorted(stats.track_ids.items())},
                        **dataclasses.asdict(link_stats)})

@@ -111,6 +111,7 @@ class Recorder:
         self._last_stamp = -np.inf
         self._lock = threading.Lock()
         self._dirty = False
+        self._syncing = 0
         self._closed = False
         self.journal.parent.mkdir(parents=True, exist_ok=True)
         self._fd = os.open(self.journal, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_APPEND, 0o644)
@@ -152,11 +153,20 @@ class Recorder:
         self.append(frame.ranges_m, frame.stamp, frame.intensities)
 
     def sync(self) -> None:
-        """Force the journal to disk now."""
+        """Force the journal to disk now. The lock is not held while the disk works: an ``fsync`` can
+        take tens of milliseconds, and :meth:`append` (the live loop) must not wait for it; a record
+        appended meanwhile leaves the journal dirty for the next sync. :meth:`close` stops the syncing
+        thread before it closes the file."""
         with self._lock:
-            if not self._closed and self._dirty:
-                os.fsync(self._fd)
-                self._dirty = False
+            if self._closed or not self._dirty:
+                return
+            self._dirty = False
+            self._syncing += 1
+        try:
+            os.fsync(self._fd)
+        finally:
+            with self._lock:
+                self._syncing -= 1
 
     def _sync_loop(self) -> None:
         while not self._stop.wait(self.sync_interval):
@@ -175,6 +185,11 @@ class Recorder:
             return None
         self._stop.set()
         self._syncer.join(timeout=2.0)
+        while True:  # a sync running in another thread finishes before the file is closed
+            with self._lock:
+                if self._syncing == 0:
+                    break
+            time.sleep(0.001)
         with self._lock:
             os.fsync(self._fd)
             os.close(self._fd)
