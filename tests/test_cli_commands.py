@@ -13,6 +13,7 @@ import re
 import signal
 import socket
 import subprocess
+import sys
 import threading
 import time
 
@@ -22,15 +23,16 @@ import pytest
 
 from gtsjax.cli import main
 from gtsjax.cli.demo import DEMO_SCENARIO, DEMO_SEED, demo_model_path
+from gtsjax.errors import InputError
 from gtsjax.io import load_log, save_log, save_site
-from gtsjax.io.gtd import read_gtd
+from gtsjax.io.gtd import GTDWriter, read_gtd
 from gtsjax.io.modelfile import load_model, read_header
-from gtsjax.io.record import journal_path
+from gtsjax.io.record import journal_path, recover
 from gtsjax.io.serial import Link
 from gtsjax.sensors import URG_04LX
 from gtsjax.sim import simulate
 from gtsjax.sim.emulator import SensorEmulator, log_source
-from tests._utils import popen_cli, read_lines, run_cli
+from tests._utils import cli_env, popen_cli, read_lines, run_cli
 
 DEMO_MODEL = demo_model_path()
 PATIENCE_S = 300.0  # a child that compiles the step on a loaded 2-core machine; never a measurement
@@ -559,3 +561,39 @@ def test_replay_writes_into_a_missing_folder(inputs, tmp_path):
     code = main(["replay", str(inputs / "log.npz"), "--site", str(inputs / "site.json"), "--model", str(DEMO_MODEL),
                  "--out", str(out), "--sensor-out", str(sensor)])
     assert code == 0 and out.read_text().startswith("stamp,track_id,class,") and sensor.is_file()
+
+
+def test_run_on_a_full_disk_stops_in_one_line_and_keeps_what_was_written(field, tmp_path):
+    """A disk that fills while ``run --record`` writes (here each file may grow to 40 kB,
+    ``RLIMIT_FSIZE``: the journal holds 14 scans of 2 740 bytes): one line naming the journal and the
+    error, exit 2; the journal kept for ``recover`` (no scan log half-written), every scan recorded
+    before it recovered, the CSV ending in a whole row, its rows those of the recorded scans (and of
+    the one whose recording failed)."""
+    log, site = field
+    limit = 40_000
+    raw = tmp_path / "raw.npz"
+    child = ("import resource, runpy, sys; "
+             f"resource.setrlimit(resource.RLIMIT_FSIZE, ({limit}, {limit})); "
+             "sys.argv[0] = 'gtsjax'; runpy.run_module('gtsjax', run_name='__main__', alter_sys=True)")
+    with SensorEmulator(URG_04LX, log) as emu:
+        res = subprocess.run(
+            [sys.executable, "-c", child, "run", "--port", emu.path, "--site", str(site), "--model", str(DEMO_MODEL),
+             "--out", str(tmp_path / "gtd.csv"), "--record", str(raw), "--quiet", "--duration", "120"],
+            capture_output=True, text=True, timeout=PATIENCE_S, env={**cli_env(), "GTSJAX_CACHE_DIR": "off"})
+    err = [line for line in res.stderr.strip().splitlines() if not line.startswith("connected to ")]
+    assert res.returncode == 2, res.stderr
+    assert len(err) == 1 and err[0].startswith(f"gtsjax: {journal_path(raw)}: cannot write (File too large)"), err
+    assert "the 14 scans before are kept" in err[0] and "gtsjax recover" in err[0], err
+    assert not raw.exists() and not raw.with_name(raw.name + ".part").exists()
+    rec = recover(journal_path(raw))
+    assert rec.n_scans == 14
+    text = (tmp_path / "gtd.csv").read_text()
+    assert text.endswith("\n")
+    rows = read_gtd(tmp_path / "gtd.csv")
+    extra = {r.stamp for r in rows} - set(rec.stamps.tolist())
+    assert len(rows) > 0 and len(extra) <= 1 and all(s > rec.stamps[-1] for s in extra)
+
+
+def test_gtd_writer_on_a_full_device_is_one_line():
+    with pytest.raises(InputError, match=r"^/dev/full: cannot write \(No space left on device\); the 0 rows"):
+        GTDWriter("/dev/full")

@@ -208,6 +208,7 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
     t_end = None if duration is None else time.monotonic() + duration
     prev_stamp = None
     period_ms = sensor.period * 1000.0
+    failed = None
     try:
         with GTDWriter(out) as writer:
             while (not (stop is not None and stop.is_set()) and (t_end is None or time.monotonic() < t_end)
@@ -241,10 +242,17 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
                     on_scan(stats, o, lf.stamp)
     except KeyboardInterrupt:
         pass
+    except InputError as err:  # a write failed (a full disk): stop; what is written stays
+        failed = err
     finally:
         outputs.close()
         if recorder is not None:
-            recorder.close()
+            # After a failed write the scan log would not fit either: the journal keeps the scans.
+            recorder.close(write_log=failed is None)
+    if failed is not None:
+        kept = (f"; the raw scans are in {recorder.journal} (gtsjax recover it when there is room)"
+                if recorder is not None and failed.where != str(recorder.journal) else "")
+        raise InputError(failed.where, f"{failed.problem}; stopped after {stats.frames} frames{kept}")
     return stats
 
 

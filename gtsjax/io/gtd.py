@@ -75,40 +75,55 @@ def rows_from_output(stamp: float, track_id, cls_index, pose, var, mask, class_n
 
 
 class GTDWriter:
-    """Appends rows to a GTD CSV, flushing after every scan. Use as a context manager."""
+    """Appends rows to a GTD CSV, one ``write`` per scan, so that a crash or Ctrl-C loses nothing
+    already processed. A write that fails (a full disk) is undone to the end of the last whole scan,
+    so the file never ends in a torn row, and raised as one line (:class:`InputError`) naming the
+    file, the error and the rows kept. Use as a context manager."""
 
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
         if self.path.parent and not self.path.parent.exists():
             self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._f = open(self.path, "w", newline="")
-        self._w = csv.writer(self._f, lineterminator="\n")
-        self._w.writerow(HEADER)
+        self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        self._size = 0
         self.rows = 0
+        self._append(",".join(HEADER) + "\n")
+
+    def _append(self, text: str) -> None:
+        data = text.encode()
+        done = 0
+        try:
+            while done < len(data):
+                done += os.write(self._fd, data[done:])
+        except OSError as err:
+            try:
+                os.ftruncate(self._fd, self._size)  # freeing the torn part needs no space
+            except OSError:
+                pass
+            raise InputError(self.path, f"cannot write ({err.strerror}); the {self.rows} rows before are kept") from None
+        self._size += len(data)
 
     def write(self, rows: list[TrackRow]) -> None:
+        if not rows:
+            return
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
         for r in rows:
-            self._w.writerow(
-                [
-                    repr(r.stamp),
-                    r.track_id,
-                    r.cls,
-                    f"{r.x:.6f}",
-                    f"{r.y:.6f}",
-                    f"{r.theta:.6f}",
-                    f"{r.var_x:.6e}",
-                    f"{r.var_y:.6e}",
-                    f"{r.var_theta:.6e}",
-                ]
-            )
+            w.writerow([repr(r.stamp), r.track_id, r.cls, f"{r.x:.6f}", f"{r.y:.6f}", f"{r.theta:.6f}",
+                        f"{r.var_x:.6e}", f"{r.var_y:.6e}", f"{r.var_theta:.6e}"])
+        self._append(buf.getvalue())
         self.rows += len(rows)
-        self._f.flush()
 
     def close(self) -> None:
-        if not self._f.closed:
-            self._f.flush()
-            os.fsync(self._f.fileno())
-            self._f.close()
+        if self._fd < 0:
+            return
+        fd, self._fd = self._fd, -1
+        try:
+            os.fsync(fd)
+        except OSError:
+            pass  # every row is in the file already; the disk failing to sync it is not the rows' loss
+        finally:
+            os.close(fd)
 
     def __enter__(self) -> "GTDWriter":
         return self

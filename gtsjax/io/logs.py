@@ -105,10 +105,14 @@ def save_log(log: ScanLog, path: str | os.PathLike) -> None:
     path = Path(path)
     log.validate(path)
     tmp = path.with_name(path.name + ".part")
-    with open(tmp, "wb") as f:
-        np.savez(f, **log.to_dict())
-        f.flush()
-        os.fsync(f.fileno())
+    try:
+        with open(tmp, "wb") as f:
+            np.savez(f, **log.to_dict())
+            f.flush()
+            os.fsync(f.fileno())
+    except BaseException:
+        tmp.unlink(missing_ok=True)  # a full disk (or Ctrl-C) leaves no half-written .part behind
+        raise
     os.replace(tmp, path)
 
 

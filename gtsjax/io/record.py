@@ -116,6 +116,7 @@ class Recorder:
         self.journal.parent.mkdir(parents=True, exist_ok=True)
         self._fd = os.open(self.journal, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_APPEND, 0o644)
         head = json.dumps(self.header).encode()
+        self._size = len(MAGIC) + 4 + len(head)
         os.write(self._fd, MAGIC + struct.pack("<I", len(head)) + head)
         os.fsync(self._fd)
         _fsync_dir(self.journal.parent)  # so that the journal's name itself survives a power cut
@@ -144,7 +145,19 @@ class Recorder:
         with self._lock:
             if self._closed:
                 raise InputError(self.path, "recorder is closed")
-            os.write(self._fd, rec.tobytes())
+            data = rec.tobytes()
+            try:
+                done = 0
+                while done < len(data):
+                    done += os.write(self._fd, data[done:])
+            except OSError as err:
+                try:
+                    os.ftruncate(self._fd, self._size)  # no torn record left behind
+                except OSError:
+                    pass
+                raise InputError(self.journal, f"cannot write ({err.strerror}); the {self.count} scans before are "
+                                 f"kept (gtsjax recover {self.journal} when there is room)") from None
+            self._size += len(data)
             self.count += 1
             self._dirty = True
 
@@ -175,11 +188,12 @@ class Recorder:
             except OSError:
                 pass
 
-    def close(self, keep_journal: bool = False) -> ScanLog | None:
+    def close(self, keep_journal: bool = False, write_log: bool = True) -> ScanLog | None:
         """Finish: write the scan log to :attr:`path` (atomically), remove the journal, return the log.
 
         With no scan recorded there is nothing to write (a scan log needs at least one scan): the
-        journal is removed and ``None`` returned.
+        journal is removed and ``None`` returned. ``write_log=False`` (after a failed write: the disk
+        is full) closes the journal and leaves it for :func:`recover`, returning ``None``.
         """
         if self._closed:
             return None
@@ -191,15 +205,24 @@ class Recorder:
                     break
             time.sleep(0.001)
         with self._lock:
-            os.fsync(self._fd)
+            try:
+                os.fsync(self._fd)
+            except OSError:
+                pass  # the records are in the file; read_journal below reads them back
             os.close(self._fd)
             self._closed = True
+        if not write_log:
+            return None
         if self.count == 0:
             if not keep_journal:
                 self.journal.unlink(missing_ok=True)
             return None
         log, _ = read_journal(self.journal)
-        save_log(log, self.path)
+        try:
+            save_log(log, self.path)
+        except OSError as err:
+            raise InputError(self.path, f"cannot write the scan log ({err.strerror}); its {self.count} scans are "
+                             f"kept in {self.journal} (gtsjax recover {self.journal} when there is room)") from None
         if not keep_journal:
             self.journal.unlink(missing_ok=True)
         return log
