@@ -199,13 +199,14 @@ def _parse_scan(
 
 
 def _relaid(cmd: Command, lines: Sequence[bytes]) -> "list[bytes] | None":
-    """The data lines of a scan reply that lost bytes inside its data (a line short of its length, or
-    two lines run together where a line feed was lost), laid out again as the command implies:
-    every line of the right length kept, each damaged one replaced by as many placeholder lines as
-    it spans, with a sum that fails, so that its beams count as no return. Each line of a reply holds
-    a fixed run of the payload's characters, so the lines around the damage keep their beams. ``None``
-    where the damage cannot be placed (more lines than the command implies, several damaged lines of
-    ambiguous span, multi-echo replies whose length varies)."""
+    """The data lines of a scan reply that lost bytes inside its data (one line short of its length,
+    or two or more run together where line feeds were lost), laid out again as the command implies:
+    every line of the right length kept, the damaged one replaced by as many placeholder lines as it
+    spans, with a sum that fails, so that its beams count as no return. Each line of a reply holds a
+    fixed run of the payload's characters, so the lines around the damage keep their beams. ``None``
+    where the damage cannot be placed for sure: more than one damaged line (a line feed inserted, say,
+    which shifts every line after it), more lines than the command implies, a damaged line whose
+    length is far from the lines it would span, multi-echo replies (whose length varies)."""
     chars, per_step = SCAN_CODES[cmd.code]
     if cmd.is_multiecho or cmd.n_values is None:
         return None
@@ -217,27 +218,21 @@ def _relaid(cmd: Command, lines: Sequence[bytes]) -> "list[bytes] | None":
         return None
     ok = [len(line) == full_len for line in lines[:-1]] + [len(lines[-1]) == last_len]
     damaged = [i for i, good in enumerate(ok) if not good]
-    lost_feeds = n_chunks - len(lines)
-    if not damaged:
+    if len(damaged) != 1:
         return None
-    if len(damaged) == 1:
-        spans = {damaged[0]: 1 + lost_feeds}
-    else:  # each damaged line spans the whole lines its length nearly fills (at most 8 bytes lost per fault)
-        spans = {i: max(1, round((len(lines[i]) + 1) / (full_len + 1))) for i in damaged}
-        if sum(spans.values()) != len(damaged) + lost_feeds:
-            return None
-    out: list[bytes] = []
-    for i, line in enumerate(lines):
-        if i not in spans:
-            out.append(bytes(line))
-            continue
-        for _ in range(spans[i]):
-            k = len(out)
-            width = LINE_PAYLOAD if k < n_chunks - 1 else last_len - 1
-            out.append(b"0" * width + (b"1" if sum_byte(b"0" * width) != 0x31 else b"2"))
-    if len(out) != n_chunks or out[-1][-1:] == b"" or len(out[-1]) != last_len:
+    (d,) = damaged
+    span = 1 + n_chunks - len(lines)  # the line feeds lost run that many lines into this one
+    widths = [LINE_PAYLOAD if k < n_chunks - 1 else last_len - 1 for k in range(d, d + span)]
+    spanned = sum(w + 1 for w in widths) + span - 1  # their characters, sums and inner line feeds
+    if abs(len(lines[d]) - spanned) > MAX_LOST_BYTES:
         return None
-    return out
+    placeholders = [b"0" * w + (b"1" if sum_byte(b"0" * w) != 0x31 else b"2") for w in widths]
+    return [bytes(line) for line in lines[:d]] + placeholders + [bytes(line) for line in lines[d + 1:]]
+
+
+#: How far (bytes) a damaged data line's length may be from the lines it spans for
+#: :func:`_relaid` to place it: a few bytes lost or garbled, not a line's worth.
+MAX_LOST_BYTES = 16
 
 
 def _scan_frame(cmd: Command, echo: bytes, status: str, stamp: int, data: np.ndarray, bad_lines: np.ndarray,
