@@ -18,9 +18,15 @@ def draw_site(ax, site, sensor_pose=None) -> None:
                                    zorder=0))
     xy = site.landmark_xy
     ax.scatter(xy[:, 0], xy[:, 1], marker="o", s=60, c="#222", zorder=3, label="landmarks")
-    sx, sy, sth = site.sensor_pose if sensor_pose is None else sensor_pose
-    ax.scatter([sx], [sy], marker="s", s=80, c="#c33", zorder=4, label="laser")
-    ax.arrow(sx, sy, 0.35 * math.cos(sth), 0.35 * math.sin(sth), width=0.02, color="#c33", zorder=4)
+    poses = [site.sensor_pose if sensor_pose is None else sensor_pose]
+    names = [None]
+    if sensor_pose is None and getattr(site, "sensors", ()):
+        poses, names = [sen.pose for sen in site.sensors], [sen.name for sen in site.sensors]
+    for k, ((sx, sy, sth), name) in enumerate(zip(poses, names, strict=True)):
+        ax.scatter([sx], [sy], marker="s", s=80, c="#c33", zorder=4, label="laser" if k == 0 else None)
+        ax.arrow(sx, sy, 0.35 * math.cos(sth), 0.35 * math.sin(sth), width=0.02, color="#c33", zorder=4)
+        if name is not None:
+            ax.annotate(name, (sx, sy), textcoords="offset points", xytext=(6, 6), fontsize=8, color="#c33", zorder=5)
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
@@ -154,4 +160,58 @@ def outline_figure(model, title: str = ""):
         ax.set_title(f"{model.classes[k]}: learnt outline\nside hypotheses (dashed): {turns}", fontsize=10)
     if title:
         fig.suptitle(title, fontsize=9 if len(ks) == 1 else 11)
+    return fig
+
+
+def coverage_grid(site, models, step: float = 0.05, margin: float = 0.5):
+    """How many of the site's lasers see each spot of the field: a grid over the bounds (or the
+    landmarks' and sensors' extent, with ``margin``), and per sensor a boolean map of the spots within
+    its scanner's range and field of view (``models``: one :class:`~gtsjax.sensors.SensorModel` per
+    sensor of ``site.sensor_list``). Occlusion is not modelled: a robot between the laser and a spot
+    hides it, which is why a crowded field wants more than one laser."""
+    if site.bounds is not None:
+        x0, y0, x1, y1 = site.bounds
+    else:
+        pts = np.vstack([site.landmark_xy, [sen.pose[:2] for sen in site.sensor_list]])
+        (x0, y0), (x1, y1) = pts.min(0) - margin, pts.max(0) + margin
+    xs = np.arange(x0 + step / 2, x1, step)
+    ys = np.arange(y0 + step / 2, y1, step)
+    gx, gy = np.meshgrid(xs, ys)
+    seen = []
+    for sen, m in zip(site.sensor_list, models, strict=True):
+        sx, sy, sth = sen.pose
+        dx, dy = gx - sx, gy - sy
+        r = np.hypot(dx, dy)
+        bearing = np.arctan2(np.sin(np.arctan2(dy, dx) - sth), np.cos(np.arctan2(dy, dx) - sth))
+        fov_max = m.angle_min + m.angle_increment * (m.n_beams - 1)
+        seen.append((r >= m.range_min) & (r <= m.range_max) & (bearing >= m.angle_min) & (bearing <= fov_max))
+    return xs, ys, np.asarray(seen)
+
+
+def coverage_figure(site, models, title: str = ""):
+    """The field coloured by how many lasers see each spot (within range and field of view), each
+    laser's reach outlined."""
+    xs, ys, seen = coverage_grid(site, models)
+    count = seen.sum(0)
+    n = len(models)
+    fig, ax = plt.subplots(figsize=(8, 6))
+    cmap = plt.get_cmap("viridis", n + 1)
+    im = ax.pcolormesh(xs, ys, count, cmap=cmap, vmin=-0.5, vmax=n + 0.5, shading="nearest", zorder=1, alpha=0.85)
+    cb = fig.colorbar(im, ax=ax, ticks=range(n + 1), shrink=0.8)
+    cb.set_label("lasers that see the spot")
+    for sen, m in zip(site.sensor_list, models, strict=True):
+        sx, sy, sth = sen.pose
+        a = sth + m.angle_min + np.linspace(0, m.angle_increment * (m.n_beams - 1), 200)
+        ax.plot(np.r_[sx, sx + m.range_max * np.cos(a), sx], np.r_[sy, sy + m.range_max * np.sin(a), sy],
+                color="#c33", lw=0.8, ls="--", zorder=2)
+    draw_site(ax, site)
+    for patch in ax.patches:  # the bounds' fill would hide the map; keep their outline
+        patch.set_fill(False)
+        patch.set_zorder(3)
+    if site.bounds is not None:
+        x0, y0, x1, y1 = site.bounds
+        ax.set_xlim(min(x0, *(s.pose[0] for s in site.sensor_list)) - 0.5, max(x1, *(s.pose[0] for s in site.sensor_list)) + 0.5)
+        ax.set_ylim(min(y0, *(s.pose[1] for s in site.sensor_list)) - 0.5, max(y1, *(s.pose[1] for s in site.sensor_list)) + 0.5)
+    ax.set_title(title)
+    fig.tight_layout()
     return fig

@@ -8,6 +8,7 @@ a few dozen examples. No assertion is on the wall clock; deadlines only stop a t
 
 import dataclasses
 import json
+import math
 import os
 import re
 import signal
@@ -410,6 +411,10 @@ def inputs(tmp_path_factory):
     (d / "gtd_rows.csv").write_text("stamp,track_id,class,x,y,theta,var_x,var_y,var_theta\n"
                                     "1.0,1,robot,1.0,1.0,0.5,0.01,0.01,0.01\n")
     (d / "a_folder.npz").mkdir()
+    two = json.loads((d / "site.json").read_text())
+    pose = two.pop("sensor_pose")
+    two["sensors"] = [{"name": "north", "sensor_pose": pose}, {"name": "south", "sensor_pose": [3.0, -0.3, 1.5708]}]
+    (d / "two_sensors.json").write_text(json.dumps(two))
     return d
 
 
@@ -528,6 +533,22 @@ EXIT_2 = {
         "log.npz",
         "is a file, not a folder",
     ),
+    "replay, a site of two sensors without --sensor": (
+        ["replay", "{d}/log.npz", "--site", "{d}/two_sensors.json", "--model", str(DEMO_MODEL), "--out", "{o}/o.csv"],
+        "two_sensors.json",
+        "has 2 sensors (north, south): name the one the scans are from with --sensor NAME",
+    ),
+    "run, a sensor the site does not have": (
+        ["run", "--port", "{d}/no-tty", "--site", "{d}/two_sensors.json", "--sensor", "east", "--model",
+         str(DEMO_MODEL), "--out", "{o}/o.csv"],
+        "two_sensors.json",
+        "has no sensor named 'east'",
+    ),
+    "plot --coverage, an unknown scanner": (
+        ["plot", "--coverage", "{d}/two_sensors.json", "--scanner", "LMS-100", "--out", "{o}/c.png"],
+        "--scanner",
+        "unknown sensor model",
+    ),
     "emulate, unknown scanner": (["emulate", "{d}/log.npz", "--model", "LMS-100"], "LMS-100", "unknown sensor model"),
     "emulate, bad log": (["emulate", "{d}/bad_model.npz"], "bad_model.npz", "not a NumPy .npz archive"),
 }
@@ -597,3 +618,43 @@ def test_run_on_a_full_disk_stops_in_one_line_and_keeps_what_was_written(field, 
 def test_gtd_writer_on_a_full_device_is_one_line():
     with pytest.raises(InputError, match=r"^/dev/full: cannot write \(No space left on device\); the 0 rows"):
         GTDWriter("/dev/full")
+
+
+def test_replay_picks_the_named_sensor_of_a_site_with_two(inputs, tmp_path):
+    """``--sensor NAME`` on a site of several lasers: the scans are that laser's, so the replay with the
+    first sensor named writes what the one-sensor site writes."""
+    one, two = tmp_path / "one.csv", tmp_path / "two.csv"
+    common = ["replay", str(inputs / "log.npz"), "--model", str(DEMO_MODEL)]
+    assert main([*common, "--site", str(inputs / "site.json"), "--out", str(one)]) == 0
+    assert main([*common, "--site", str(inputs / "two_sensors.json"), "--sensor", "north", "--out", str(two)]) == 0
+    assert one.read_text() == two.read_text()
+
+
+def test_plot_coverage_of_two_sensors(inputs, tmp_path, capsys):
+    """``plot --coverage SITE.json``: a picture, and per laser and overall the share of the field seen,
+    against a count made point by point with plain geometry."""
+    from gtsjax.io import load_site
+    from gtsjax.sensors import URG_04LX
+
+    out = tmp_path / "cov.png"
+    assert main(["plot", "--coverage", str(inputs / "two_sensors.json"), "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert a_picture(out)
+    site = load_site(inputs / "two_sensors.json")
+    x0, y0, x1, y1 = site.bounds
+    m, step = URG_04LX, 0.05
+    seen = []
+    for y in np.arange(y0 + step / 2, y1, step):
+        for x in np.arange(x0 + step / 2, x1, step):
+            n = 0
+            for sen in site.sensor_list:
+                sx, sy, sth = sen.pose
+                r = math.hypot(x - sx, y - sy)
+                b = math.remainder(math.atan2(y - sy, x - sx) - sth, 2 * math.pi)
+                n += m.range_min <= r <= m.range_max and m.angle_min <= b <= m.angle_min + m.angle_increment * (m.n_beams - 1)
+            seen.append(n)
+    seen = np.asarray(seen)
+    for k in (1, 2):
+        share = 100 * np.mean(seen >= k)
+        shown = re.search(rf"([\d.]+)% by {k}\+", err)
+        assert shown and abs(float(shown[1]) - share) <= 0.51, (err, share)

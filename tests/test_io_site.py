@@ -151,3 +151,55 @@ def test_replay_refuses_a_site_at_1e39_in_one_line(tmp_path, capsys):
     lines = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(lines) == 1 and lines[0].startswith(f"gtsjax: {site}: landmark 1: 'y'"), lines
     assert not (tmp_path / "o.csv").exists()
+
+
+# ----------------------------------------------------------------------------- several sensors (issue 18)
+
+TWO = {
+    "landmarks": SPL["landmarks"],
+    "sensors": [{"name": "north", "sensor_pose": [3.0, 4.3, -1.5708], "model": "URG-04LX"},
+                {"name": "south", "sensor_pose": [3.0, -0.3, 1.5708]}],
+    "bounds": SPL["bounds"],
+}
+
+
+def test_site_without_sensors_is_one_sensor_and_writes_as_before(tmp_path):
+    site = load_site(write(tmp_path, SPL))
+    assert site.sensors == () and [(s.name, s.pose, s.model) for s in site.sensor_list] == [
+        ("laser", (3.0, 4.0, -1.5708), None)]
+    save_site(site, tmp_path / "again.json")
+    assert json.loads((tmp_path / "again.json").read_text()) == SPL  # no key added
+
+
+def test_site_with_sensors_loads_round_trips_and_keeps_a_sensor_pose_for_old_readers(tmp_path):
+    site = load_site(write(tmp_path, TWO))
+    assert [(s.name, s.pose, s.model) for s in site.sensor_list] == [
+        ("north", (3.0, 4.3, -1.5708), "URG-04LX"), ("south", (3.0, -0.3, 1.5708), None)]
+    assert site.sensor_pose == (3.0, 4.3, -1.5708)  # the first sensor's
+    save_site(site, tmp_path / "again.json")
+    doc = json.loads((tmp_path / "again.json").read_text())
+    assert doc["sensor_pose"] == [3.0, 4.3, -1.5708] and doc["sensors"] == TWO["sensors"]
+    assert load_site(tmp_path / "again.json") == site
+    south = site.for_sensor("south")
+    assert south.sensor_pose == (3.0, -0.3, 1.5708) and south.sensors == () and south.landmarks == site.landmarks
+    with pytest.raises(InputError, match="no sensor named 'east'"):
+        site.for_sensor("east")
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    (lambda d: d.pop("sensors"), "missing required key 'sensor_pose' (or a 'sensors' list)"),
+    (lambda d: d.update(sensors=[]), "missing required key 'sensor_pose' (or a 'sensors' list)"),
+    (lambda d: d["sensors"][1].update(name="north"), "the name 'north' is used twice"),
+    (lambda d: d["sensors"][1].pop("sensor_pose"), "sensor 1 is missing 'sensor_pose'"),
+    (lambda d: d["sensors"][0].update(sensor_pose=[0, 0]), "sensor 'north': 'sensor_pose' must be [x, y, theta]"),
+    (lambda d: d["sensors"][0].update(sensor_pose=[1e39, 0, 0]), "beyond ±10000 m"),
+    (lambda d: d["sensors"][1].update(model="LMS-100"), "sensor 'south': unknown scanner model 'LMS-100'"),
+    (lambda d: d["sensors"][1].update(name="a=b"), "'name' must be a non-empty string without '=' or ','"),
+    (lambda d: d.update(sensors="north"), "'sensors' must be a non-empty list"),
+])
+def test_bad_sensors_list_is_one_line(tmp_path, change, message):
+    doc = json.loads(json.dumps(TWO))
+    change(doc)
+    with pytest.raises(InputError) as err:
+        load_site(write(tmp_path, doc))
+    assert str(err.value).startswith(str(tmp_path / "site.json")) and message in str(err.value)

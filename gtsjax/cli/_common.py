@@ -13,6 +13,7 @@ from ..errors import InputError
 from ..io import load_site
 from ..io.importers import detect_format, import_log
 from ..io.modelfile import load_model
+from ..io.site import one_sensor
 
 INPUT_HELP = ("Scan log: .npz, a ROS 1 bag (.bag), a ROS 2 bag (its directory), a CARMEN log (.log, .log.gz) "
               "or a BreezySLAM URG-04LX text log (.dat).")
@@ -55,9 +56,10 @@ def track_summary(model, track_ids: dict, unlike: int, off_envelope: int) -> str
             f"outside their class's shape envelope: {off_envelope}")
 
 
-def load_for_run(model_path: Path, site_path: Path):
-    """The model with the site attached (whether it fits the scans is ``fit_to_model``'s check)."""
-    site = load_site(site_path)
+def load_for_run(model_path: Path, site_path: Path, sensor: str | None = None):
+    """The model with the site attached, as one of its lasers sees it (``--sensor``; whether it fits
+    the scans is ``fit_to_model``'s check)."""
+    site = one_sensor(load_site(site_path), sensor, site_path)
     return load_model(model_path).with_site(site, where=str(site_path))
 
 

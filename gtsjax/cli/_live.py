@@ -42,16 +42,16 @@ def live_view(model, link, stats, output, stamp) -> Group:
 def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Path | None = None,
                json_lines: bool = False, udp: str | None = None, duration: float | None = None,
                frames: int | None = None, intensity: bool = True, view: bool = True, console: Console | None = None,
-               confirm_scans: int | None = None):
+               confirm_scans: int | None = None, sensor: str | None = None):
     """Open the sensor, run the live loop, show the view; returns (live stats, link stats)."""
     from ..drivers.live import Outputs, check_sensor, run_live, warm_up
     from ..io.modelfile import load_model
     from ..io.serial import Link
-    from ..io.site import load_site
+    from ..io.site import load_site, one_sensor
     from ..sensors import MODELS
 
     console = console or Console(stderr=True)
-    site_obj = load_site(site)
+    site_obj = one_sensor(load_site(site), sensor, site)
     model = load_model(model_path).with_site(site_obj, where=str(site)).with_confirmation(confirm_scans)
     # Compile before the sensor streams, when the model names a known scanner (else after connecting).
     compiled = warm_up(model, MODELS[model.sensor_model]) if model.sensor_model in MODELS else None

@@ -53,6 +53,8 @@ def evaluate_cmd(
     model: Path = typer.Option(..., "--model", help="Model file from gtsjax train."),
     logs: list[Path] = typer.Argument(None, help="Labelled scan logs (.npz); with --site."),
     site: Path | None = typer.Option(None, "--site", help="Site file of the logs."),
+    sensor: str | None = typer.Option(None, "--sensor", help="With a site of several lasers: the one the scans are "
+                                                          "from (its name in the site's sensors list)."),
     scenario: list[str] = typer.Option(None, "--scenario", help="Simulated scenario(s) instead of logs (NAME or NAME:SEED)."),
     out_dir: Path = typer.Option(Path("eval-out"), "--out-dir", help="Where to write results.md, results.json, PNGs."),
     confirm_scans: int | None = typer.Option(None, "--confirm-scans", min=1, help=CONFIRM_HELP),
@@ -65,6 +67,7 @@ def evaluate_cmd(
     from ..io import load_log, load_site
     from ..io.logs import fit_to_model
     from ..io.modelfile import load_model
+    from ..io.site import one_sensor
     from ..sim import simulate
     from ..viz import error_map_figure
 
@@ -80,7 +83,7 @@ def evaluate_cmd(
         name, _, seed = spec.partition(":")
         jobs.append((spec, lambda name=name, seed=seed: simulate(name, seed=int(seed or 1000))))
     if logs:
-        site_obj = load_site(site)
+        site_obj = one_sensor(load_site(site), sensor, site)
         for p in logs:  # every log is read and checked before the first is evaluated: a bad one fails fast
             log = load_log(p)
             if not log.labelled:

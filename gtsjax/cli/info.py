@@ -41,9 +41,16 @@ def info(
             for lm in site.landmarks:
                 table.add_row(lm.cls, f"{lm.x:.3f}", f"{lm.y:.3f}")
             console.print(table)
-            x, y, th = site.sensor_pose
-            console.print(f"  sensor pose guess: x={x:.3f} m  y={y:.3f} m  θ={np.degrees(th):.1f}°"
-                          f"   bounds: {site.bounds if site.bounds is not None else 'none'}")
+            if site.sensors:
+                for sen in site.sensors:
+                    x, y, th = sen.pose
+                    console.print(f"  sensor {sen.name} ({sen.model or 'any scanner'}): pose guess x={x:.3f} m  "
+                                  f"y={y:.3f} m  θ={np.degrees(th):.1f}°")
+                console.print(f"  bounds: {site.bounds if site.bounds is not None else 'none'}")
+            else:
+                x, y, th = site.sensor_pose
+                console.print(f"  sensor pose guess: x={x:.3f} m  y={y:.3f} m  θ={np.degrees(th):.1f}°"
+                              f"   bounds: {site.bounds if site.bounds is not None else 'none'}")
         else:
             if (what := _not_a_log(path)) is not None:
                 raise InputError(path, f"{what}, not a scan log, site file or model file")

@@ -71,18 +71,31 @@ def truth_errors(rows: list[TrackRow], log, radius: float, where: object):
 
 @app.command()
 def plot(
-    gtd: Path = typer.Argument(..., help="Ground-truth CSV (from replay or run)."),
-    site: Path = typer.Option(..., "--site", help="Site file (.json) the CSV was made with."),
+    gtd: Path | None = typer.Argument(None, help="Ground-truth CSV (from replay or run)."),
+    site: Path | None = typer.Option(None, "--site", help="Site file (.json) the CSV was made with."),
+    coverage: Path | None = typer.Option(None, "--coverage", help="Instead of a CSV: a site file, drawn with what "
+                                                                  "each of its lasers sees (range and field of view) "
+                                                                  "and how many see each spot."),
+    scanner: str = typer.Option("URG-04LX", "--scanner", help="With --coverage: the scanner model of a sensor the "
+                                                              "site names none for."),
     truth: Path | None = typer.Option(None, "--truth", help="Labelled scan log (.npz) the CSV was made from: adds "
                                                             "the true paths and the error over time."),
     out: Path | None = typer.Option(None, "--out", help="PNG to write (default: the CSV's name with .png)."),
     match_radius: float = typer.Option(0.5, "--match-radius", min=0.0, help="With --truth: a track farther than "
                                                                               "this (m) from an object is no match."),
 ):
-    """Draw a ground-truth CSV on its field: tracks, headings, and with --truth the error over time."""
+    """Draw a ground-truth CSV on its field: tracks, headings, and with --truth the error over time; or,
+    with --coverage SITE.json, which parts of the field each laser sees."""
     from ..viz import trajectory_figure
 
     console = Console(stderr=True, soft_wrap=True)
+    if coverage is not None:
+        if gtd is not None or site is not None or truth is not None:
+            raise InputError("plot", "--coverage SITE.json draws a site alone: give no CSV, --site or --truth")
+        plot_coverage(coverage, scanner, out, console)
+        return
+    if gtd is None or site is None:
+        raise InputError("plot", "needs GTD.csv and --site SITE.json (or --coverage SITE.json)")
     out = gtd.with_suffix(".png") if out is None else out
     check_out_file(out)
     site_obj = load_site(site)
@@ -125,3 +138,38 @@ def plot(
     for line in summary:
         console.print(line)
     console.print(f"wrote {out} ({len(tracks)} tracks{', with truth' if truth is not None else ''})")
+
+
+def plot_coverage(path: Path, scanner: str, out: Path | None, console: Console) -> None:
+    """``plot --coverage``: the coverage figure, and per laser and overall the share of the field
+    (its bounds) seen, printed."""
+    from ..sensors import get_model
+    from ..viz import coverage_figure, coverage_grid
+
+    out = path.with_name(path.stem + "-coverage.png") if out is None else out
+    check_out_file(out)
+    site_obj = load_site(path)
+    try:
+        models = [get_model(sen.model or scanner) for sen in site_obj.sensor_list]
+    except InputError as err:
+        raise InputError("--scanner", err.problem) from None
+    _, _, seen = coverage_grid(site_obj, models)
+    count = seen.sum(0)
+    lines = [f"{sen.name} ({m.name}, {m.range_max:g} m, {np.degrees(m.angle_increment * (m.n_beams - 1)):.0f}°): "
+             f"sees {_pct(s.mean())} of the field" for sen, m, s in zip(site_obj.sensor_list, models, seen,
+                                                                                strict=True)]
+    shares = ", ".join(f"{_pct(np.mean(count >= k))} by {k}+" for k in range(1, len(models) + 1))
+    where = "its bounds" if site_obj.bounds is not None else "the landmarks' extent"
+    title = f"{path.name}: {len(models)} laser{'s' * (len(models) != 1)}; of {where}: {shares}"
+    fig = coverage_figure(site_obj, models, title=title)
+    fig.savefig(out, dpi=110)
+    for line in lines:
+        console.print(line)
+    console.print(f"seen {shares} (range and field of view; a robot in front hides what is behind it)")
+    console.print(f"wrote {out}")
+
+
+def _pct(share: float) -> str:
+    """A share as a percentage, with a decimal where rounding would claim all or none."""
+    p = 100 * float(share)
+    return f"{p:.0f}%" if 0.5 <= p <= 99.5 or p in (0.0, 100.0) else f"{p:.1f}%"

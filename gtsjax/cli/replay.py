@@ -37,6 +37,8 @@ def replay_cmd(
     logs: list[Path] = typer.Argument(..., help=INPUT_HELP + " Several logs of one scanner run side by side (independent "
                                                "trackers, one compiled program); --out is then a folder."),
     site: Path = typer.Option(..., "--site", help="Site file (.json)."),
+    sensor: str | None = typer.Option(None, "--sensor", help="With a site of several lasers: the one the scans are "
+                                                          "from (its name in the site's sensors list)."),
     model: Path = typer.Option(..., "--model", help="Model file from gtsjax train."),
     out: Path = typer.Option(..., "--out", help="Ground-truth CSV to write; with several logs, the folder that gets one "
                                                 "LOG-NAME.csv per log."),
@@ -55,7 +57,7 @@ def replay_cmd(
 ):
     """Process logged scan files into ground truth (GTD CSV)."""
     console = Console(stderr=True)
-    m = load_for_run(model, site).with_confirmation(confirm_scans)
+    m = load_for_run(model, site, sensor).with_confirmation(confirm_scans)
     outs, sensor_outs = _outputs(logs, out, sensor_out)
     scan_logs = [_load_fitted(log, topic, m, crop_fov, console) for log in logs]
     t0 = time.perf_counter()

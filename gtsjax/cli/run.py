@@ -15,6 +15,8 @@ from ._live import track_live
 def run_cmd(
     port: str = typer.Option(..., "--port", help="Serial port or pyserial URL (/dev/ttyACM0, a pty, socket://host:port)."),
     site: Path = typer.Option(..., "--site", help="Site file (.json)."),
+    sensor: str | None = typer.Option(None, "--sensor", help="With a site of several lasers: the one the scans are "
+                                                          "from (its name in the site's sensors list)."),
     model: Path = typer.Option(..., "--model", help="Model file from gtsjax train."),
     out: Path = typer.Option(..., "--out", help="Ground-truth CSV to write (flushed every scan)."),
     record: Path | None = typer.Option(None, "--record", help="Also record the raw scans (crash-safe) to this .npz."),
@@ -35,7 +37,7 @@ def run_cmd(
             check_out_file(path, option)
     stats, link_stats = track_live(port, model, site, out, record=record, json_lines=json_lines, udp=udp,
                                    duration=duration, frames=frames, intensity=intensity, view=not quiet,
-                                   confirm_scans=confirm_scans)
+                                   confirm_scans=confirm_scans, sensor=sensor)
     med, p99 = stats.latency()
     Console(stderr=True).print(
         f"{stats.frames} frames, {stats.rows} rows -> {out}; latency median {med:.2f} ms, p99 {p99:.2f} ms; "

@@ -14,6 +14,7 @@ from rich.table import Table
 from ..errors import InputError
 from ..io import load_log, load_site
 from ..io.modelfile import save_model
+from ..io.site import one_sensor
 from ..train import TrainConfig, fit_background, train
 from ._app import app
 from ._common import check_out_file, load_input
@@ -23,6 +24,8 @@ from ._common import check_out_file, load_input
 def train_cmd(
     logs: list[Path] = typer.Argument(..., help="Labelled scan logs (.npz) of one site."),
     site: Path = typer.Option(..., "--site", help="Site file (.json) the logs were recorded on."),
+    sensor: str | None = typer.Option(None, "--sensor", help="With a site of several lasers: the one the scans are "
+                                                          "from (its name in the site's sensors list)."),
     out: Path = typer.Option(..., "--out", help="Model file to write."),
     max_per_class: int = typer.Option(TrainConfig.max_per_class, help="Classifier examples per class (balanced)."),
     max_pose: int = typer.Option(TrainConfig.max_pose_examples,
@@ -63,7 +66,7 @@ def train_cmd(
 ):
     """Train a model from labelled logs (training and held-out evaluation)."""
     console = Console(stderr=True)
-    site_obj = load_site(site)
+    site_obj = one_sensor(load_site(site), sensor, site)
     check_out_file(out)  # before the minutes of fitting
     if report is not None:
         check_out_file(report, "--report")

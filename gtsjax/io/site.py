@@ -1,5 +1,12 @@
 """Site files (JSON, ``shared/spec/formats.md``): the field's static landmarks, the user's rough
-guess of the sensor pose, and optional bounds for mobile objects."""
+guess of the sensor pose, and optional bounds for mobile objects.
+
+Several lasers on one field (issue 18) extend the format with an optional ``sensors`` list, each
+``{"name": str, "sensor_pose": [x, y, θ], "model": "URG-04LX" | …}`` (``model`` optional: any
+scanner). A site with ``sensors`` may leave out the top-level ``sensor_pose``; it is then written as
+the first sensor's, so that a program that knows one sensor still reads the file. A site without
+``sensors`` is one sensor, named ``laser``, at ``sensor_pose``, exactly as before.
+"""
 
 import dataclasses
 import json
@@ -20,13 +27,46 @@ class Landmark:
 
 
 @dataclasses.dataclass(frozen=True)
+class SiteSensor:
+    """One laser of a site: its name (unique in the site), rough pose guess s′ in O, scanner model
+    (``None``: any)."""
+
+    name: str
+    pose: tuple[float, float, float]
+    model: str | None = None
+
+
+#: The name of a site's only sensor when the file has no ``sensors`` list.
+DEFAULT_SENSOR = "laser"
+
+
+@dataclasses.dataclass(frozen=True)
 class Site:
-    """A field: landmarks in O, the rough sensor pose s′ = (x, y, θ) in O, optional bounds."""
+    """A field: landmarks in O, the rough sensor pose s′ = (x, y, θ) in O, optional bounds, and the
+    optional ``sensors`` list of a site with several lasers (``sensor_pose`` is then the first's)."""
 
     landmarks: tuple[Landmark, ...]
     sensor_pose: tuple[float, float, float]
     bounds: tuple[float, float, float, float] | None = None
     extra: dict = dataclasses.field(default_factory=dict, compare=False)
+    sensors: tuple[SiteSensor, ...] = ()
+
+    @property
+    def sensor_list(self) -> tuple[SiteSensor, ...]:
+        """Every laser of the site: the ``sensors`` list, or the one at ``sensor_pose``."""
+        return self.sensors or (SiteSensor(DEFAULT_SENSOR, tuple(self.sensor_pose)),)
+
+    def sensor(self, name: str) -> SiteSensor:
+        for sen in self.sensor_list:
+            if sen.name == name:
+                return sen
+        raise InputError("site", f"has no sensor named {name!r} (it has {', '.join(s.name for s in self.sensor_list)})")
+
+    def for_sensor(self, name: str) -> "Site":
+        """This site as seen by one of its lasers: ``sensor_pose`` that sensor's guess, no ``sensors``
+        list (what a single-sensor model and the step take)."""
+        sen = self.sensor(name)
+        return dataclasses.replace(self, sensor_pose=tuple(sen.pose), sensors=())
 
     @property
     def landmark_xy(self) -> np.ndarray:
@@ -43,11 +83,29 @@ class Site:
         out["sensor_pose"] = list(self.sensor_pose)
         if self.bounds is not None:
             out["bounds"] = list(self.bounds)
+        if self.sensors:
+            out["sensors"] = [{"name": sen.name, "sensor_pose": list(sen.pose),
+                               **({"model": sen.model} if sen.model is not None else {})} for sen in self.sensors]
         return out
 
     def validate(self, where: object = "site") -> "Site":
         _check(self.to_json(), where)
         return self
+
+
+def one_sensor(site: Site, name: str | None, where: object = "site") -> Site:
+    """``site`` for the scans of one of its lasers (:meth:`Site.for_sensor`): the one named, or the
+    only one; a site with several and no name is one line asking for ``--sensor NAME``."""
+    if name is not None:
+        try:
+            return site.for_sensor(name)
+        except InputError as err:
+            raise InputError(where, err.problem) from None
+    if len(site.sensor_list) > 1:
+        names = ", ".join(sen.name for sen in site.sensor_list)
+        raise InputError(where, f"has {len(site.sensor_list)} sensors ({names}): name the one the scans are from "
+                                "with --sensor NAME")
+    return site.for_sensor(site.sensor_list[0].name)
 
 
 def save_site(site: Site, path: str | os.PathLike) -> None:
@@ -75,8 +133,13 @@ def parse_site(doc: object, where: object = "site") -> Site:
     assert isinstance(doc, dict)
     landmarks = tuple(Landmark(str(lm["class"]), float(lm["x"]), float(lm["y"])) for lm in doc["landmarks"])
     bounds = tuple(float(v) for v in doc["bounds"]) if doc.get("bounds") is not None else None
-    extra = {k: v for k, v in doc.items() if k not in ("landmarks", "sensor_pose", "bounds")}
-    return Site(landmarks, tuple(float(v) for v in doc["sensor_pose"]), bounds, extra)  # type: ignore[arg-type]
+    extra = {k: v for k, v in doc.items() if k not in ("landmarks", "sensor_pose", "bounds", "sensors")}
+    sensors = tuple(SiteSensor(str(sen["name"]), tuple(float(v) for v in sen["sensor_pose"]),  # type: ignore[arg-type]
+                               None if sen.get("model") is None else str(sen["model"]))
+                    for sen in doc.get("sensors") or ())
+    pose = doc.get("sensor_pose")
+    pose = tuple(float(v) for v in pose) if pose is not None else sensors[0].pose
+    return Site(landmarks, pose, bounds, extra, sensors)  # type: ignore[arg-type]
 
 
 # Coordinates (and the heading) of a site beyond this are a mistake (a unit, an exponent), not a field:
@@ -102,9 +165,10 @@ def _check(doc: object, where: object) -> None:
 
     if not isinstance(doc, dict):
         bad(f"top level must be a JSON object, got {type(doc).__name__}")
-    for key in ("landmarks", "sensor_pose"):
-        if key not in doc:
-            bad(f"missing required key '{key}'")
+    if "landmarks" not in doc:
+        bad("missing required key 'landmarks'")
+    if "sensor_pose" not in doc and not doc.get("sensors"):
+        bad("missing required key 'sensor_pose' (or a 'sensors' list)")
     lms = doc["landmarks"]
     if not isinstance(lms, list):
         bad("'landmarks' must be a list")
@@ -128,10 +192,10 @@ def _check(doc: object, where: object) -> None:
     # (1 mm RMS across the best-fit line), else the map transformation (eq. 2) is singular.
     if sv[1] / math.sqrt(len(lms)) < 1e-3:
         bad("all landmarks lie on one line; the map transformation needs them spread in 2-D")
-    pose = doc["sensor_pose"]
-    if not (isinstance(pose, list) and len(pose) == 3 and all(_is_num(v) for v in pose)):
-        bad("'sensor_pose' must be [x, y, theta], three finite numbers")
-    _check_size(bad, pose, ("x", "y", "theta"), "'sensor_pose'")
+    if "sensor_pose" in doc:
+        _check_pose(bad, doc["sensor_pose"], "'sensor_pose'")
+    if doc.get("sensors") is not None:
+        _check_sensors(bad, doc["sensors"])
     if doc.get("bounds") is not None:
         b = doc["bounds"]
         if not (isinstance(b, list) and len(b) == 4 and all(_is_num(v) for v in b)):
@@ -139,3 +203,34 @@ def _check(doc: object, where: object) -> None:
         _check_size(bad, b, ("xmin", "ymin", "xmax", "ymax"), "'bounds'")
         if not (b[0] < b[2] and b[1] < b[3]):
             bad(f"'bounds' {b} must have xmin < xmax and ymin < ymax")
+
+
+def _check_pose(bad, pose, what: str) -> None:
+    if not (isinstance(pose, list) and len(pose) == 3 and all(_is_num(v) for v in pose)):
+        bad(f"{what} must be [x, y, theta], three finite numbers")
+    _check_size(bad, pose, ("x", "y", "theta"), what)
+
+
+def _check_sensors(bad, sensors) -> None:
+    if not isinstance(sensors, list) or not sensors:
+        bad("'sensors' must be a non-empty list of {\"name\", \"sensor_pose\", \"model\"} objects")
+    names = set()
+    for i, sen in enumerate(sensors):
+        if not isinstance(sen, dict):
+            bad(f"sensor {i} must be an object with 'name' and 'sensor_pose'")
+        for k in ("name", "sensor_pose"):
+            if k not in sen:
+                bad(f"sensor {i} is missing '{k}'")
+        name = sen["name"]
+        if not isinstance(name, str) or not name or "=" in name or "," in name:
+            bad(f"sensor {i}: 'name' must be a non-empty string without '=' or ','")
+        if name in names:
+            bad(f"sensor {i}: the name {name!r} is used twice")
+        names.add(name)
+        _check_pose(bad, sen["sensor_pose"], f"sensor {name!r}: 'sensor_pose'")
+        model = sen.get("model")
+        if model is not None:
+            from ..sensors import MODELS
+
+            if model not in MODELS:
+                bad(f"sensor {name!r}: unknown scanner model {model!r} (known: {', '.join(sorted(MODELS))})")
