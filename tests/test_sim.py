@@ -248,3 +248,31 @@ def test_hall_walls_fill_most_of_the_view():
     assert np.mean(np.isfinite(r[0]) & (r[0] <= lay.sensor.range_max)) > 0.6
     assert not lay.statics.movers and not lay.statics.moving_circles
     assert all(c.radius < 0.05 for c in lay.statics.circles)  # the posts; nothing else stands in the hall
+
+
+def test_match_scenario_one_log_per_laser_at_its_own_times(tmp_path):
+    """``spl-match-2``: one labelled log per laser, the second laser's scans half a period after the
+    first's, the same robots (truth) at each laser's own times, robots kept apart, the site listing
+    both lasers (round trip through its file)."""
+    from gtsjax.io import load_site, save_site
+    from gtsjax.sim.match import FIELD, plan_match, render_match, simulate_match
+
+    logs, site = simulate_match("spl-match-2", seed=3, n_robots=6, seconds=3.0)
+    assert list(logs) == ["north", "south"] == [s.name for s in site.sensor_list]
+    north, south = logs["north"], logs["south"]
+    assert north.n_scans == south.n_scans == 30 and north.sensor_model == "URG-04LX"
+    np.testing.assert_allclose(south.stamps - north.stamps, URG_04LX.period / 2, atol=1e-6)  # epoch stamps
+    match = plan_match(2, URG_04LX, n_robots=6, seconds=3.0, seed=3)
+    np.testing.assert_array_equal(north.truth_poses, match.robots[0::2])
+    np.testing.assert_array_equal(south.truth_poses, match.robots[1::2])
+    xy = match.robots[..., :2]
+    gaps = np.linalg.norm(xy[:, :, None] - xy[:, None], axis=-1) + np.eye(6) * 99
+    assert gaps.min() > 0.5  # each robot in its own cell
+    x0, y0, x1, y1 = FIELD
+    assert np.all((xy[..., 0] > x0) & (xy[..., 0] < x1) & (xy[..., 1] > y0) & (xy[..., 1] < y1))
+    save_site(site, tmp_path / "site.json")
+    assert load_site(tmp_path / "site.json") == site
+    for sen, pose in zip(site.sensor_list, ((4.5, 6.5, -np.pi / 2), (4.5, -0.5, np.pi / 2)), strict=True):
+        assert np.hypot(sen.pose[0] - pose[0], sen.pose[1] - pose[1]) < 0.15 and sen.model == "URG-04LX"
+    again, _ = render_match(match, seed=3)
+    np.testing.assert_array_equal(again["north"].ranges, north.ranges)  # seeded

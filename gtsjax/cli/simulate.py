@@ -19,10 +19,15 @@ def simulate_cmd(
     seed: int = typer.Option(0, help="Seed: noise, paths and the rough sensor-pose guess."),
     scans: int | None = typer.Option(None, "--scans", min=1, help="Number of scans (default: the scenario's)."),
     sensor: str | None = typer.Option(None, help="Sensor model (default: the scenario's)."),
+    robots: int = typer.Option(10, "--robots", min=1, max=14, help="spl-match-*: robots on the field."),
+    seconds: float = typer.Option(60.0, "--seconds", min=0.1, help="spl-match-*: how long."),
+    referee: bool = typer.Option(True, "--referee/--no-referee", help="spl-match-*: a referee walking about."),
     list_: bool = typer.Option(False, "--list", help="List the scenarios and exit."),
 ):
-    """Write a labelled scan log and its site file from a simulated scenario."""
+    """Write a labelled scan log and its site file from a simulated scenario; a match scenario of
+    several lasers writes one log per laser, OUT-NAME.npz, and a site listing them."""
     from ..sim import SCENARIOS, simulate
+    from ..sim.match import is_match, simulate_match
 
     if list_:
         table = Table(title="scenarios")
@@ -30,11 +35,27 @@ def simulate_cmd(
         table.add_column("what it simulates")
         for name, desc in SCENARIOS.items():
             table.add_row(name, desc)
+        table.add_row("spl-match-N[-utm]", "full-size SPL field (9 × 6 m, its goals' posts), N = 1, 2 or 4 lasers "
+                      "(URG-04LX, or UTM-30LX with -utm) 0.5 m outside the side lines, --robots walking (10), a "
+                      "referee; one log per laser (OUT-NAME.npz), the site with its sensors list")
         Console(width=120).print(table)
         return
     if scenario is None or out is None or site is None:
         raise fail("simulate", "needs SCENARIO, --out LOG.npz and --site SITE.json (or --list)")
     t0 = time.perf_counter()
+    if is_match(scenario):
+        logs, site_obj = simulate_match(scenario, seed=seed, n_robots=robots, seconds=seconds, referee=referee)
+        paths = [out.with_name(f"{out.stem}-{name}{out.suffix or '.npz'}") for name in logs]
+        for path in (*paths, site):
+            path.parent.mkdir(parents=True, exist_ok=True)
+        for path, log in zip(paths, logs.values(), strict=True):
+            save_log(log, path)
+        save_site(site_obj, site)
+        first = next(iter(logs.values()))
+        Console(stderr=True).print(
+            f"{scenario}: {len(logs)} lasers × {first.n_scans} scans ({first.sensor_model}), {robots} robots, "
+            f"{seconds:g} s in {time.perf_counter() - t0:.1f} s -> {', '.join(map(str, paths))}, {site}")
+        return
     log, site_obj = simulate(scenario, seed=seed, n_scans=scans, sensor=sensor)
     for p in (out, site):
         p.parent.mkdir(parents=True, exist_ok=True)
