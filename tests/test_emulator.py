@@ -367,3 +367,45 @@ def test_multiecho_on_the_utm_30lx_only():
             (r,) = c.ask(cmd)
             assert r.status == "0E" and r.command == cmd[:-1].decode()
         c.close()
+
+
+def test_emulate_a_match_serves_every_laser_on_its_own_pty_at_its_phase(tmp_path):
+    """``serve_match`` (``gtsjax emulate spl-match-2``): a pty per laser, each streaming its own
+    laser's scans (as rendered in its log, to the millimetre), the south laser's frames half a period
+    after the north's on the host clock."""
+    import threading
+
+    from gtsjax.io.serial import Link
+    from gtsjax.sim.emulator import serve_match
+    from gtsjax.sim.match import simulate_match
+
+    logs, _ = simulate_match("spl-match-2", seed=5, n_robots=4, seconds=4.0)
+    lines, stop = [], threading.Event()
+    th = threading.Thread(target=serve_match, args=("spl-match-2",),
+                          kwargs=dict(seed=5, n_robots=4, seconds=4.0, print_fn=lines.append, stop=stop,
+                                      link_dir=tmp_path), daemon=True)
+    th.start()
+    try:
+        deadline = time.monotonic() + 60
+        while len(lines) < 3 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        paths = {ln.split(":")[0]: ln.split(" on ")[1].split(" ")[0] for ln in lines[:2]}
+        assert set(paths) == {"north", "south"} and all(str(tmp_path) in p for p in paths.values()), lines
+        stamps = {}
+        for name, path in paths.items():
+            served = {np.asarray(log_source(logs[name])(i)[0], np.int64).tobytes() for i in range(logs[name].n_scans)}
+            with Link(path) as link:
+                got = []
+                while len(got) < 8 and time.monotonic() < deadline:
+                    f = link.get(timeout=0.2)
+                    if f is not None:
+                        got.append(f)
+            assert len(got) == 8
+            assert all(f.frame.ranges_mm.astype(np.int64).tobytes() in served for f in got)
+            stamps[name] = np.array([f.stamp for f in got])  # host time of each scan
+        phase = np.mod(np.median(stamps["south"]) - np.median(stamps["north"]), URG_04LX.period)
+        assert abs(phase - URG_04LX.period / 2) < 0.01, phase
+    finally:
+        stop.set()
+        th.join(timeout=10)
+    assert not th.is_alive() and not any(tmp_path.glob("*/ttyEMU0"))

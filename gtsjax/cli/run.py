@@ -6,6 +6,7 @@ from pathlib import Path
 import typer
 from rich.console import Console
 
+from ..errors import InputError
 from ._app import CONFIRM_HELP, app
 from ._common import check_out_file, track_summary
 from ._live import track_live
@@ -65,12 +66,24 @@ def emulate_cmd(
     stalls: float = typer.Option(0.0, help="Probability of a stall per data block."),
     stall_seconds: float = typer.Option(0.5, min=0.0, help="How long a stall lasts."),
     disconnects: float = typer.Option(0.0, help="Probability of an unplug (and re-plug) per data block."),
+    robots: int = typer.Option(10, "--robots", min=1, max=14, help="spl-match-*: robots on the field."),
+    seconds: float = typer.Option(60.0, "--seconds", min=0.1, help="spl-match-*: length of the looped scene."),
+    referee: bool = typer.Option(True, "--referee/--no-referee", help="spl-match-*: a referee walking about."),
 ):
-    """Serve a simulated sensor over a pseudo-terminal (SCIP 2.0), printing the path to open."""
-    from ..sim.emulator import Faults, serve
+    """Serve a simulated sensor over a pseudo-terminal (SCIP 2.0), printing the path to open; a match
+    scenario of several lasers (spl-match-N) serves each on its own pty."""
+    from ..sim.emulator import Faults, serve, serve_match
+    from ..sim.match import is_match
 
     faults = Faults(checksum_p=checksum_errors, line_checksum_p=line_errors, drop_p=drop_bytes, stall_p=stalls,
                     stall_s=stall_seconds, disconnect_p=disconnects, seed=seed)
+    if is_match(scenario):
+        if sensor is not None:
+            raise InputError("--model", "a match scenario names its scanner (spl-match-N: URG-04LX, "
+                                        "spl-match-N-utm: UTM-30LX)")
+        serve_match(scenario, faults, seed=seed, n_robots=robots, seconds=seconds, referee=referee,
+                    print_fn=lambda s: print(s, flush=True))
+        return
     serve(scenario, sensor, faults, seed=seed, print_fn=lambda s: print(s, flush=True))
 
 

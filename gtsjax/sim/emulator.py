@@ -637,3 +637,53 @@ def serve(
                     time.sleep(0.2)
         except KeyboardInterrupt:
             pass
+
+
+def serve_match(
+    scenario: str,
+    faults: Faults | None = None,
+    *,
+    seed: int = 0,
+    n_robots: int = 10,
+    seconds: float = 60.0,
+    referee: bool = True,
+    print_fn: Callable[[str], None] = print,
+    stop: threading.Event | None = None,
+    link_dir: "str | os.PathLike | None" = None,
+) -> None:
+    """Serve every laser of a match scenario (``spl-match-N[-utm]``, :mod:`gtsjax.sim.match`), each on
+    its own pty, until Ctrl-C (or ``stop``): one line per laser, ``NAME: … emulator on PATH``. The
+    lasers keep their phases: laser ``k`` of ``K`` starts ``k / K`` of a period after the first, so its
+    scans come at the times its log was rendered for. ``link_dir``: a folder that gets one sub-folder
+    per laser holding its ``ttyEMU0`` (fresh temporary folders by default). Each laser draws its own
+    faults (the seed plus its index)."""
+    import contextlib
+
+    from .match import simulate_match
+
+    logs, _ = simulate_match(scenario, seed=seed, n_robots=n_robots, seconds=seconds, referee=referee)
+    first = next(iter(logs.values()))
+    model = get_model(first.sensor_model)
+    faults = faults or Faults()
+    with contextlib.ExitStack() as stack:
+        emus = []
+        t_start = time.monotonic()
+        for k, (name, log) in enumerate(logs.items()):
+            delay = t_start + k * model.period / len(logs) - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            where = None
+            if link_dir is not None:
+                where = Path(link_dir) / name
+                where.mkdir(parents=True, exist_ok=True)
+            f = dataclasses.replace(faults, seed=faults.seed + k)
+            emus.append((name, stack.enter_context(SensorEmulator(model, log, faults=f, link_dir=where))))
+        try:
+            for name, emu in emus:
+                print_fn(f"{name}: {model.name} emulator on {emu.path} (pty {emu.pty_name})")
+            print_fn("Ctrl-C to stop")
+            while not (stop is not None and stop.wait(0.2)):
+                if stop is None:
+                    time.sleep(0.2)
+        except KeyboardInterrupt:
+            pass
