@@ -179,7 +179,7 @@ def fuzz_decoder(n: int, workers: int, seed: int) -> dict:
 def fuzz_live(n_frames: int, seed: int) -> dict:
     """Damaged data blocks from the emulator through the link and ``run_live`` with the shipped model."""
     from gtsjax.cli.demo import DEMO_SCENARIO, DEMO_SEED, demo_model_path
-    from gtsjax.drivers.live import run_live
+    from gtsjax.drivers.live import run_live, warm_up
     from gtsjax.io.modelfile import load_model
     from gtsjax.io.serial import Link
     from gtsjax.sim import simulate
@@ -199,12 +199,13 @@ def fuzz_live(n_frames: int, seed: int) -> dict:
 
     import tempfile
 
+    compiled = warm_up(model, URG_04LX)  # before the link streams: no frame waits for the compiler
     with Fuzzing(URG_04LX, log) as emu, Link(emu.path) as link, tempfile.TemporaryDirectory() as d:
         stop = threading.Event()
         t0 = time.monotonic()
         error = None
         try:
-            stats = run_live(link, model, Path(d) / "gtd.csv", max_frames=n_frames, stop=stop,
+            stats = run_live(link, model, Path(d) / "gtd.csv", max_frames=n_frames, stop=stop, compiled=compiled,
                              duration=n_frames * URG_04LX.period * 4 + 60)
         except Exception as err:  # noqa: BLE001 - the finding
             error, stats = f"{type(err).__name__}: {err}", None
@@ -213,7 +214,7 @@ def fuzz_live(n_frames: int, seed: int) -> dict:
     res = {"seconds": time.monotonic() - t0, "frames_sent": sent, "blocks_damaged": damaged["blocks"],
            "error": error, "link": {k: v for k, v in ls.__dict__.items() if k != "last_error"}}
     if stats is not None:
-        res.update(processed=stats.frames, rows=stats.rows, late=stats.late)
+        res.update(processed=stats.frames, stale=stats.stale, rows=stats.rows, late=stats.late)
     return res
 
 
