@@ -544,6 +544,24 @@ EXIT_2 = {
         "two_sensors.json",
         "has no sensor named 'east'",
     ),
+    "replay --log, a laser the site lacks": (
+        ["replay", "--log", "east={d}/log.npz", "--site", "{d}/two_sensors.json", "--model", str(DEMO_MODEL),
+         "--out", "{o}/o.csv"],
+        "two_sensors.json",
+        "has no sensor named 'east'",
+    ),
+    "replay --log, a site of one laser": (
+        ["replay", "--log", "north={d}/log.npz", "--site", "{d}/site.json", "--model", str(DEMO_MODEL),
+         "--out", "{o}/o.csv"],
+        "site.json",
+        "has no sensors list",
+    ),
+    "replay --log, not NAME=LOG": (
+        ["replay", "--log", "{d}/log.npz", "--site", "{d}/two_sensors.json", "--model", str(DEMO_MODEL),
+         "--out", "{o}/o.csv"],
+        "--log",
+        "is not NAME=LOG",
+    ),
     "plot --coverage, an unknown scanner": (
         ["plot", "--coverage", "{d}/two_sensors.json", "--scanner", "LMS-100", "--out", "{o}/c.png"],
         "--scanner",

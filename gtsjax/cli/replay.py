@@ -34,8 +34,11 @@ from ._common import (
 
 @app.command("replay")
 def replay_cmd(
-    logs: list[Path] = typer.Argument(..., help=INPUT_HELP + " Several logs of one scanner run side by side (independent "
-                                               "trackers, one compiled program); --out is then a folder."),
+    logs: list[Path] = typer.Argument(None, help=INPUT_HELP + " Several logs of one scanner run side by side (independent "
+                                                "trackers, one compiled program); --out is then a folder."),
+    laser_logs: list[str] = typer.Option([], "--log", metavar="NAME=LOG",
+                                         help="Several lasers of one field (the site's sensors list): each laser's "
+                                              "log, merged by stamp into one track table and one --out CSV."),
     site: Path = typer.Option(..., "--site", help="Site file (.json)."),
     sensor: str | None = typer.Option(None, "--sensor", help="With a site of several lasers: the one the scans are "
                                                           "from (its name in the site's sensors list)."),
@@ -55,8 +58,17 @@ def replay_cmd(
                                            "instead of perceiving groups of scans at once (faster; equal to float32 round-off, "
                                            "which can tip a near-tie of heading hypotheses)."),
 ):
-    """Process logged scan files into ground truth (GTD CSV)."""
+    """Process logged scan files into ground truth (GTD CSV); with --log NAME=LOG per laser, several
+    lasers of one field into one."""
     console = Console(stderr=True)
+    if laser_logs:
+        if logs or sensor is not None or sensor_out is not None or step_by_step:
+            raise InputError("replay", "--log NAME=LOG (several lasers) takes no positional logs, --sensor, "
+                                       "--sensor-out or --step-by-step")
+        _replay_lasers(laser_logs, site, model, out, chunk, topic, crop_fov, confirm_scans, console)
+        return
+    if not logs:
+        raise InputError("replay", "give a log (or --log NAME=LOG per laser of a site with several)")
     m = load_for_run(model, site, sensor).with_confirmation(confirm_scans)
     outs, sensor_outs = _outputs(logs, out, sensor_out)
     scan_logs = [_load_fitted(log, topic, m, crop_fov, console) for log in logs]
@@ -136,3 +148,45 @@ def _load_fitted(log: Path, topic: str | None, m, crop_fov: bool, console: Conso
                       f"({np.degrees(scan_log.angle_min):.1f}° … {np.degrees(last):.1f}°), returns in "
                       f"[{scan_log.range_min:g}, {scan_log.range_max:g}] m", soft_wrap=True)
     return scan_log
+
+
+def _replay_lasers(specs: list[str], site_path: Path, model_path: Path, out: Path, chunk: int, topic: str | None,
+                   crop_fov: bool, confirm_scans: int | None, console: Console) -> None:
+    """``replay --log NAME=LOG ...``: the lasers' logs merged by stamp into one track table."""
+    from ..drivers.several import replay_several
+    from ..io import load_site
+    from ..io.modelfile import load_model
+    from ..io.site import one_sensor
+
+    site_obj = load_site(site_path)
+    paths: dict[str, Path] = {}
+    for spec in specs:
+        name, eq, path = spec.partition("=")
+        if not eq or not name or not path:
+            raise InputError("--log", f"{spec!r} is not NAME=LOG")
+        if name in paths:
+            raise InputError("--log", f"laser {name!r} given twice")
+        if not site_obj.sensors:
+            raise InputError(site_path, "has no sensors list; --log NAME=LOG is for a site with several lasers")
+        try:
+            site_obj.sensor(name)
+        except InputError as err:
+            raise InputError(site_path, err.problem) from None
+        paths[name] = Path(path)
+    check_out_file(out)
+    first = next(iter(paths))
+    m = load_model(model_path).with_site(one_sensor(site_obj, first), where=str(site_path))
+    m = m.with_confirmation(confirm_scans)
+    logs = {name: _load_fitted(path, topic, m, crop_fov, console) for name, path in paths.items()}
+    t0 = time.perf_counter()
+    total = sum(lg.n_scans for lg in logs.values())
+    with Progress(TextColumn("replay"), BarColumn(), MofNCompleteColumn(), TextColumn("scans"),
+                  TimeRemainingColumn(), console=console, transient=True) as bar:
+        task = bar.add_task("replay", total=total)
+        totals = replay_several(logs, m, site_obj, out, chunk=chunk, progress=lambda n: bar.update(task, completed=n))
+    dt = time.perf_counter() - t0
+    per = ", ".join(f"{n} {totals['scans_per_laser'][n]} scans ({totals['degraded'][n]} without a new map "
+                    "transformation)" for n in logs)
+    tracks = ", ".join(f"{c} {k}" for c, k in sorted(totals["tracks"].items())) or "none"
+    console.print(f"{len(logs)} lasers, {total} scans in {dt:.1f} s (compilation included): {per}; "
+                  f"{totals['rows']} track rows written to {out}; tracks reported: {tracks}", soft_wrap=True)

@@ -579,7 +579,8 @@ def reported(state: TrackerState, params: TrackerParams) -> Bool[Array, " tracks
 
 
 def track_step(
-    state: TrackerState, det: Detections, dt: Float[Array, ""], params: TrackerParams, period: float | None = None
+    state: TrackerState, det: Detections, dt: Float[Array, ""], params: TrackerParams, period: float | None = None,
+    visible: Bool[Array, " tracks"] | None = None, span_dt: Float[Array, ""] | None = None,
 ) -> tuple[TrackerState, Bool[Array, " dets"]]:
     """Stage g for one scan: predict, gate, assign, update, start, confirm and end tracks.
 
@@ -588,6 +589,11 @@ def track_step(
     frames lost on the link or a stall, a robot lifted meanwhile is not reported past ``m_report``
     periods, nor kept past ``m_delete``, on the strength of one late scan. Without it (a scanner of
     unknown rate) each scan counts one.
+
+    Several lasers (:mod:`gtsjax.core.multi`): ``visible`` marks the tracks this scan's laser could
+    have seen (within its range and field of view); a track it could not see is not missed by it.
+    ``span_dt`` is then the time since this laser's previous scan (the periods a miss spans), ``dt``
+    the time since the previous scan of any laser (the prediction's step).
 
     Returns the new state and, per detection, whether it was used by an existing track.
     """
@@ -691,8 +697,11 @@ def track_step(
     side_heading = jnp.where(onehot, mean[:, 2:3], side_heading)
     side_var = jnp.where(onehot, cov[:, 2:3, 2], side_var)
     hits = state.hits + has.astype(jnp.int32)
+    gap = dt if span_dt is None else span_dt
     spanned = jnp.ones((), jnp.int32) if period is None else jnp.maximum(
-        jnp.round(dt / jnp.asarray(period, dt.dtype)), 1).astype(jnp.int32)
+        jnp.round(gap / jnp.asarray(period, gap.dtype)), 1).astype(jnp.int32)
+    if visible is not None:
+        spanned = spanned * visible.astype(jnp.int32)
     misses = jnp.where(has, 0, state.misses + spanned)
     contrary = state.contrary + (~has & ~state.confirmed & other_near).astype(jnp.int32)
     # Plausibility of the motion after this scan: the updated estimate, or for a track without a

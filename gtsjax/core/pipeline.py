@@ -145,13 +145,16 @@ def _inside(site, pose: Float[Array, "n 3"]) -> Bool[Array, " n"]:
 SEE_THROUGH_MARGIN = 0.3
 
 
-def seen_through(scan: Scan, tf: Transform, xy_o: Float[Array, "n 2"]) -> Bool[Array, " n"]:
+def seen_through(scan: Scan, tf: Transform, xy_o: Float[Array, "n 2"], range_max: float | None = None
+                 ) -> Bool[Array, " n"]:
     """Whether the scan sees through each field position: none of the three beams nearest its
     bearing returns before ``SEE_THROUGH_MARGIN`` past it (a beam with no return saw nothing within
     the sensor's range: on an open field, the usual view past a far robot). A position outside the
-    field of view is never seen through."""
+    field of view is never seen through; with ``range_max`` (several lasers), nor one beyond the
+    laser's range less the margin, which another laser may be watching."""
     xy_s = tf.to_sensor(xy_o)
     rho = jnp.sqrt(jnp.sum(xy_s**2, axis=-1))
+    in_range = jnp.ones(rho.shape, bool) if range_max is None else rho <= range_max - SEE_THROUGH_MARGIN
     beam = jnp.round((jnp.arctan2(xy_s[:, 1], xy_s[:, 0]) - scan.angle_min) / scan.angle_increment).astype(jnp.int32)
     idx = beam[:, None] + jnp.arange(-1, 2, dtype=jnp.int32)[None, :]  # [n, 3]
     n = scan.n_beams
@@ -159,11 +162,28 @@ def seen_through(scan: Scan, tf: Transform, xy_o: Float[Array, "n 2"]) -> Bool[A
     idx = jnp.clip(idx, 0, n - 1)
     r, ok = scan.ranges[idx], scan.valid[idx]
     short = ok & (r <= rho[:, None] + SEE_THROUGH_MARGIN)
-    return in_view & ~jnp.any(short, axis=1)
+    return in_view & in_range & ~jnp.any(short, axis=1)
+
+
+def in_coverage(scan: Scan, tf: Transform, xy_o: Float[Array, "n 2"], range_max: float) -> Bool[Array, " n"]:
+    """Whether each field position lies where the scan's laser can see: inside its field of view
+    and its range (less ``SEE_THROUGH_MARGIN``), as its transform ``tf`` places it."""
+    xy_s = tf.to_sensor(xy_o)
+    rho = jnp.sqrt(jnp.sum(xy_s**2, axis=-1))
+    bearing = jnp.arctan2(xy_s[:, 1], xy_s[:, 0])
+    last = scan.angle_min + scan.angle_increment * (scan.n_beams - 1)
+    return (bearing >= scan.angle_min) & (bearing <= last) & (rho <= range_max - SEE_THROUGH_MARGIN)
 
 
 @exact_products
 def update(model: Model, state: PipelineState, p: Perception, scan: Scan) -> tuple[PipelineState, Output]:
+    """Stages f–g of one laser's scan (see :func:`update_view`)."""
+    tf, tracker, out = update_view(model, state.transform, state.tracker, p, scan)
+    return PipelineState(tf, tracker, state.n_scans + 1), out
+
+
+def update_view(model: Model, prev_tf: Transform, tracker: TrackerState, p: Perception, scan: Scan, *,
+                span_dt=None, several: bool = False) -> tuple[Transform, TrackerState, Output]:
     """Stages f–g: re-estimate the map transformation from this scan's landmarks, map detections into
     O, and track. The transform estimated from a scan is used for that same scan's detections.
 
@@ -175,7 +195,7 @@ def update(model: Model, state: PipelineState, p: Perception, scan: Scan) -> tup
     site = model.site
     is_landmark = p.ok & model.landmark_mask[p.cls]
     tf, residual, seen = update_transform(
-        state.transform, p.pose_s[:, :2], p.cls, is_landmark, site.landmark_xy, site.landmark_class,
+        prev_tf, p.pose_s[:, :2], p.cls, is_landmark, site.landmark_xy, site.landmark_class,
         model.map_gate, model.map_min_spread,
     )
     pose_o, cov_o = poses_to_field(tf, p.pose_s, p.cov_s)
@@ -183,7 +203,10 @@ def update(model: Model, state: PipelineState, p: Perception, scan: Scan) -> tup
     side_o = jnp.concatenate([tf.apply(p.side_pose[..., :2]), wrap(p.side_pose[..., 2:] + tf.heading())], -1)
     tracked = p.ok & model.tracker.tracked[p.cls] & _inside(site, pose_o)
     det = Detections(pose_o, cov_o, p.cls, tracked, p.kept & ~tracked, p.partial, p.vague, side_o, p.side_logp)
-    tracker, _ = track_step(state.tracker, det, dt, model.tracker, model.scan_period)
+    # Several lasers: a track this laser cannot see (out of its range or field of view) is not missed
+    # by it, nor is it seen through there (another laser may be watching it).
+    visible = in_coverage(scan, tf, tracker.mean[:, :2], model.range_max) if several else None
+    tracker, _ = track_step(tracker, det, dt, model.tracker, model.scan_period, visible=visible, span_dt=span_dt)
     ts = tracker
     out = Output(
         track_id=ts.track_id,
@@ -193,7 +216,7 @@ def update(model: Model, state: PipelineState, p: Perception, scan: Scan) -> tup
         # Confirmed, recently observed, inside the site's bounds (a coasting track may leave them), and
         # if missed in this scan, not where the scan sees through.
         track_mask=reported(ts, model.tracker) & _inside(site, ts.mean[:, :3])
-        & ((ts.misses == 0) | ~seen_through(scan, tf, ts.mean[:, :2])),
+        & ((ts.misses == 0) | ~seen_through(scan, tf, ts.mean[:, :2], model.range_max if several else None)),
         transform=tf,
         sensor_pose=tf.sensor_pose(),
         landmark_residual=residual,
@@ -211,7 +234,7 @@ def update(model: Model, state: PipelineState, p: Perception, scan: Scan) -> tup
         off_envelope=p.off_envelope,
         degraded=tf.degraded,
     )
-    return PipelineState(tf, tracker, state.n_scans + 1), out
+    return tf, tracker, out
 
 
 def step(model: Model, state: PipelineState, scan: Scan) -> tuple[PipelineState, Output]:

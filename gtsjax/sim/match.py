@@ -1,7 +1,8 @@
 """Several lasers on a full-size SPL field (issue 18): one scene, one log per laser.
 
 Today's SPL field is 9 × 6 m inside a carpet of 10.4 × 7.4 m; the goals' posts (0.10 m) stand on the
-goal lines, their centres 0.80 m either side of the middle. A match puts up to 14 robots on it and a
+goal lines, their centres 0.80 m either side of the middle; four thin poles beside the side lines
+(:data:`SIDE_POLES`) give each laser landmarks within its reach. A match puts up to 14 robots on it and a
 referee walks about. :func:`simulate_match` lays out such a scene, 2 or 4 lasers on tripods 0.5 m
 outside the side lines looking in, robots walking in their own parts of the field (so that they do
 not collide, but cross each other's lines of sight all the time) and a referee walking its length;
@@ -29,6 +30,14 @@ from .scene import Circle, Mover, MovingCircle, Scene, box, render, robot_shape,
 
 FIELD = (0.0, 0.0, 9.0, 6.0)
 GOAL_POSTS = [("post", 0.0, 2.2, 0.05), ("post", 0.0, 3.8, 0.05), ("post", 9.0, 2.2, 0.05), ("post", 9.0, 3.8, 0.05)]
+# The goals' posts stand 4.5 m and more from a laser beside the middle of a side line, at the edge of
+# a URG-04LX's reach (5.6 m), where a 0.10 m post spans three beams: too few to be recognised
+# reliably, and too few in view for the map transformation. So the site adds thin poles (as a team
+# can put up anywhere beside the carpet) 0.35 m outside each side line, a third of the way in from
+# each end, within 3.5 m of the lasers on their side.
+SIDE_POLES = [("post", 1.5, 6.35, 0.05), ("post", 7.5, 6.35, 0.05), ("post", 1.5, -0.35, 0.05),
+              ("post", 7.5, -0.35, 0.05)]
+LANDMARKS = GOAL_POSTS + SIDE_POLES
 TRIPOD_OFFSET_M = 0.5  # how far outside the side line a tripod stands
 
 
@@ -49,7 +58,7 @@ def laser_poses(n: int) -> list[tuple[str, tuple[float, float, float]]]:
 
 def _scene_statics() -> Scene:
     # The goals' posts, the hall's walls 1.5 m beyond the carpet, the teams' benches behind the goals.
-    return Scene(circles=[Circle(x, y, r, 0.8) for _, x, y, r in GOAL_POSTS],
+    return Scene(circles=[Circle(x, y, r, 0.8) for _, x, y, r in LANDMARKS],
                  polygons=walls(-2.2, -2.2, 11.2, 8.2) + [box(-1.6, 0.5, -1.2, 2.0), box(10.2, 4.0, 10.6, 5.5)])
 
 
@@ -122,7 +131,7 @@ def render_match(match: Match, seed: int = 0) -> tuple[dict[str, ScanLog], Site]
         guess = (float(sx + guess_rng.normal(0, 0.03)), float(sy + guess_rng.normal(0, 0.03)),
                  float(sth + guess_rng.normal(0, math.radians(1.5))))
         sensors.append(SiteSensor(name, guess, m.name))
-    site = Site(tuple(Landmark(c, x, y) for c, x, y, _ in GOAL_POSTS), sensors[0].pose, FIELD, {}, tuple(sensors))
+    site = Site(tuple(Landmark(c, x, y) for c, x, y, _ in LANDMARKS), sensors[0].pose, FIELD, {}, tuple(sensors))
     return logs, site
 
 

@@ -1,0 +1,142 @@
+"""Batch replay of several lasers' logs on one field into one track table (issue 18).
+
+The logs (one per laser of the site's ``sensors`` list, one scanner model) are merged by stamp into
+one sequence (:func:`merge_logs`; a stable sort, so equal stamps keep the lasers' order), which runs
+through :func:`~gtsjax.core.multi.step_several` chunk by chunk: perception ``vmap``ped over groups
+of scans (whichever laser took them: perception needs no state), then the updates under
+``lax.scan``, each with its laser's index. The outputs come out in the merged order, one per scan of
+any laser: a GTD row per confirmed track per scan, stamped with that scan's stamp.
+"""
+
+import dataclasses
+import math
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float, Int
+
+from ..core.multi import SeveralState, init_several, update_several
+from ..core.pipeline import Output
+from ..core.scan import Scan
+from ..errors import InputError
+from ..io.gtd import GTDWriter, rows_from_output
+from ..io.logs import ScanLog, scan_dt, to_scans
+from ..io.site import Site
+from ..model import Model
+from .replay import SUB_CHUNK, _pad_chunk, perceive_batch
+
+
+@dataclasses.dataclass(frozen=True)
+class Merged:
+    """Several lasers' logs as one sequence in stamp order."""
+
+    log: ScanLog  # every scan of every laser, by stamp (with the truth, where the logs are labelled)
+    laser: np.ndarray  # int32 [T]: which laser (index into ``names``) took each scan
+    index: np.ndarray  # int [T]: the scan's index in its own log
+    span_dt: np.ndarray  # float32 [T]: time since the same laser's previous scan
+    names: tuple[str, ...]
+
+
+def merge_logs(logs: "dict[str, ScanLog]") -> Merged:
+    """The logs laid end to end and sorted by stamp (stable). They must share one geometry (one
+    scanner model; :func:`~gtsjax.io.logs.fit_to_model` each first) and, where labelled, the same
+    labelled objects (a match's robots, as each laser's log records them at its own times)."""
+    names = tuple(logs)
+    if not names:
+        raise InputError("replay", "no logs to merge")
+    first = logs[names[0]]
+    for name, log in logs.items():
+        if log.n_beams != first.n_beams or not math.isclose(log.angle_increment, first.angle_increment, rel_tol=1e-6):
+            raise InputError(name, f"{log.n_beams} beams of {math.degrees(log.angle_increment):.4f}°, the first "
+                                   f"laser's log {first.n_beams} of {math.degrees(first.angle_increment):.4f}°: "
+                                   "the lasers of one replay must be one scanner model")
+    stamps = np.concatenate([logs[n].stamps for n in names])
+    laser = np.concatenate([np.full(logs[n].n_scans, k, np.int32) for k, n in enumerate(names)])
+    index = np.concatenate([np.arange(logs[n].n_scans) for n in names])
+    order = np.argsort(stamps, kind="stable")
+    cat = lambda f: None if any(getattr(logs[n], f) is None for n in names) else np.concatenate(  # noqa: E731
+        [getattr(logs[n], f) for n in names])[order]
+    labelled = all(logs[n].labelled for n in names)
+    if labelled and len({tuple(map(str, logs[n].truth_classes)) for n in names}) != 1:
+        raise InputError("replay", "the lasers' logs label different objects; a merged evaluation needs the same")
+    extra = {}  # (each laser's true pose is in its own log: in merged order it would read as a bump)
+    log = dataclasses.replace(first, ranges=np.concatenate([logs[n].ranges for n in names])[order],
+                              stamps=stamps[order], intensities=cat("intensities"),
+                              truth_poses=cat("truth_poses") if labelled else None,
+                              truth_classes=first.truth_classes if labelled else None, extra=extra)
+    span = np.zeros(len(order), np.float32)
+    for k in range(len(names)):
+        mine = laser[order] == k
+        span[mine] = scan_dt(stamps[order][mine])
+    return Merged(log, laser[order], index[order], span, names)
+
+
+@jax.jit
+def process_several_chunk(model: Model, state: SeveralState, scans: Scan, laser: Int[Array, " n"],
+                          span_dt: Float[Array, " n"], n_real: Int[Array, ""]) -> tuple[SeveralState, Output]:
+    """A chunk of merged scans: perception ``vmap``ped over groups of scans, then the updates under
+    ``lax.scan`` with each scan's laser; scans at index ``>= n_real`` (padding) leave the state as it was."""
+    size = scans.dt.shape[0]
+    percepts = perceive_batch(model, scans, math.gcd(SUB_CHUNK, size))
+
+    def body(s, inp):
+        p, sc, k, span, i = inp
+        new, out = update_several(model, s, p, sc, k, span)
+        keep = i < n_real
+        return jax.tree.map(lambda a, b: jnp.where(keep, a, b), new, s), out
+
+    idx = jnp.arange(size, dtype=jnp.int32)
+    return jax.lax.scan(body, state, (percepts, scans, laser, span_dt, idx))
+
+
+def process_several(model: Model, merged: Merged, sensor_poses, *, chunk: int = 256,
+                    state: SeveralState | None = None, callback=None) -> tuple[SeveralState, Output]:
+    """The merged scans through the several-laser pipeline ``chunk`` at a time; outputs stacked on the
+    host in the merged order. ``sensor_poses``: each laser's rough pose guess, in ``merged.names``' order."""
+    state = init_several(model, jnp.asarray(sensor_poses, jnp.float32)) if state is None else state
+    scans = to_scans(merged.log, model.n_beams)
+    n = merged.log.n_scans
+    chunk = max(1, min(chunk, n))
+    laser = jnp.asarray(merged.laser, jnp.int32)
+    span = jnp.asarray(merged.span_dt, jnp.float32)
+    outs = []
+    for start in range(0, n, chunk):
+        stop = min(start + chunk, n)
+        part = _pad_chunk(scans, start, stop, chunk)
+        pad = chunk - (stop - start)
+        k = jnp.concatenate([laser[start:stop], jnp.repeat(laser[stop - 1:stop], pad)])
+        sp = jnp.concatenate([span[start:stop], jnp.repeat(span[stop - 1:stop], pad)])
+        state, out = process_several_chunk(model, state, part, k, sp, jnp.asarray(stop - start, jnp.int32))
+        real = stop - start
+        outs.append(jax.tree.map(lambda a, real=real: np.asarray(a)[:real], out))
+        if callback is not None:
+            callback(stop)
+    return state, jax.tree.map(lambda *a: np.concatenate(a), *outs)
+
+
+def site_poses(site: Site, names) -> np.ndarray:
+    """The site's rough pose guess of each laser named, in that order."""
+    return np.asarray([site.sensor(n).pose for n in names], np.float32)
+
+
+def replay_several(logs: "dict[str, ScanLog]", model: Model, site: Site, out: Path, *, chunk: int = 256,
+                   progress=None) -> dict:
+    """Replay several lasers' logs (names of the site's ``sensors``) into one GTD CSV; returns totals
+    (scans, rows, tracks per class, degraded scans per laser)."""
+    merged = merge_logs(logs)
+    _, o = process_several(model, merged, site_poses(site, merged.names), chunk=chunk, callback=progress)
+    rows_total, ids = 0, {}
+    with GTDWriter(out) as w:
+        for t in range(merged.log.n_scans):
+            rows = rows_from_output(float(merged.log.stamps[t]), o.track_id[t], o.track_class[t], o.track_pose[t],
+                                    o.track_var[t], o.track_mask[t], model.classes)
+            w.write(rows)
+            rows_total += len(rows)
+            for r in rows:
+                ids.setdefault(r.cls, set()).add(r.track_id)
+    degraded = {n: int(np.sum(o.degraded[merged.laser == k])) for k, n in enumerate(merged.names)}
+    return {"scans": int(merged.log.n_scans), "rows": rows_total, "tracks": {c: len(v) for c, v in ids.items()},
+            "degraded": degraded, "scans_per_laser": {n: int(np.sum(merged.laser == k))
+                                                       for k, n in enumerate(merged.names)}}
