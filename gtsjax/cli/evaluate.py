@@ -58,6 +58,8 @@ def evaluate_cmd(
     scenario: list[str] = typer.Option(None, "--scenario", help="Simulated scenario(s) instead of logs (NAME or NAME:SEED)."),
     out_dir: Path = typer.Option(Path("eval-out"), "--out-dir", help="Where to write results.md, results.json, PNGs."),
     confirm_scans: int | None = typer.Option(None, "--confirm-scans", min=1, help=CONFIRM_HELP),
+    robots: int = typer.Option(10, "--robots", min=1, max=14, help="spl-match-* scenarios: robots on the field."),
+    seconds: float = typer.Option(60.0, "--seconds", min=1.0, help="spl-match-* scenarios: how long."),
     without_outline: bool = typer.Option(False, "--without-outline",
                                          help="Score the model with its learnt outlines left out (no stage e′: "
                                               "headings as the GP reads them), to see what the refinement gains."),
@@ -69,6 +71,7 @@ def evaluate_cmd(
     from ..io.modelfile import load_model
     from ..io.site import one_sensor
     from ..sim import simulate
+    from ..sim.match import is_match
     from ..viz import error_map_figure
 
     if not (scenario or logs):
@@ -78,9 +81,12 @@ def evaluate_cmd(
     base = load_model(model).with_confirmation(confirm_scans)
     if without_outline:
         base = base.without_outline()
-    jobs = []
+    jobs, matches = [], []
     for spec in scenario or []:
         name, _, seed = spec.partition(":")
+        if is_match(name):
+            matches.append((spec, name, int(seed or 1000)))
+            continue
         jobs.append((spec, lambda name=name, seed=seed: simulate(name, seed=int(seed or 1000))))
     if logs:
         site_obj = one_sensor(load_site(site), sensor, site)
@@ -92,6 +98,8 @@ def evaluate_cmd(
             jobs.append((str(p), lambda log=log: (log, site_obj)))
     check_out_dir(out_dir)  # after the inputs are checked (a bad one leaves nothing behind), before any replay
     results = {}
+    for spec, name, seed in matches:
+        results.update(_evaluate_match(base, spec, name, seed, robots, seconds))
     for label, get in jobs:
         log, site_obj = get()
         if not log.labelled:
@@ -120,3 +128,32 @@ def evaluate_cmd(
           + ["", "Per scan, before tracking (the paper's per-sample errors):", ""] + _markdown(DET_COLUMNS, results))
     (out_dir / "results.md").write_text("\n".join(md) + "\n")
     Console(stderr=True).print(f"wrote {out_dir / 'results.md'} and {out_dir / 'results.json'}")
+
+
+def _evaluate_match(base, spec: str, name: str, seed: int, robots: int, seconds: float) -> dict:
+    """A match of several lasers (``spl-match-N``), scored with each laser alone, with two opposite
+    ones (of four) and with all: rows ``SPEC LASER[+LASER...]``."""
+    from ..drivers.evaluation import evaluate_outputs
+    from ..drivers.several import merge_logs, process_several, site_poses
+    from ..io.logs import fit_to_model
+    from ..io.site import one_sensor
+    from ..sim.match import simulate_match
+
+    logs, site = simulate_match(name, seed=seed, n_robots=robots, seconds=seconds)
+    names = list(logs)
+    m = base.with_site(one_sensor(site, names[0]))
+    logs = {n: fit_to_model(log, m, f"{spec} {n}") for n, log in logs.items()}
+    combos = [(n,) for n in names]
+    if len(names) == 4:
+        combos.append((names[0], names[3]))  # north-west and south-east: two lasers facing each other
+    if len(names) > 1:
+        combos.append(tuple(names))
+    out = {}
+    for combo in combos:
+        merged = merge_logs({n: logs[n] for n in combo})
+        _, o = process_several(m, merged, site_poses(site, merged.names))
+        res = evaluate_outputs(m, merged.log, o)
+        res.pop("_errors")
+        res["lasers"] = len(combo)
+        out[f"{spec} {'+'.join(combo)}"] = res
+    return out

@@ -22,7 +22,10 @@ from ._common import check_out_file, load_input
 
 @app.command("train")
 def train_cmd(
-    logs: list[Path] = typer.Argument(..., help="Labelled scan logs (.npz) of one site."),
+    logs: list[Path] = typer.Argument(None, help="Labelled scan logs (.npz) of one site."),
+    laser_logs: list[str] = typer.Option([], "--log", metavar="NAME=LOG",
+                                         help="A labelled log of one laser of a site with several (its name in the "
+                                              "site's sensors list); repeatable, with or without positional logs."),
     site: Path = typer.Option(..., "--site", help="Site file (.json) the logs were recorded on."),
     sensor: str | None = typer.Option(None, "--sensor", help="With a site of several lasers: the one the scans are "
                                                           "from (its name in the site's sensors list)."),
@@ -66,7 +69,19 @@ def train_cmd(
 ):
     """Train a model from labelled logs (training and held-out evaluation)."""
     console = Console(stderr=True)
-    site_obj = one_sensor(load_site(site), sensor, site)
+    full = load_site(site)
+    logs = list(logs or [])
+    if not logs and not laser_logs:
+        raise InputError("train", "give labelled logs (or --log NAME=LOG per laser of a site with several)")
+    sites = [one_sensor(full, sensor, site)] * len(logs)
+    for spec in laser_logs:
+        name, eq, path = spec.partition("=")
+        if not eq or not name or not path:
+            raise InputError("--log", f"{spec!r} is not NAME=LOG")
+        if not full.sensors:
+            raise InputError(site, "has no sensors list; --log NAME=LOG is for a site with several lasers")
+        sites.append(one_sensor(full, name, site))
+        logs.append(Path(path))
     check_out_file(out)  # before the minutes of fitting
     if report is not None:
         check_out_file(report, "--report")
@@ -86,7 +101,7 @@ def train_cmd(
 
     console.print(f"training on {sum(log.n_scans for log in loaded)} scans from {len(loaded)} log(s)"
                   + (f" and {sum(b.n_scans for b in bg)} background scans from {len(bg)} log(s)" if bg else ""))
-    model, rep = train(loaded, site_obj, cfg, progress=progress, names=[str(p) for p in logs],
+    model, rep = train(loaded, sites, cfg, progress=progress, names=[str(p) for p in logs],
                        background=bg, background_names=[str(p) for p in background])
     save_model(model, out, summary=rep)
     _summary(Console(), rep, out)

@@ -61,7 +61,7 @@ def _without_intensities_it_cannot_have(log: ScanLog, name: str) -> ScanLog:
     return dataclasses.replace(log, intensities=None)
 
 
-def train(logs: Sequence[ScanLog], site: Site, cfg: TrainConfig = TrainConfig(), *,
+def train(logs: Sequence[ScanLog], site: "Site | Sequence[Site]", cfg: TrainConfig = TrainConfig(), *,
           progress: Callable[[dict], None] | None = None, names: Sequence[str] | None = None,
           background: Sequence[ScanLog] = (), background_names: Sequence[str] | None = None) -> tuple[Model, dict]:
     """Train a model from labelled logs of one site, and optional background logs (recorded anywhere,
@@ -69,7 +69,8 @@ def train(logs: Sequence[ScanLog], site: Site, cfg: TrainConfig = TrainConfig(),
     against the labelled logs' scanner and cropped to its field of view). Returns the model (float32
     predictors, bounded cost) and a report: examples per class, GP fits, shape envelopes, open-set
     thresholds, motion limits, held-out accuracy and pose errors, and warnings. ``progress`` is called
-    with each GP fit's summary as it ends."""
+    with each GP fit's summary as it ends. ``site``: the site of every log, or one per log (each the
+    site as one laser of a field of several sees it, :meth:`~gtsjax.io.site.Site.for_sensor`)."""
     names = list(names) if names is not None else [f"log {i}" for i in range(len(logs))]
     bg_names = list(background_names) if background_names is not None else [
         f"background log {i}" for i in range(len(background))]
@@ -79,7 +80,8 @@ def train(logs: Sequence[ScanLog], site: Site, cfg: TrainConfig = TrainConfig(),
     first = logs[0]
     n_beams = step_beams(first)
     background = fit_background(first, background, bg_names)
-    classes, landmarks, mobiles = class_list(logs, site)
+    site0 = site if isinstance(site, Site) else site[0]
+    classes, landmarks, mobiles = class_list(logs, site0)
     if not mobiles:
         raise InputError(names[0], "no labelled object classes in the logs")
     rng = np.random.default_rng(cfg.seed)  # examples, the held-out split, the open-set supports

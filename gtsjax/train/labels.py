@@ -292,15 +292,25 @@ def label_log(log: ScanLog, fe: dict, tf: dict, site: Site, classes: tuple[str, 
     ), np.where(use, cls, 0)
 
 
-def first_pass(logs: Sequence[ScanLog], per_log: Sequence[dict], site: Site, classes: tuple[str, ...],
-               cfg: TrainConfig) -> tuple[Examples, list[np.ndarray], int]:
+def per_log_sites(site: "Site | Sequence[Site]", n: int) -> list[Site]:
+    """One site per log: ``site`` for each, or the sequence given (the laser each log is from, on a
+    field of several: each log's own rough sensor pose)."""
+    sites = [site] * n if isinstance(site, Site) else list(site)
+    if len(sites) != n:
+        raise ValueError(f"{len(sites)} sites for {n} logs")
+    return sites
+
+
+def first_pass(logs: Sequence[ScanLog], per_log: Sequence[dict], site: "Site | Sequence[Site]",
+               classes: tuple[str, ...], cfg: TrainConfig) -> tuple[Examples, list[np.ndarray], int]:
     """Pass 1: transforms from the raw ORS origins, and the labels they give. Returns the examples of
-    all logs, each log's class per candidate slot ``[T, K]``, and the next free held-out group id."""
+    all logs, each log's class per candidate slot ``[T, K]``, and the next free held-out group id.
+    ``site``: one for every log, or one per log (:func:`per_log_sites`)."""
     offset = 0
     exs, cls_slots = [], []
-    for log, fe in zip(logs, per_log, strict=True):
-        tf = estimate_transforms(fe["origin"], fe["keep"], site, cfg)
-        ex, cls_tk = label_log(log, fe, tf, site, classes, cfg, offset)
+    for log, fe, log_site in zip(logs, per_log, per_log_sites(site, len(logs)), strict=True):
+        tf = estimate_transforms(fe["origin"], fe["keep"], log_site, cfg)
+        ex, cls_tk = label_log(log, fe, tf, log_site, classes, cfg, offset)
         cls_slots.append(cls_tk)
         offset = int(ex.group.max(initial=offset)) + 1
         exs.append(ex)
@@ -312,7 +322,8 @@ def _relabel(logs, per_log, cls_slots, pose, site, classes, landmarks, cfg) -> t
     n_scans = 0
     offset = 0
     exs = []
-    for i, (log, fe, cls_tk) in enumerate(zip(logs, per_log, cls_slots, strict=True)):
+    sites = per_log_sites(site, len(logs))
+    for i, (log, fe, cls_tk, log_site) in enumerate(zip(logs, per_log, cls_slots, sites, strict=True)):
         det_s = fe["origin"].copy()
         T, K, D = fe["vector"].shape
         for name in landmarks:
@@ -321,10 +332,10 @@ def _relabel(logs, per_log, cls_slots, pose, site, classes, landmarks, cfg) -> t
             rel = np.asarray(rel, np.float64).reshape(T, K, 3)
             moved = compose(_ors(fe["origin"], fe["heading"]), rel[..., :2])
             det_s = np.where((cls_tk == k)[..., None], moved, det_s)
-        tf = estimate_transforms(det_s, fe["keep"], site, cfg)
+        tf = estimate_transforms(det_s, fe["keep"], log_site, cfg)
         degraded += int(tf["degraded"].sum())
         n_scans += log.n_scans
-        ex, _ = label_log(log, fe, tf, site, classes, cfg, offset, log_index=i)
+        ex, _ = label_log(log, fe, tf, log_site, classes, cfg, offset, log_index=i)
         offset = int(ex.group.max(initial=offset)) + 1
         exs.append(ex)
     return Examples.concat(exs), degraded, n_scans
