@@ -4,6 +4,7 @@ robot give one track; a laser that stops leaves the other tracking; logs whose s
 unevenly are merged in time order; a laser's transform is its own."""
 
 import dataclasses
+import time
 
 import numpy as np
 import pytest
@@ -111,3 +112,99 @@ def test_replay_command_merges_the_lasers_logs_into_one_csv(match, tmp_path):
     mask = np.asarray(out.track_mask)
     assert len(rows) == int(mask.sum()) > 0
     assert sorted({r.stamp for r in rows}) == sorted(set(merged.log.stamps[mask.any(1)].tolist()))
+
+
+# ------------------------------------------------------------------------------------------ live
+
+
+class _Frame:
+    """What the live loop reads of a :class:`~gtsjax.io.serial.LinkFrame`."""
+
+    def __init__(self, ranges_m, stamp):
+        self.ranges_m, self.intensities, self.stamp = ranges_m, None, stamp
+        self.recv_perf = 0.0
+
+
+class _Link:
+    """A laser's link that hands over each frame once ``at`` (monotonic) has passed."""
+
+    def __init__(self, model, frames, at):
+        self.model, self.port, self._frames, self._at = model, "fake", list(frames), list(at)
+
+    def get(self, timeout=None):
+        if self._frames and time.monotonic() >= self._at[0]:
+            self._at.pop(0)
+            f = self._frames.pop(0)
+            f.recv_perf = time.perf_counter()
+            return f
+        return None
+
+
+def test_live_merge_takes_frames_in_stamp_order_and_survives_a_late_laser(match, tmp_path):
+    """Two lasers' frames through ``run_live_several``: when both arrive in time, they are processed in
+    stamp order, none out of order; when the south laser's frames arrive 0.4 s late (past the hold),
+    the north laser's are not held back, the late ones are still processed (counted out of order),
+    and every frame gives its rows."""
+    from gtsjax.drivers.live_several import run_live_several, warm_up_several
+    from gtsjax.io.gtd import read_gtd
+    from gtsjax.sensors import URG_04LX
+
+    logs, site, model = match
+    poses = site_poses(site, ["north", "south"])
+    compiled = warm_up_several(model, URG_04LX, poses)
+    n = 20
+    for delay, expect_late in ((0.0, False), (0.4, True)):
+        t0, wall0 = time.monotonic() + 0.05, time.time() + 0.05
+        links = {}
+        for name, lag in (("north", 0.0), ("south", delay)):
+            log = logs[name]
+            since = (log.stamps[:n] - logs["north"].stamps[0]) * 0.2  # the scans at 5× speed, stamped on the host clock
+            frames = [_Frame(np.where(log.valid()[i], log.ranges[i], 0.0).astype(np.float32), wall0 + since[i])
+                      for i in range(n)]
+            at = [t0 + since[i] + lag for i in range(n)]
+            links[name] = _Link(URG_04LX, frames, at)
+        out = tmp_path / f"gtd-{delay}.csv"
+        stats, per, out_of_order = run_live_several(links, model, poses, out, compiled=compiled, max_frames=2 * n,
+                                                    duration=30.0, hold_s=0.1)
+        assert stats.frames == 2 * n and per["north"].frames == per["south"].frames == n
+        stamps = sorted({r.stamp for r in read_gtd(out)})
+        if expect_late:
+            assert out_of_order > 0
+        else:
+            assert out_of_order == 0
+            assert stamps == sorted(stamps)
+
+
+def test_live_a_laser_unplugged_leaves_the_other_tracking(match, tmp_path):
+    """Two emulated lasers over real pseudo-terminals; the south one unplugged for good half-way: the
+    north laser's frames keep coming and giving rows, the south link counts its failure, and the run
+    ends when asked, not on the unplugging."""
+    import threading
+
+    from gtsjax.drivers.live_several import run_live_several, warm_up_several
+    from gtsjax.io.gtd import read_gtd
+    from gtsjax.io.serial import Link
+    from gtsjax.sensors import URG_04LX
+    from gtsjax.sim.emulator import SensorEmulator
+
+    logs, site, model = match
+    poses = site_poses(site, ["north", "south"])
+    compiled = warm_up_several(model, URG_04LX, poses)
+    with SensorEmulator(URG_04LX, logs["north"]) as north, SensorEmulator(URG_04LX, logs["south"]) as south, \
+            Link(north.path, timeout_periods=3, reply_timeout_s=0.3) as ln, \
+            Link(south.path, timeout_periods=3, reply_timeout_s=0.3) as ls:
+        def unplug():
+            time.sleep(2.0)
+            south.inject_disconnect(reopen_after_s=None)
+
+        th = threading.Thread(target=unplug, daemon=True)
+        th.start()
+        t_start = time.time()
+        stats, per, _ = run_live_several({"north": ln, "south": ls}, model, poses, tmp_path / "gtd.csv",
+                                         compiled=compiled, duration=5.0)
+        th.join()
+    rows = read_gtd(tmp_path / "gtd.csv")
+    late = [r for r in rows if r.stamp > t_start + 3.0]
+    assert per["north"].frames >= 35 and 5 <= per["south"].frames <= 30, (per["north"].frames, per["south"].frames)
+    assert len(late) > 0  # rows after the unplugging, from the north laser
+    assert stats.frames == per["north"].frames + per["south"].frames

@@ -81,3 +81,72 @@ def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Pa
     finally:
         link.stop()
     return stats, link.stats
+
+
+def track_live_several(lasers: "dict[str, str]", model_path: Path, site: Path, out: Path, *, record: Path | None,
+                       json_lines: bool, udp: str | None, duration: float | None, frames: int | None,
+                       intensity: bool, view: bool, confirm_scans: int | None, summary: Path | None,
+                       console: Console | None = None):
+    """``run --port NAME=PORT ...``: every laser's link, one track table (see
+    :mod:`gtsjax.drivers.live_several`); per-laser status when it stops, and in ``summary``."""
+    import dataclasses
+    import json
+
+    from ..drivers.live import Outputs
+    from ..drivers.live_several import run_live_several, warm_up_several
+    from ..drivers.several import site_poses
+    from ..io.modelfile import load_model
+    from ..io.serial import Link
+    from ..io.site import load_site, one_sensor
+    from ..sensors import MODELS
+
+    console = console or Console(stderr=True)
+    site_obj = load_site(site)
+    names = list(lasers)
+    model = load_model(model_path).with_site(one_sensor(site_obj, names[0]), where=str(site)).with_confirmation(
+        confirm_scans)
+    poses = site_poses(site_obj, names)
+    compiled = warm_up_several(model, MODELS[model.sensor_model], poses) if model.sensor_model in MODELS else None
+    links = {}
+    record_paths = ({n: record.with_name(f"{record.stem}-{n}{record.suffix or '.npz'}") for n in names}
+                    if record is not None else None)
+    try:
+        for n in names:
+            links[n] = Link(lasers[n], intensity=intensity)
+            links[n].start()
+            console.print(f"{n}: connected to {links[n].model.name} on {lasers[n]}")
+        last = {"t": 0.0}
+
+        def on_scan(stats, o, stamp):
+            now = time.monotonic()
+            if view and now - last["t"] > 1.0:
+                last["t"] = now
+                med, p99 = stats.latency()
+                console.print(f"frames {stats.frames}  rows {stats.rows}  latency median {med:.2f} ms  "
+                              f"p99 {p99:.2f} ms  tracks {int(np.sum(np.asarray(o.track_mask)))}")
+
+        stats, per, out_of_order = run_live_several(
+            links, model, poses, out, record=record_paths, outputs=Outputs(json_lines, udp), duration=duration,
+            on_scan=on_scan, with_intensity=intensity, compiled=compiled, max_frames=frames)
+    finally:
+        for link in links.values():
+            link.stop()
+    med, p99 = stats.latency()
+    console.print(f"{stats.frames} frames, {stats.rows} rows -> {out}; latency median {med:.2f} ms, p99 {p99:.2f} ms; "
+                  f"{out_of_order} frames out of stamp order")
+    doc = {"frames": stats.frames, "rows": stats.rows, "latency_ms_median": med, "latency_ms_p99": p99,
+           "late": stats.late, "stale": stats.stale, "out_of_order": out_of_order,
+           "tracks": {c: len(ids) for c, ids in sorted(stats.track_ids.items())}, "lasers": {}}
+    for n in names:
+        ls, p = links[n].stats, per[n]
+        lat = np.asarray(p.latencies_ms) if p.latencies_ms else np.asarray([np.nan])
+        link = dataclasses.asdict(ls)
+        link["received"] = link.pop("frames")  # frames the link delivered, processed or not
+        doc["lasers"][n] = {**link, "frames": p.frames, "degraded": p.degraded, "late": p.late,
+                            "latency_ms_median": float(np.median(lat)), "latency_ms_p99": float(np.percentile(lat, 99))}
+        console.print(f"  {n}: {p.frames} frames ({p.degraded} without a new map transformation), link: "
+                      f"{ls.bad_frames} bad, {ls.salvaged} salvaged, {ls.dropped} dropped, {ls.reconnects} reconnects"
+                      + (f"; raw scans -> {record_paths[n]}" if record_paths else ""))
+    if summary is not None:
+        summary.write_text(json.dumps(doc) + "\n")
+    return stats

@@ -14,7 +14,9 @@ from ._live import track_live
 
 @app.command("run")
 def run_cmd(
-    port: str = typer.Option(..., "--port", help="Serial port or pyserial URL (/dev/ttyACM0, a pty, socket://host:port)."),
+    port: list[str] = typer.Option(..., "--port", help="Serial port or pyserial URL (/dev/ttyACM0, a pty, "
+                                                       "socket://host:port); with a site of several lasers, "
+                                                       "NAME=PORT once per laser."),
     site: Path = typer.Option(..., "--site", help="Site file (.json)."),
     sensor: str | None = typer.Option(None, "--sensor", help="With a site of several lasers: the one the scans are "
                                                           "from (its name in the site's sensors list)."),
@@ -36,6 +38,15 @@ def run_cmd(
     for path, option in ((out, "--out"), (record, "--record"), (summary, "--summary")):
         if path is not None:
             check_out_file(path, option)
+    lasers = _laser_ports(port, site, sensor)
+    if lasers is not None:
+        from ._live import track_live_several
+
+        track_live_several(lasers, model, site, out, record=record, json_lines=json_lines, udp=udp,
+                           duration=duration, frames=frames, intensity=intensity, view=not quiet,
+                           confirm_scans=confirm_scans, summary=summary)
+        return
+    port = port[0]
     stats, link_stats = track_live(port, model, site, out, record=record, json_lines=json_lines, udp=udp,
                                    duration=duration, frames=frames, intensity=intensity, view=not quiet,
                                    confirm_scans=confirm_scans, sensor=sensor)
@@ -98,3 +109,26 @@ def recover_cmd(
     code = record_main([str(journal)] + ([str(out)] if out else []))
     if code:
         raise typer.Exit(code)
+
+
+def _laser_ports(ports: list[str], site: Path, sensor: str | None) -> "dict[str, str] | None":
+    """``--port NAME=PORT`` per laser of a site with several (``None``: one port, one laser). A port
+    is a laser's when the text before its first ``=`` names one of the site's sensors."""
+    from ..io import load_site
+
+    site_obj = load_site(site)
+    names = {s.name for s in site_obj.sensors}
+    pairs = [p.partition("=") for p in ports]
+    named = [(n, path) for n, eq, path in pairs if eq and n in names]
+    if len(ports) == 1 and not named:
+        return None
+    if len(named) != len(ports):
+        bad = next(p for p, (n, eq, _) in zip(ports, pairs, strict=True) if not (eq and n in names))
+        raise InputError("--port", f"{bad!r}: with several ports each is NAME=PORT, NAME one of the site's sensors "
+                                   f"({', '.join(sorted(names)) or 'it has no sensors list'})")
+    if sensor is not None:
+        raise InputError("--sensor", "picks one laser; with NAME=PORT per laser, leave it out")
+    lasers = dict(named)
+    if len(lasers) != len(named):
+        raise InputError("--port", "a laser named twice")
+    return lasers

@@ -1,0 +1,166 @@
+"""The live loop for several lasers of one field (issue 18): one reader thread per port (each a
+:class:`~gtsjax.io.serial.Link`), frames merged by their host stamps into one track table
+(:func:`~gtsjax.core.multi.step_several`), one GTD CSV, per-laser counters.
+
+Merging: each laser's frames wait in its own queue; the loop takes the earliest stamped frame at the
+queues' heads once no other laser can still send an earlier one: every laser has a frame waiting,
+or the head is stamped before the earliest next frame of each laser without one (its last stamp
+plus 0.9 of its period), or the head is ``hold_s`` old (a laser that stalled, or was unplugged,
+holds the others back no longer than that). A frame whose stamp is earlier than
+one already processed (its laser's link delivered it late) is still processed, with a prediction
+step of zero, and counted (``out_of_order``): the tracker never steps back in time.
+"""
+
+import collections
+import dataclasses
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..core.multi import init_several, step_several
+from ..core.scan import Scan
+from ..errors import InputError
+from ..io.gtd import GTDWriter
+from ..model import Model
+from ..sensors import SensorModel
+from .live import LiveStats, Outputs, check_sensor, frame_arrays, pack_tracks, rows_from_packed
+
+
+@dataclasses.dataclass
+class LaserStats:
+    """One laser's share of a several-laser run."""
+
+    frames: int = 0
+    degraded: int = 0
+    late: int = 0
+    latencies_ms: collections.deque = dataclasses.field(default_factory=lambda: collections.deque(maxlen=2000))
+
+
+def make_several_step(model: Model, sensor: SensorModel):
+    """``f(state, ranges, intensities, valid, dt, k, span_dt) -> (state, output, packed)``, jitted once
+    with the model closed over (see :func:`~gtsjax.drivers.live.make_live_step`); ``k`` is the laser."""
+    angle_min = jnp.asarray(sensor.angle_min, jnp.float32)
+    angle_increment = jnp.asarray(sensor.angle_increment, jnp.float32)
+
+    @jax.jit
+    def several_step(state, ranges, intensities, valid, dt, k, span_dt):
+        scan = Scan(ranges, intensities, valid, angle_min, angle_increment, jnp.asarray(dt, jnp.float32))
+        state, o = step_several(model, state, scan, k, jnp.asarray(span_dt, jnp.float32))
+        return state, o, pack_tracks(o)
+
+    return several_step
+
+
+def warm_up_several(model: Model, sensor: SensorModel, poses: np.ndarray):
+    """The step for ``model`` on ``sensor``'s frames, compiled before the lasers stream, and the
+    initial state (each laser at its rough pose guess ``poses``, ``[lasers, 3]``)."""
+    state = init_several(model, jnp.asarray(poses, jnp.float32))
+    f = make_several_step(model, sensor)
+    r, inten, valid = frame_arrays(np.zeros(sensor.n_beams, np.float32), None, sensor, model.n_beams)
+    jax.block_until_ready(f(state, r, inten, valid, np.float32(0.0), np.int32(0), np.float32(0.0)))
+    return f, state
+
+
+def run_live_several(links: "dict[str, object]", model: Model, poses: np.ndarray, out: Path, *,
+                     record: "dict[str, Path] | None" = None, outputs: Outputs | None = None,
+                     duration: float | None = None, stop=None, on_scan=None, with_intensity: bool = False,
+                     compiled=None, max_frames: int | None = None, hold_s: float | None = None):
+    """Track from started links (one per laser, ``poses`` their rough pose guesses in the same order)
+    until ``duration``, ``max_frames`` frames (all lasers together), ``stop`` or Ctrl-C. Returns the
+    run's :class:`~gtsjax.drivers.live.LiveStats`, the lasers' :class:`LaserStats` and the count of
+    frames processed out of stamp order."""
+    from ..io.record import Recorder
+
+    names = list(links)
+    sensors = [links[n].model for n in names]
+    for n, sen in zip(names, sensors, strict=True):
+        check_sensor(model, sen, f"{n} ({getattr(links[n], 'port', 'sensor')})", intensity=with_intensity)
+    sensor = sensors[0]
+    step_fn, state = compiled if compiled is not None else warm_up_several(model, sensor, poses)
+    stats, per = LiveStats(), {n: LaserStats() for n in names}
+    for n in names:  # frames that queued up while compiling are stale
+        while links[n].get(timeout=0) is not None:
+            stats.stale += 1
+    hold = hold_s if hold_s is not None else 1.5 * max(s.period for s in sensors)
+    period_ms = {n: s.period * 1000.0 for n, s in zip(names, sensors, strict=True)}
+    outputs = outputs or Outputs()
+    recorders = ({n: Recorder(p, model=links[n].model, intensities=with_intensity and links[n].model.has_intensity)
+                  for n, p in record.items()} if record else {})
+    heads: dict[str, collections.deque] = {n: collections.deque() for n in names}
+    last_stamp, last_own = None, dict.fromkeys(names)
+    out_of_order = 0
+    t_end = None if duration is None else time.monotonic() + duration
+    failed = None
+    try:
+        with GTDWriter(out) as writer:
+            while (not (stop is not None and stop.is_set()) and (t_end is None or time.monotonic() < t_end)
+                   and (max_frames is None or stats.frames < max_frames)):
+                got = False
+                for n in names:
+                    while (lf := links[n].get(timeout=0)) is not None:
+                        heads[n].append(lf)
+                        got = True
+                ready = [n for n in names if heads[n]]
+                if not ready:
+                    if not got:
+                        time.sleep(0.001)
+                    continue
+                n = min(ready, key=lambda x: heads[x][0].stamp)
+                lf = heads[n][0]
+                # A laser with no frame waiting cannot send one stamped before its last plus most of a
+                # period: the head goes now if it is earlier than that for every such laser, else it
+                # waits for them, at most ``hold`` (a stalled or unplugged laser holds the rest no longer).
+                waiting = [m for m in names if not heads[m]]
+                if waiting and time.time() - lf.stamp < hold and not all(
+                        last_own[m] is not None and lf.stamp <= last_own[m] + 0.9 * period_ms[m] / 1000.0
+                        for m in waiting):
+                    time.sleep(0.0005)
+                    continue
+                heads[n].popleft()
+                k = names.index(n)
+                dt = 0.0 if last_stamp is None else lf.stamp - last_stamp
+                if dt < 0:
+                    out_of_order += 1
+                    dt = 0.0
+                last_stamp = lf.stamp if last_stamp is None else max(last_stamp, lf.stamp)
+                span = 0.0 if last_own[n] is None else max(lf.stamp - last_own[n], 0.0)
+                last_own[n] = lf.stamp
+                r, inten, valid = frame_arrays(lf.ranges_m, lf.intensities, sensor, model.n_beams)
+                state, o, packed = step_fn(state, r, inten, valid, np.float32(dt), np.int32(k), np.float32(span))
+                packed = np.asarray(packed)
+                rows = rows_from_packed(lf.stamp, packed, model.classes)
+                writer.write(rows)
+                degraded = bool(packed[-1, 0] > 0.5)
+                outputs.send(rows, lf.stamp, degraded=degraded, laser=n)
+                lat = (time.perf_counter() - lf.recv_perf) * 1000.0
+                if n in recorders:
+                    recorders[n].append_frame(lf)
+                stats.add_latency(lat)
+                stats.frames += 1
+                stats.rows += len(rows)
+                stats.degraded += int(degraded)
+                for row in rows:
+                    stats.track_ids.setdefault(row.cls, set()).add(row.track_id)
+                late = lat > period_ms[n]
+                stats.late += int(late)
+                p = per[n]
+                p.frames += 1
+                p.degraded += int(degraded)
+                p.late += int(late)
+                p.latencies_ms.append(lat)
+                if on_scan is not None:
+                    on_scan(stats, o, lf.stamp)
+    except KeyboardInterrupt:
+        pass
+    except InputError as err:  # a write failed (a full disk): stop; what is written stays
+        failed = err
+    finally:
+        outputs.close()
+        for rec in recorders.values():
+            rec.close(write_log=failed is None)
+    if failed is not None:
+        raise InputError(failed.where, f"{failed.problem}; stopped after {stats.frames} frames")
+    return stats, per, out_of_order
