@@ -562,6 +562,17 @@ EXIT_2 = {
         "--log",
         "is not NAME=LOG",
     ),
+    "train --log, a laser the site lacks": (
+        ["train", "--log", "east={d}/log.npz", "--site", "{d}/two_sensors.json", "--out", "{o}/m.npz"],
+        "two_sensors.json",
+        "has no sensor named 'east'",
+    ),
+    "run, two ports for a site of one laser": (
+        ["run", "--port", "north={d}/a", "--port", "south={d}/b", "--site", "{d}/site.json", "--model",
+         str(DEMO_MODEL), "--out", "{o}/o.csv"],
+        "--port",
+        "each is NAME=PORT, NAME one of the site's sensors (it has no sensors list)",
+    ),
     "plot --coverage, an unknown scanner": (
         ["plot", "--coverage", "{d}/two_sensors.json", "--scanner", "LMS-100", "--out", "{o}/c.png"],
         "--scanner",

@@ -73,7 +73,7 @@ def train_cmd(
     logs = list(logs or [])
     if not logs and not laser_logs:
         raise InputError("train", "give labelled logs (or --log NAME=LOG per laser of a site with several)")
-    sites = [one_sensor(full, sensor, site)] * len(logs)
+    sites = [one_sensor(full, sensor, site)] * len(logs) if logs else []
     for spec in laser_logs:
         name, eq, path = spec.partition("=")
         if not eq or not name or not path:
