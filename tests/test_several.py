@@ -105,8 +105,13 @@ def test_replay_command_merges_the_lasers_logs_into_one_csv(match, tmp_path):
         save_log(log, tmp_path / f"{name}.npz")
     code = main(["replay", "--log", f"north={tmp_path / 'north.npz'}", "--log", f"south={tmp_path / 'south.npz'}",
                  "--site", str(tmp_path / "site.json"), "--model", str(demo_model_path()), "--out",
-                 str(tmp_path / "gtd.csv"), "--chunk", "32"])
+                 str(tmp_path / "gtd.csv"), "--chunk", "32", "--sensor-out", str(tmp_path / "lasers.csv")])
     assert code == 0
+    lasers = np.genfromtxt(tmp_path / "lasers.csv", delimiter=",", names=True, dtype=None, encoding="utf-8")
+    for name, log in logs.items():  # each laser's rows at its own stamps, at its pose (here the guess: no post known)
+        mine = lasers[lasers["laser"] == name]
+        np.testing.assert_allclose(mine["stamp"], log.stamps)
+        np.testing.assert_allclose(mine["x"], site.sensor(name).pose[0], atol=1e-4)
     rows = read_gtd(tmp_path / "gtd.csv")
     merged, out = _run(model, site, logs)
     mask = np.asarray(out.track_mask)

@@ -62,10 +62,10 @@ def replay_cmd(
     lasers of one field into one."""
     console = Console(stderr=True)
     if laser_logs:
-        if logs or sensor is not None or sensor_out is not None or step_by_step:
-            raise InputError("replay", "--log NAME=LOG (several lasers) takes no positional logs, --sensor, "
-                                       "--sensor-out or --step-by-step")
-        _replay_lasers(laser_logs, site, model, out, chunk, topic, crop_fov, confirm_scans, console)
+        if logs or sensor is not None or step_by_step:
+            raise InputError("replay", "--log NAME=LOG (several lasers) takes no positional logs, --sensor or "
+                                       "--step-by-step")
+        _replay_lasers(laser_logs, site, model, out, chunk, topic, crop_fov, confirm_scans, console, sensor_out)
         return
     if not logs:
         raise InputError("replay", "give a log (or --log NAME=LOG per laser of a site with several)")
@@ -151,7 +151,7 @@ def _load_fitted(log: Path, topic: str | None, m, crop_fov: bool, console: Conso
 
 
 def _replay_lasers(specs: list[str], site_path: Path, model_path: Path, out: Path, chunk: int, topic: str | None,
-                   crop_fov: bool, confirm_scans: int | None, console: Console) -> None:
+                   crop_fov: bool, confirm_scans: int | None, console: Console, sensor_out: Path | None) -> None:
     """``replay --log NAME=LOG ...``: the lasers' logs merged by stamp into one track table."""
     from ..drivers.several import replay_several
     from ..io import load_site
@@ -174,6 +174,8 @@ def _replay_lasers(specs: list[str], site_path: Path, model_path: Path, out: Pat
             raise InputError(site_path, err.problem) from None
         paths[name] = Path(path)
     check_out_file(out)
+    if sensor_out is not None:
+        check_out_file(sensor_out, "--sensor-out")
     first = next(iter(paths))
     m = load_model(model_path).with_site(one_sensor(site_obj, first), where=str(site_path))
     m = m.with_confirmation(confirm_scans)
@@ -183,7 +185,8 @@ def _replay_lasers(specs: list[str], site_path: Path, model_path: Path, out: Pat
     with Progress(TextColumn("replay"), BarColumn(), MofNCompleteColumn(), TextColumn("scans"),
                   TimeRemainingColumn(), console=console, transient=True) as bar:
         task = bar.add_task("replay", total=total)
-        totals = replay_several(logs, m, site_obj, out, chunk=chunk, progress=lambda n: bar.update(task, completed=n))
+        totals = replay_several(logs, m, site_obj, out, chunk=chunk, progress=lambda n: bar.update(task, completed=n),
+                                sensor_out=sensor_out)
     dt = time.perf_counter() - t0
     per = ", ".join(f"{n} {totals['scans_per_laser'][n]} scans ({totals['degraded'][n]} without a new map "
                     "transformation)" for n in logs)

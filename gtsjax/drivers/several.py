@@ -8,6 +8,7 @@ of scans (whichever laser took them: perception needs no state), then the update
 any laser: a GTD row per confirmed track per scan, stamped with that scan's stamp.
 """
 
+import csv
 import dataclasses
 import math
 from pathlib import Path
@@ -17,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
+from ..core.geometry import wrap
 from ..core.multi import SeveralState, init_several, update_several
 from ..core.pipeline import Output
 from ..core.scan import Scan
@@ -122,9 +124,11 @@ def site_poses(site: Site, names) -> np.ndarray:
 
 
 def replay_several(logs: "dict[str, ScanLog]", model: Model, site: Site, out: Path, *, chunk: int = 256,
-                   progress=None) -> dict:
+                   progress=None, sensor_out: Path | None = None) -> dict:
     """Replay several lasers' logs (names of the site's ``sensors``) into one GTD CSV; returns totals
-    (scans, rows, tracks per class, degraded scans per laser)."""
+    (scans, rows, tracks per class, degraded scans per laser). ``sensor_out``: each scan's laser pose
+    in O as its own transform places it (``stamp,laser,x,y,theta,degraded,n_landmarks``): a tripod
+    bumped shows as a step in its laser's rows."""
     merged = merge_logs(logs)
     _, o = process_several(model, merged, site_poses(site, merged.names), chunk=chunk, callback=progress)
     rows_total, ids = 0, {}
@@ -136,6 +140,15 @@ def replay_several(logs: "dict[str, ScanLog]", model: Model, site: Site, out: Pa
             rows_total += len(rows)
             for r in rows:
                 ids.setdefault(r.cls, set()).add(r.track_id)
+    if sensor_out is not None:
+        sp = np.asarray(o.sensor_pose, np.float64)
+        with open(sensor_out, "w", newline="") as f:
+            w = csv.writer(f, lineterminator="\n")
+            w.writerow(("stamp", "laser", "x", "y", "theta", "degraded", "n_landmarks"))
+            for t in range(merged.log.n_scans):
+                w.writerow((repr(float(merged.log.stamps[t])), merged.names[merged.laser[t]], f"{sp[t, 0]:.6f}",
+                            f"{sp[t, 1]:.6f}", f"{float(wrap(sp[t, 2])):.6f}", int(o.transform.degraded[t]),
+                            int(o.transform.n_landmarks[t])))
     degraded = {n: int(np.sum(o.degraded[merged.laser == k])) for k, n in enumerate(merged.names)}
     return {"scans": int(merged.log.n_scans), "rows": rows_total, "tracks": {c: len(v) for c, v in ids.items()},
             "degraded": degraded, "scans_per_laser": {n: int(np.sum(merged.laser == k))
