@@ -172,6 +172,15 @@ def main() -> None:
     percept = jax.jit(P.perceive, static_argnames="bucket")(model, scan)
     report["perceive (a–e′)"] = count_kernels(compiled_text(lambda x: P.perceive(model, x), scan))
     report["update (f–g)"] = count_kernels(compiled_text(lambda s, p, x: P.update(model, s, p, x), state, percept, scan))
+    # Several lasers (issue 18): one laser's scan, two lasers' transforms and one track table.
+    import jax.numpy as jnp
+
+    from gtsjax.core import multi as M
+
+    several = M.init_several(model, jnp.asarray([site.sensor_pose, site.sensor_pose], jnp.float32))
+    report["step, 2 lasers"] = count_kernels(compiled_text(
+        lambda s, x, k, d: M.step_several(model, s, x, k, d), several, scan, jnp.asarray(0, jnp.int32),
+        jnp.asarray(0.1, jnp.float32)))
     for k, v in report.items():
         print(f"{k:24s} {v}")
     if "--where" in sys.argv[1:]:
