@@ -213,3 +213,19 @@ def test_live_a_laser_unplugged_leaves_the_other_tracking(match, tmp_path):
     assert per["north"].frames >= 35 and 5 <= per["south"].frames <= 30, (per["north"].frames, per["south"].frames)
     assert len(late) > 0  # rows after the unplugging, from the north laser
     assert stats.frames == per["north"].frames + per["south"].frames
+
+
+def test_occluded_share_counts_robots_behind_robots():
+    """A laser at the origin looking along x, robots at (2, 0), (4, 0) (behind the first), (2, 1.5),
+    and one out of reach at (8, 0): of the three views within reach, one is hidden."""
+    from types import SimpleNamespace
+
+    from gtsjax.cli.evaluate import occluded_share
+    from gtsjax.io.site import Landmark, Site, SiteSensor
+
+    truth = np.array([[[2.0, 0.0, 0.0], [4.0, 0.0, 0.0], [2.0, 1.5, 0.0], [8.0, 0.0, 0.0]]])
+    log = SimpleNamespace(truth_poses=truth, sensor_model="URG-04LX")
+    merged = SimpleNamespace(log=log, laser=np.array([0]), names=("a",))
+    site = Site((Landmark("post", 0, 1), Landmark("post", 1, 0), Landmark("post", 1, 1)), (0.0, 0.0, 0.0), None, {},
+                (SiteSensor("a", (0.0, 0.0, 0.0)),))
+    assert occluded_share(merged, site) == pytest.approx(1 / 3)

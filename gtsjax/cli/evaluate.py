@@ -22,7 +22,8 @@ COLUMNS = [("recall", "recall", "{:.1%}"), ("position_rmse_m", "pos RMSE [cm]", 
 DET_COLUMNS = [("det_recall", "detected", "{:.1%}"), ("det_position_rmse_m", "pos RMSE [cm]", "{:.1f}"),
                ("det_heading_rmse_deg", "heading RMSE [°]", "{:.1f}"),
                ("det_heading_median_deg", "heading median [°]", "{:.1f}"),
-               ("det_misread_fraction", "heading off > 30°", "{:.1%}")]
+               ("det_misread_fraction", "heading off > 30°", "{:.1%}"),
+               ("occluded_share", "views hidden by robots", "{:.1%}")]
 
 
 def _fmt(key, fmt, v):
@@ -155,5 +156,35 @@ def _evaluate_match(base, spec: str, name: str, seed: int, robots: int, seconds:
         res = evaluate_outputs(m, merged.log, o)
         res.pop("_errors")
         res["lasers"] = len(combo)
+        res["occluded_share"] = occluded_share(merged, site)
         out[f"{spec} {'+'.join(combo)}"] = res
     return out
+
+
+def occluded_share(merged, site, radius: float = 0.15) -> float:
+    """Of the robot views a laser's scan could have had (the robot inside the field, within the laser's
+    reach: 5.6 m … its range and field of view by the site's pose guess), the share hidden behind
+    another robot: the line of sight passes within ``radius`` of a robot nearer the laser. From the
+    truth alone: what the scene hides, whatever the model does."""
+    from ..sensors import get_model
+
+    sensor = get_model(merged.log.sensor_model)
+    truth = merged.log.truth_poses
+    fov = (sensor.angle_min, sensor.angle_min + sensor.angle_increment * (sensor.n_beams - 1))
+    views = hidden = 0
+    for t in range(truth.shape[0]):
+        sx, sy, sth = site.sensor(merged.names[merged.laser[t]]).pose
+        xy = truth[t, :, :2]
+        present = ~np.isnan(xy[:, 0])
+        rel = xy - [sx, sy]
+        rng = np.hypot(rel[:, 0], rel[:, 1])
+        bearing = np.arctan2(np.sin(np.arctan2(rel[:, 1], rel[:, 0]) - sth), np.cos(np.arctan2(rel[:, 1], rel[:, 0]) - sth))
+        reach = present & (rng <= sensor.range_max) & (bearing >= fov[0]) & (bearing <= fov[1])
+        for i in np.flatnonzero(reach):
+            views += 1
+            u = rel[i] / rng[i]
+            along = rel[present] @ u
+            across = np.abs(rel[present, 0] * u[1] - rel[present, 1] * u[0])
+            others = (along > 0) & (along < rng[i] - radius) & (across < radius)
+            hidden += int(others.any())
+    return hidden / max(views, 1)
