@@ -229,3 +229,25 @@ def test_occluded_share_counts_robots_behind_robots():
     site = Site((Landmark("post", 0, 1), Landmark("post", 1, 0), Landmark("post", 1, 1)), (0.0, 0.0, 0.0), None, {},
                 (SiteSensor("a", (0.0, 0.0, 0.0)),))
     assert occluded_share(merged, site) == pytest.approx(1 / 3)
+
+
+def test_cross_laser_disagreement_against_a_loop():
+    """The sensor CSV's ``disagreement``: per scan, the largest distance between this laser's and another
+    laser's latest residuals over the landmarks both saw; NaN before another laser shared one."""
+    from types import SimpleNamespace
+
+    from gtsjax.drivers.several import cross_laser_disagreement
+
+    rng = np.random.default_rng(0)
+    T, L = 12, 4
+    laser = np.array([0, 1, 0, 1, 1, 0, 0, 1, 0, 1, 0, 1])
+    res = rng.normal(0, 0.02, (T, L, 2))
+    seen = rng.random((T, L)) < 0.6
+    got = cross_laser_disagreement(SimpleNamespace(log=SimpleNamespace(n_scans=T), laser=laser),
+                                   SimpleNamespace(landmark_residual=res, landmark_seen=seen))
+    for t in range(T):
+        prev = [u for u in range(t) if laser[u] != laser[t]]
+        u = prev[-1] if prev else None
+        shared = [] if u is None else [m for m in range(L) if seen[t, m] and seen[u, m]]
+        want = max((np.hypot(*(res[t, m] - res[u, m])) for m in shared), default=np.nan)
+        assert (np.isnan(got[t]) and np.isnan(want)) or got[t] == pytest.approx(want), t

@@ -142,14 +142,43 @@ def replay_several(logs: "dict[str, ScanLog]", model: Model, site: Site, out: Pa
                 ids.setdefault(r.cls, set()).add(r.track_id)
     if sensor_out is not None:
         sp = np.asarray(o.sensor_pose, np.float64)
+        disagreement = cross_laser_disagreement(merged, o)
         with open(sensor_out, "w", newline="") as f:
             w = csv.writer(f, lineterminator="\n")
-            w.writerow(("stamp", "laser", "x", "y", "theta", "degraded", "n_landmarks"))
+            w.writerow(("stamp", "laser", "x", "y", "theta", "degraded", "n_landmarks", "disagreement"))
             for t in range(merged.log.n_scans):
+                d = disagreement[t]
                 w.writerow((repr(float(merged.log.stamps[t])), merged.names[merged.laser[t]], f"{sp[t, 0]:.6f}",
                             f"{sp[t, 1]:.6f}", f"{float(wrap(sp[t, 2])):.6f}", int(o.transform.degraded[t]),
-                            int(o.transform.n_landmarks[t])))
+                            int(o.transform.n_landmarks[t]), "" if np.isnan(d) else f"{d:.4f}"))
     degraded = {n: int(np.sum(o.degraded[merged.laser == k])) for k, n in enumerate(merged.names)}
     return {"scans": int(merged.log.n_scans), "rows": rows_total, "tracks": {c: len(v) for c, v in ids.items()},
             "degraded": degraded, "scans_per_laser": {n: int(np.sum(merged.laser == k))
                                                        for k, n in enumerate(merged.names)}}
+
+
+def cross_laser_disagreement(merged: Merged, o: Output) -> np.ndarray:
+    """Per scan, how far this laser's map transformation and the others' disagree about the landmarks
+    they both see (item 4 of issue 18): each laser's transform places its detection of a landmark at
+    the landmark's map position plus that laser's residual, so two lasers put the same landmark
+    ``|r_k − r_j|`` apart; the largest such distance over the landmarks this scan saw and another
+    laser saw in its latest scan (NaN where none is shared). A tripod bumped, a laser whose transform
+    went stale (degraded) after it moved, shows as a step here."""
+    T = merged.log.n_scans
+    res = np.asarray(o.landmark_residual, np.float64)  # [T, L, 2]
+    seen = np.asarray(o.landmark_seen, bool)  # [T, L]
+    latest: dict[int, int] = {}
+    out = np.full(T, np.nan)
+    for t in range(T):
+        k = int(merged.laser[t])
+        worst = np.nan
+        for j, u in latest.items():
+            if j == k:
+                continue
+            both = seen[t] & seen[u]
+            if both.any():
+                d = np.linalg.norm(res[t, both] - res[u, both], axis=1).max()
+                worst = d if np.isnan(worst) else max(worst, d)
+        out[t] = worst
+        latest[k] = t
+    return out
