@@ -14,7 +14,7 @@ from ._live import track_live
 
 @app.command("run")
 def run_cmd(
-    port: list[str] = typer.Option(..., "--port", help="Serial port or pyserial URL (/dev/ttyACM0, a pty, "
+    port: list[str] = typer.Option(..., "--port", metavar="PORT", help="Serial port or pyserial URL (/dev/ttyACM0, a pty, "
                                                        "socket://host:port); with a site of several lasers, "
                                                        "NAME=PORT once per laser."),
     site: Path = typer.Option(..., "--site", help="Site file (.json)."),
