@@ -208,8 +208,11 @@ def main(argv=None) -> int:
         next_event = time.monotonic() + rng.exponential(args.events_every)
         deadline = time.monotonic() + seconds + 300.0
         hung = False
+        start_s = None  # when the run was connected and streaming (its --duration counts from about then)
         while child.poll() is None:
             now = time.monotonic()
+            if start_s is None and "connected to" in err.read_text():
+                start_s = now - t_start
             if now > deadline:
                 hung = True
                 child.send_signal(signal.SIGTERM)
@@ -235,7 +238,7 @@ def main(argv=None) -> int:
         b.kill()
     res = {"minutes": args.minutes, "scenarios": specs, "busy": args.busy, "exit": code, "hung": hung,
            "faults_injected": {**injected.__dict__, "long_events": [f"{t:.0f} s: {e}" for t, e in events]},
-           "frames_sent": sent, "frames_formatted": len(served)}
+           "frames_sent": sent, "frames_formatted": len(served), "start_s": start_s or 0.0}
     np.save(out / "served.npy", np.asarray(served, float).reshape(-1, 2))
     (out / "soak-run.json").write_text(json.dumps({"res": res, "rss": rss}) + "\n")
     if not summary.exists():
@@ -250,17 +253,30 @@ def analyse(res, rss, served, out, truth, classes, T, mm, period, user_site, gtd
     code, hung, sent = res["exit"], res["hung"], res["frames_sent"]
     sm = json.loads(summary.read_text())
     res["run"] = sm
-    counted = sm["checksum_errors"] + sm["truncated"] + sm["malformed"] + sm["dropped"] + sm.get("stale", 0)
+    # Every frame sent is received by the link or lost on the wire (counted by cause); every frame
+    # received is processed, let go by the full queue, let go as stale at the start, or was in flight
+    # when the run stopped. What no counter explains: frames lost at reconnects (cut by the unplugging).
+    received = sm.get("received", sm["frames"])
+    wire = sm["checksum_errors"] + sm["truncated"] + sm["malformed"]
+    res["frames_received"] = received
     res["frames_processed"] = sm["frames"]
-    res["frames_counted_lost"] = counted
-    res["frames_unaccounted"] = sent - sm["frames"] - counted
+    res["frames_lost_on_wire"] = wire
+    res["frames_let_go"] = sm["dropped"] + sm.get("stale", 0)
+    res["frames_counted_lost"] = wire + res["frames_let_go"]
+    res["frames_unaccounted"] = sent - received - wire
+    res["frames_in_flight_at_stop"] = received - sm["frames"] - res["frames_let_go"]
     # Memory: after the first minute of streaming, and over the last minute.
     r = np.array([(t, k) for t, k in rss if k is not None], float).reshape(-1, 2)
     if r.size:
+        # Streaming: after the first minute until the run's duration (closing the recording after it,
+        # with its own memory, is reported as the maximum).
+        end = res["minutes"] * 60.0 + float(res.get("start_s", 0.0))
         first = r[(r[:, 0] >= 60) & (r[:, 0] < 120), 1]
-        last = r[r[:, 0] >= r[-1, 0] - 60, 1]
+        streaming = r[r[:, 0] <= end]
+        last = streaming[streaming[:, 0] >= streaming[-1, 0] - 60, 1] if streaming.size else r[-1:, 1]
         first = first if first.size else r[:1, 1]
         res["rss_mib_start"], res["rss_mib_end"] = float(np.median(first) / 1024), float(np.median(last) / 1024)
+        res["rss_mib_max_streaming"] = float(streaming[:, 1].max() / 1024) if streaming.size else float("nan")
         res["rss_mib_max"] = float(r[:, 1].max() / 1024)
         res["rss_growth_pct"] = 100 * (res["rss_mib_end"] / res["rss_mib_start"] - 1)
     # Against the truth.
@@ -330,18 +346,20 @@ def _report(res: dict, out: Path) -> None:
     lines = [
         f"exit {res['exit']}{' (hung: stopped by the script)' if res['hung'] else ''}; "
         f"{res['minutes']:g} min, busy {res['busy']}",
-        f"frames: sent {res['frames_sent']}, processed {res.get('frames_processed')}, counted lost "
-        f"{res.get('frames_counted_lost')} (checksum {sm.get('checksum_errors')}, truncated {sm.get('truncated')}, "
-        f"malformed {sm.get('malformed')}, queue {sm.get('dropped')}, stale {sm.get('stale')}), unaccounted "
-        f"{res.get('frames_unaccounted')}; salvaged {sm.get('salvaged')}; reconnects {sm.get('reconnects')}, "
-        f"timeouts {sm.get('timeouts')}",
+        f"frames: sent {res['frames_sent']}, received {res.get('frames_received')}, processed "
+        f"{res.get('frames_processed')}; lost on the wire {res.get('frames_lost_on_wire')} (checksum "
+        f"{sm.get('checksum_errors')}, truncated {sm.get('truncated')}, malformed {sm.get('malformed')}), let go "
+        f"{res.get('frames_let_go')} (full queue {sm.get('dropped')}, stale {sm.get('stale')}), in flight at the "
+        f"stop {res.get('frames_in_flight_at_stop')}, unaccounted {res.get('frames_unaccounted')}; salvaged "
+        f"{sm.get('salvaged')}; reconnects {sm.get('reconnects')}, timeouts {sm.get('timeouts')}",
         f"faults injected: {res['faults_injected']}",
         f"latency (whole run): median {sm.get('latency_ms_run_median', float('nan')):.2f} ms, p99 "
         f"{sm.get('latency_ms_run_p99', float('nan')):.2f}, p99.9 {sm.get('latency_ms_run_p999', float('nan')):.2f}, "
         f"max {sm.get('latency_ms_max', float('nan')):.1f}; late {sm.get('late')}",
         f"memory: {res.get('rss_mib_start', float('nan')):.1f} MiB after the first minute, "
-        f"{res.get('rss_mib_end', float('nan')):.1f} MiB over the last (growth "
-        f"{res.get('rss_growth_pct', float('nan')):+.2f} %), max {res.get('rss_mib_max', float('nan')):.1f}",
+        f"{res.get('rss_mib_end', float('nan')):.1f} MiB over the last of streaming (growth "
+        f"{res.get('rss_growth_pct', float('nan')):+.2f} %), max {res.get('rss_mib_max_streaming', float('nan')):.1f} "
+        f"streaming, {res.get('rss_mib_max', float('nan')):.1f} closing the recording",
     ]
     if "recall" in res:
         lines.append(

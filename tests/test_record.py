@@ -54,9 +54,10 @@ def test_geometry_without_a_model_and_clamped_stamps(tmp_path):
     rec.append(np.ones(5), 10.0)
     rec.append(np.ones(5), 9.5)  # a clock step back after a reconnect
     rec.append(np.ones(5), 11.0)
-    log = rec.close()
+    assert rec.close() == 3
     assert rec.clamped == 1
-    np.testing.assert_array_equal(load_log(out).stamps, [10.0, 10.0, 11.0])
+    log = load_log(out)
+    np.testing.assert_array_equal(log.stamps, [10.0, 10.0, 11.0])
     assert log.intensities is None and log.range_max == 30.0
     with pytest.raises(InputError):
         Recorder(tmp_path / "x.npz")  # no geometry
@@ -207,3 +208,32 @@ def test_records_a_live_link(tmp_path):
     assert log.n_scans == len(frames) == 10
     np.testing.assert_array_equal(log.ranges[-1], frames[-1].ranges_m)
     np.testing.assert_array_equal(log.stamps, [f.stamp for f in frames])
+
+
+def test_a_long_recording_is_converted_a_block_at_a_time(tmp_path, monkeypatch):
+    """The journal becomes the log a block of records at a time (here blocks of 7 of 45 scans, with a
+    record damaged and a torn tail): the same log as reading the whole journal at once."""
+    import gtsjax.io.record as R
+
+    monkeypatch.setattr(R, "BLOCK_RECORDS", 7)
+    out = tmp_path / "raw.npz"
+    rng = np.random.default_rng(3)
+    rec = Recorder(out, UTM_30LX, intensities=True)
+    for i in range(45):
+        rec.append(rng.uniform(0.1, 20, UTM_30LX.n_beams).astype(np.float32), 100.0 + 0.025 * i,
+                   rng.uniform(0, 3000, UTM_30LX.n_beams).astype(np.float32))
+    rec.close(keep_journal=True, write_log=False)
+    j = journal_path(out)
+    size = R._record_dtype(UTM_30LX.n_beams, True).itemsize
+    data = bytearray(j.read_bytes())
+    data[-3 * size + 100] ^= 0xFF  # the third record from the end fails its CRC
+    j.write_bytes(bytes(data) + b"torn")
+    whole, report = R.read_journal(j)
+    got = R.journal_to_log(j, out)
+    assert (got["records"], got["bad_crc"], got["torn_bytes"]) == (44, 1, 4) == (
+        report["records"], report["bad_crc"], report["torn_bytes"])
+    log = load_log(out)
+    np.testing.assert_array_equal(log.ranges, whole.ranges)
+    np.testing.assert_array_equal(log.intensities, whole.intensities)
+    np.testing.assert_array_equal(log.stamps, whole.stamps)
+    assert log.sensor_model == "UTM-30LX" and log.angle_increment == UTM_30LX.angle_increment

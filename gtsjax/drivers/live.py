@@ -192,8 +192,9 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
              duration: float | None = None, stop: threading.Event | None = None, on_scan=None,
              with_intensity: bool = False, compiled=None, max_frames: int | None = None) -> LiveStats:
     """Track from a started :class:`~gtsjax.io.serial.Link` until ``duration`` seconds, ``max_frames``
-    frames processed, ``stop`` set, or Ctrl-C. ``on_scan(stats, output, stamp)`` is called after each
-    scan (the live view; ``output`` is the step's full output, still on the device).
+    frames processed, ``stop`` set, or Ctrl-C; then stop the link (QT) and finalise the recording.
+    ``on_scan(stats, output, stamp)`` is called after each scan (the live view; ``output`` is the
+    step's full output, still on the device).
     ``compiled``: ``(step, state)`` from :func:`warm_up`, done before the link started streaming."""
     from ..io.record import Recorder
 
@@ -246,6 +247,11 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
         failed = err
     finally:
         outputs.close()
+        # The sensor is stopped (QT) as soon as the loop ends, before the recording is finalised (an
+        # hour's journal takes a while to become a log): it streams no longer than it is read, and the
+        # link's counters end with the loop.
+        if hasattr(link, "stop"):
+            link.stop()
         if recorder is not None:
             # After a failed write the scan log would not fit either: the journal keeps the scans.
             recorder.close(write_log=failed is None)
@@ -259,8 +265,11 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
 def summary_json(stats: LiveStats, link_stats) -> str:
     """The counters of a live run as one JSON object (``gtsjax run --summary``): frames, rows, the
     recent latency (``latency_ms_*``, last 2 000 frames) and the whole run's (``latency_ms_run_*``,
-    binned), late and degraded scans, tracks per class, and the link's counters by cause."""
+    binned), late and degraded scans, tracks per class, and the link's counters by cause (its
+    ``frames``, the frames it delivered, as ``received``: ``frames`` is those processed)."""
     med, p99 = stats.latency()
+    link = dataclasses.asdict(link_stats)
+    link["received"] = link.pop("frames")
     return json.dumps({"frames": stats.frames, "rows": stats.rows, "latency_ms_median": med, "latency_ms_p99": p99,
                        "latency_ms_run_median": stats.latency_quantile(0.5),
                        "latency_ms_run_p99": stats.latency_quantile(0.99),
@@ -268,4 +277,4 @@ def summary_json(stats: LiveStats, link_stats) -> str:
                        "late": stats.late, "stale": stats.stale, "degraded": stats.degraded, "unlike": stats.unlike,
                        "off_envelope": stats.off_envelope,
                        "tracks": {c: len(ids) for c, ids in sorted(stats.track_ids.items())},
-                       **dataclasses.asdict(link_stats)})
+                       **link})

@@ -159,6 +159,9 @@ def run_live_several(links: "dict[str, object]", model: Model, poses: np.ndarray
         failed = err
     finally:
         outputs.close()
+        for link in links.values():  # the lasers stop streaming with the loop (see ``run_live``)
+            if hasattr(link, "stop"):
+                link.stop()
         for rec in recorders.values():
             rec.close(write_log=failed is None)
     if failed is not None:

@@ -6,7 +6,7 @@ lost to a crash, a ``kill -9`` or a pulled power cable. :class:`Recorder` append
 ``write()`` (so ``kill -9`` loses nothing already appended: the data sits in the kernel's page
 cache) and ``fsync``'d at least every ``sync_interval`` seconds (so a power cut loses at most the
 last second). On a clean :meth:`Recorder.close` the journal becomes ``RAW.npz`` in the scan-log
-format of ``shared/spec/formats.md`` (written atomically by :func:`~gtsjax.io.logs.save_log`) and
+format of ``shared/spec/formats.md`` (written atomically, a block at a time: :func:`journal_to_log`) and
 the journal is removed.
 
 After a crash, turn the journal into a scan log with one command::
@@ -35,7 +35,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..sensors import SensorModel
-from .logs import DEFAULT_RANGE_MAX, DEFAULT_RANGE_MIN, ScanLog, save_log
+from .logs import DEFAULT_RANGE_MAX, DEFAULT_RANGE_MIN, ScanLog, _validate, load_log
 
 MAGIC = b"GTSJRNL1"
 JOURNAL_SUFFIX = ".journal"
@@ -188,8 +188,9 @@ class Recorder:
             except OSError:
                 pass
 
-    def close(self, keep_journal: bool = False, write_log: bool = True) -> ScanLog | None:
-        """Finish: write the scan log to :attr:`path` (atomically), remove the journal, return the log.
+    def close(self, keep_journal: bool = False, write_log: bool = True) -> int | None:
+        """Finish: write the scan log to :attr:`path` (atomically, a block of records at a time:
+        :func:`journal_to_log`), remove the journal, return the number of scans written.
 
         With no scan recorded there is nothing to write (a scan log needs at least one scan): the
         journal is removed and ``None`` returned. ``write_log=False`` (after a failed write: the disk
@@ -208,7 +209,7 @@ class Recorder:
             try:
                 os.fsync(self._fd)
             except OSError:
-                pass  # the records are in the file; read_journal below reads them back
+                pass  # the records are in the file; journal_to_log below reads them back
             os.close(self._fd)
             self._closed = True
         if not write_log:
@@ -217,15 +218,14 @@ class Recorder:
             if not keep_journal:
                 self.journal.unlink(missing_ok=True)
             return None
-        log, _ = read_journal(self.journal)
         try:
-            save_log(log, self.path)
+            report = journal_to_log(self.journal, self.path)
         except OSError as err:
             raise InputError(self.path, f"cannot write the scan log ({err.strerror}); its {self.count} scans are "
                              f"kept in {self.journal} (gtsjax recover {self.journal} when there is room)") from None
         if not keep_journal:
             self.journal.unlink(missing_ok=True)
-        return log
+        return report["records"]
 
     def __enter__(self) -> "Recorder":
         return self
@@ -276,25 +276,110 @@ def read_journal(path: "str | os.PathLike") -> tuple[ScanLog, dict]:
     return log, report
 
 
+#: Records converted at a time by :func:`journal_to_log`: memory stays bounded by a block whatever the
+#: recording's length (an hour of a UTM-30LX with intensities is 1.25 GB of records).
+BLOCK_RECORDS = 2048
+
+
+def _open_journal(path: Path):
+    """The journal's header, record dtype, data offset and record count (a torn tail not counted)."""
+    try:
+        size = path.stat().st_size
+        with open(path, "rb") as f:
+            head = f.read(len(MAGIC) + 4)
+            if len(head) < len(MAGIC) + 4 or head[: len(MAGIC)] != MAGIC:
+                raise InputError(path, "not a gtsjax recording journal (bad magic)")
+            (hlen,) = struct.unpack_from("<I", head, len(MAGIC))
+            header_bytes = f.read(hlen)
+    except OSError as err:
+        raise InputError(path, f"cannot read the journal ({err.strerror or err})") from None
+    try:
+        header = json.loads(header_bytes.decode())
+        dtype = _record_dtype(int(header["n_beams"]), bool(header["intensities"]))
+    except (ValueError, KeyError, TypeError, UnicodeDecodeError):
+        raise InputError(path, "journal header is damaged") from None
+    start = len(MAGIC) + 4 + hlen
+    n = max(size - start, 0) // dtype.itemsize
+    torn = max(size - start, 0) - n * dtype.itemsize
+    return header, dtype, start, n, torn
+
+
+def journal_to_log(journal: "str | os.PathLike", out_path: "str | os.PathLike") -> dict:
+    """Write the scan log a journal holds to ``out_path`` (an ``.npz`` of the scan-log format, written
+    to a temporary name and renamed), a block of records at a time: the journal is memory-mapped and
+    each array streamed into the archive, so converting an hour's recording takes a block's memory,
+    not the recording's several times over. A torn last record is cut, a record failing its CRC
+    skipped. Returns ``records``, ``torn_bytes``, ``bad_crc``, ``out``."""
+    import zipfile
+
+    journal, out_path = Path(journal), Path(out_path)
+    header, dtype, start, n, torn = _open_journal(journal)
+    recs = np.memmap(journal, dtype=dtype, mode="r", offset=start, shape=(n,)) if n else np.zeros(0, dtype)
+    good = np.zeros(n, bool)
+    for a in range(0, n, BLOCK_RECORDS):
+        block = np.asarray(recs[a:a + BLOCK_RECORDS])
+        rows = block.view(np.uint8).reshape(len(block), dtype.itemsize)
+        good[a:a + len(block)] = [zlib.crc32(r[:-4].tobytes()) == c for r, c in zip(rows, block["crc"], strict=True)]
+    idx = np.flatnonzero(good)
+    report = {"records": int(idx.size), "torn_bytes": int(torn), "bad_crc": int(n - idx.size), "out": str(out_path)}
+    if idx.size == 0:
+        raise InputError(journal, "the journal holds no complete scan")
+    n_beams, has_inten = int(header["n_beams"]), bool(header["intensities"])
+    stamps = np.maximum.accumulate(np.asarray(recs["stamp"][idx], np.float64))
+    small = {"stamps": stamps, "angle_min": np.float64(header["angle_min"]),
+             "angle_increment": np.float64(header["angle_increment"]),
+             "range_min": np.float64(header.get("range_min", DEFAULT_RANGE_MIN)),
+             "range_max": np.float64(header.get("range_max", DEFAULT_RANGE_MAX))}
+    if header.get("sensor_model") is not None:
+        small["sensor_model"] = np.asarray(header["sensor_model"], dtype=np.str_)
+    # The format's rules, checked with a stand-in for the ranges of their shape (no memory; the
+    # intensities' values are checked block by block as they are written).
+    _validate({**small, "ranges": np.lib.stride_tricks.as_strided(np.zeros(1, np.float32), (idx.size, n_beams),
+                                                                  (0, 0))}, out_path)
+    tmp = out_path.with_name(out_path.name + ".part")
+    try:
+        with open(tmp, "wb") as f, zipfile.ZipFile(f, "w", zipfile.ZIP_STORED, allowZip64=True) as zf:
+            for field in ("ranges", "intensities") if has_inten else ("ranges",):
+                with zf.open(f"{field}.npy", "w", force_zip64=True) as entry:
+                    np.lib.format.write_array_header_2_0(entry, {"descr": "<f4", "fortran_order": False,
+                                                                 "shape": (int(idx.size), n_beams)})
+                    for a in range(0, idx.size, BLOCK_RECORDS):
+                        block = np.ascontiguousarray(recs[field][idx[a:a + BLOCK_RECORDS]], dtype="<f4")
+                        if field == "intensities" and not (np.all(np.isfinite(block)) and np.all(block >= 0)):
+                            raise InputError(out_path, "'intensities' must be finite and >= 0")
+                        entry.write(block.tobytes())
+            for key, value in small.items():
+                with zf.open(f"{key}.npy", "w", force_zip64=True) as entry:
+                    np.lib.format.write_array(entry, np.asarray(value), allow_pickle=False)
+            f.flush()
+            os.fsync(f.fileno())
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    finally:
+        del recs
+    os.replace(tmp, out_path)
+    return report
+
+
 def recover(journal: "str | os.PathLike", out_path: "str | os.PathLike | None" = None) -> ScanLog:
     """Turn a journal (possibly with a torn last record) into a valid scan log at ``out_path``.
 
     ``out_path`` defaults to the journal's name without ``.journal``. The journal is left in place.
+    Returns the log, read back (``main``, ``gtsjax recover``, only counts it).
     """
-    log, _ = _recover(journal, out_path)
-    return log
+    report = _recover(journal, out_path)
+    return load_log(report["out"])
 
 
-def _recover(journal: "str | os.PathLike", out_path: "str | os.PathLike | None") -> tuple[ScanLog, dict]:
+def _recover(journal: "str | os.PathLike", out_path: "str | os.PathLike | None") -> dict:
     journal = Path(journal)
     if out_path is None:
         if not journal.name.endswith(JOURNAL_SUFFIX):
             raise InputError(journal, f"name does not end in {JOURNAL_SUFFIX}; give the output path")
         out_path = journal.with_name(journal.name[: -len(JOURNAL_SUFFIX)])
-    log, report = read_journal(journal)
-    save_log(log, out_path)
-    report["out"] = str(out_path)
-    return log, report
+    report = journal_to_log(journal, out_path)
+    return report
 
 
 def _fsync_dir(path: Path) -> None:
@@ -318,12 +403,12 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     t0 = time.monotonic()
     try:
-        log, report = _recover(args[0], args[1] if len(args) == 2 else None)
+        report = _recover(args[0], args[1] if len(args) == 2 else None)
     except InputError as err:
         print(f"gtsjax: {err}", file=sys.stderr)
         return 2
     print(
-        f"recovered {log.n_scans} scans to {report['out']} ({report['torn_bytes']} torn bytes cut, "
+        f"recovered {report['records']} scans to {report['out']} ({report['torn_bytes']} torn bytes cut, "
         f"{report['bad_crc']} damaged records skipped) in {time.monotonic() - t0:.2f} s"
     )
     return 0
