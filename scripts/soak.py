@@ -283,6 +283,9 @@ def analyse(res, rss, served, out, truth, classes, T, mm, period, user_site, gtd
     if not raw.exists() and journal_path(raw).exists():
         recover(journal_path(raw), raw)
     rec = load_log(raw)
+    if "received" not in sm:  # a summary from before ``received`` (its ``frames`` was the link's): count the recording
+        res["frames_processed"] = int(rec.n_scans)
+        res["frames_in_flight_at_stop"] = received - rec.n_scans - res["frames_let_go"]
     sv = np.asarray(served, float).reshape(-1, 2)
     si = sv[:, 1].astype(np.int64)
     idx = identify(rec.stamps, rec.ranges, sv[:, 0], si, mm, period)
@@ -322,7 +325,12 @@ def analyse(res, rss, served, out, truth, classes, T, mm, period, user_site, gtd
             r = rows[hit[m]]
             e_pos.append(np.hypot(r.x - truth[k, m, 0], r.y - truth[k, m, 1]))
             e_th.append(wrap(r.theta - truth[k, m, 2]))
-    served_settled = [i for i in si if settled[i % T].any()]
+    # The frames sent while the run was reading: from its first processed frame to its last (the
+    # emulator keeps streaming while a run starts and until it sends QT).
+    t_run = (rec.stamps[0] - period, rec.stamps[-1] + period)
+    during = (sv[:, 0] >= t_run[0]) & (sv[:, 0] <= t_run[1])
+    res["frames_sent_outside_the_run"] = int(np.sum(~during))
+    served_settled = [i for i in si[during] if settled[i % T].any()]
     n_settled = len(served_settled)
     res["frames_sent_with_robot"] = n_settled
     res["rows_share"] = sum(with_rows.get(int(i), False) for i in served_settled) / max(n_settled, 1)
