@@ -714,3 +714,15 @@ def test_multiecho_frames_put_an_ampersand_before_each_further_echo():
     assert frame.ranges_mm.tolist() == [1000, 2000, 3000] and frame.intensities.tolist() == [10, 30, 40]
     single = scip.parse_reply(scip.format_md_frame("ND0000000201000", 7, ranges[:, 0]))
     assert single.ranges_mm.tolist() == [1000, 2000, 3000] and single.status == "99"
+
+
+@pytest.mark.parametrize("cut", [0, 7, 40, 300])
+def test_a_reply_cut_by_a_reset_is_counted_truncated(cut):
+    """The link resets its decoder when it reconnects: a reply it held part of (``cut`` bytes of an MD
+    frame) is counted truncated, as a frame lost, not only as garbage bytes; nothing held, nothing counted."""
+    frame = _stream(1)[2]
+    dec = scip.StreamDecoder()
+    assert dec.feed(frame[:cut]) == []
+    dec.reset()
+    assert dec.stats.truncated == (1 if cut else 0) and dec.stats.garbage_bytes >= cut
+    assert [o.timestamp_ms for o in dec.decode(frame)] == [1000]  # and it decodes the next whole frame

@@ -59,7 +59,10 @@ class StreamDecoder:
         self._after_drop = False  # a reply was just dropped: lines without an echo may be its rest
 
     def reset(self) -> None:
-        """Forget any partial reply (after reopening the port, say); counters are kept."""
+        """Forget any partial reply (after reopening the port, say); counters are kept, a reply cut
+        off so counted ``truncated``."""
+        if self._lines or self._partial:
+            self._count("truncated")
         self.stats.garbage_bytes += len(self._partial) + sum(len(line) + 1 for line in self._lines)
         self._partial.clear()
         self._lines = []

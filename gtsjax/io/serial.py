@@ -254,6 +254,7 @@ class Link:
 
     def _new_decoder(self) -> None:
         with self._lock:
+            self._decoder.reset()  # a frame cut off by the reconnect is counted (truncated), not lost silently
             d = self._decoder.stats
             for f in dataclasses.fields(scip.StreamStats):
                 setattr(self._base, f.name, getattr(self._base, f.name) + getattr(d, f.name))
