@@ -9,7 +9,8 @@ the others); its detections, mapped into O with their covariances, update the on
 scan in the order of their stamps, whichever laser took them. The prediction steps over the time
 since the previous scan of any laser; a track the scanning laser cannot see (outside its range or
 field of view) is not missed by it (:func:`~gtsjax.core.g_track.track_step`'s ``visible``), so a
-robot watched by one laser is not dropped for the scans of the other.
+robot watched by one laser is not dropped for the scans of the other; one outside every laser's
+reach is missed by all, so that it ends.
 
 ``step_several(model, state, scan, k, span_dt)``: laser ``k`` (a traced index: one compiled program
 serves every laser of a model) scanned ``scan``; ``scan.dt`` is the time since the previous scan of
@@ -25,7 +26,7 @@ from jaxtyping import Array, Float, Int
 from ..model import Model
 from .f_maptransform import Transform
 from .g_track import TrackerState
-from .pipeline import Output, perceive, update_view
+from .pipeline import Output, in_coverage, perceive, update_view
 from .precision import exact_products
 from .scan import Scan
 
@@ -67,9 +68,12 @@ def _put_row(tree, k, row):
 @exact_products
 def update_several(model: Model, state: SeveralState, p, scan: Scan, k: Int[Array, ""],
                    span_dt: Float[Array, ""]) -> tuple[SeveralState, Output]:
-    """Stages f–g for laser ``k``'s scan: its own transform, the shared tracker."""
+    """Stages f–g for laser ``k``'s scan: its own transform, the shared tracker. A track outside every
+    laser's reach (by each laser's latest transform) is missed by whichever laser scans."""
+    xy = state.tracker.mean[:, :2]
+    watched = jax.vmap(lambda tf: in_coverage(scan, tf, xy, model.range_max))(state.transforms)  # [lasers, tracks]
     tf, tracker, out = update_view(model, _row(state.transforms, k), state.tracker, p, scan, span_dt=span_dt,
-                                   several=True)
+                                   several=True, unwatched=~jnp.any(watched, axis=0))
     n = state.n_scans + (jnp.arange(state.n_scans.shape[0], dtype=jnp.int32) == k).astype(jnp.int32)
     return SeveralState(_put_row(state.transforms, k, tf), tracker, n), out
 

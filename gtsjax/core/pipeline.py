@@ -183,7 +183,7 @@ def update(model: Model, state: PipelineState, p: Perception, scan: Scan) -> tup
 
 
 def update_view(model: Model, prev_tf: Transform, tracker: TrackerState, p: Perception, scan: Scan, *,
-                span_dt=None, several: bool = False) -> tuple[Transform, TrackerState, Output]:
+                span_dt=None, several: bool = False, unwatched=None) -> tuple[Transform, TrackerState, Output]:
     """Stages f–g: re-estimate the map transformation from this scan's landmarks, map detections into
     O, and track. The transform estimated from a scan is used for that same scan's detections.
 
@@ -205,7 +205,13 @@ def update_view(model: Model, prev_tf: Transform, tracker: TrackerState, p: Perc
     det = Detections(pose_o, cov_o, p.cls, tracked, p.kept & ~tracked, p.partial, p.vague, side_o, p.side_logp)
     # Several lasers: a track this laser cannot see (out of its range or field of view) is not missed
     # by it, nor is it seen through there (another laser may be watching it).
-    visible = in_coverage(scan, tf, tracker.mean[:, :2], model.range_max) if several else None
+    # A track no laser can see (``unwatched``: outside every laser's reach) is missed by each, so that
+    # one that left the lasers' reach is not kept for ever.
+    visible = None
+    if several:
+        visible = in_coverage(scan, tf, tracker.mean[:, :2], model.range_max)
+        if unwatched is not None:
+            visible = visible | unwatched
     tracker, _ = track_step(tracker, det, dt, model.tracker, model.scan_period, visible=visible, span_dt=span_dt)
     ts = tracker
     out = Output(
