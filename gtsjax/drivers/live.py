@@ -57,6 +57,16 @@ class LiveStats:
         self.latency_counts[int(np.searchsorted(LATENCY_EDGES_MS, ms))] += 1
         self.latency_max_ms = max(self.latency_max_ms, ms)
 
+    def count(self, rows, lat_ms: float, degraded: bool, period_ms: float) -> None:
+        """One processed frame: its rows, latency, whether its transform was degraded, late or not."""
+        self.add_latency(lat_ms)
+        self.frames += 1
+        self.rows += len(rows)
+        self.degraded += int(degraded)
+        for row in rows:
+            self.track_ids.setdefault(row.cls, set()).add(row.track_id)
+        self.late += int(lat_ms > period_ms)
+
     def latency_quantile(self, q: float) -> float:
         """The ``q`` quantile of every latency since the start, to the histogram's resolution (the
         upper edge of its bin, at most 6 % above the value)."""
@@ -230,15 +240,9 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
                 # Bookkeeping after the latency is taken: the recording and the view are not on the path.
                 if recorder is not None:
                     recorder.append_frame(lf)
-                stats.add_latency(lat)
-                stats.frames += 1
-                stats.rows += len(rows)
-                stats.degraded += int(degraded)
+                stats.count(rows, lat, degraded, period_ms)
                 stats.unlike += int(packed[-1, 2])
                 stats.off_envelope += int(packed[-1, 3])
-                for row in rows:
-                    stats.track_ids.setdefault(row.cls, set()).add(row.track_id)
-                stats.late += int(lat > period_ms)
                 if on_scan is not None:
                     on_scan(stats, o, lf.stamp)
     except KeyboardInterrupt:

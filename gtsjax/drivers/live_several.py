@@ -138,14 +138,8 @@ def run_live_several(links: "dict[str, object]", model: Model, poses: np.ndarray
                 lat = (time.perf_counter() - lf.recv_perf) * 1000.0
                 if n in recorders:
                     recorders[n].append_frame(lf)
-                stats.add_latency(lat)
-                stats.frames += 1
-                stats.rows += len(rows)
-                stats.degraded += int(degraded)
-                for row in rows:
-                    stats.track_ids.setdefault(row.cls, set()).add(row.track_id)
+                stats.count(rows, lat, degraded, period_ms[n])
                 late = lat > period_ms[n]
-                stats.late += int(late)
                 p = per[n]
                 p.frames += 1
                 p.degraded += int(degraded)
