@@ -19,8 +19,10 @@ import sys
 from pathlib import Path
 
 # The most kernels the shipped model's step may run (``tests/test_kernels.py`` fails above it): where
-# issue 16 has taken it so far. The issue's target is 150; each reduction lowers this ratchet.
-STEP_KERNEL_BUDGET = 450
+# issue 16 has taken it so far (449), plus the 17 of stage f's rigid check of the associations
+# (f_maptransform.rigid_inliers: a wrong landmark took a transform metres off). The issue's target is 150;
+# each reduction lowers this ratchet.
+STEP_KERNEL_BUDGET = 470
 
 _FREE = {"parameter", "constant", "get-tuple-element", "tuple", "bitcast", "after-all", "partition-id",
          "replica-id", "opt-barrier", "add-dependency"}

@@ -7,6 +7,8 @@ same kinds of landmarks. Shapes that must be static (class count, maximum tracks
 everything a user may tune is an array, so tuning does not recompile the step.
 """
 
+import dataclasses
+
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
@@ -29,6 +31,7 @@ DEFAULT_MAP_GATE = 0.4
 DEFAULT_MAP_MIN_SPREAD = 0.3
 DEFAULT_MEAS_VAR_FLOOR = (2.5e-5, 2.5e-5, 3e-4)
 DEFAULT_MAX_TRACKS = 8
+MAX_TRACKS_LIMIT = 64  # track slots a model may be given (--max-tracks)
 
 
 class SiteArrays(eqx.Module):
@@ -110,6 +113,18 @@ class Model(eqx.Module):
         if n_scans < 1:
             raise InputError("--confirm-scans", f"must be at least 1, not {n_scans}")
         return eqx.tree_at(lambda m: m.tracker.n_confirm, self, jnp.asarray(n_scans, jnp.int32))
+
+    def with_capacity(self, max_tracks: int | None) -> "Model":
+        """The model with ``max_tracks`` track slots, and as many candidates of each tracked class
+        given a pose per scan (``max_objects``); ``None``: as trained. Nothing learnt depends on them:
+        they are the step's array sizes, and a field with more robots than slots cannot track them all
+        (a match of 10 robots on a model of 8). Each slot costs step time (the tracker's matrices grow
+        with their square)."""
+        if max_tracks is None:
+            return self
+        if not 1 <= max_tracks <= MAX_TRACKS_LIMIT:
+            raise InputError("--max-tracks", f"must be 1 to {MAX_TRACKS_LIMIT}, not {max_tracks}")
+        return dataclasses.replace(self, max_tracks=int(max_tracks), max_objects=int(max_tracks))
 
     def without_outline(self) -> "Model":
         """The model without its learnt outlines: no outline refinement (stage e′), every candidate's

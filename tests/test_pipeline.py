@@ -231,6 +231,31 @@ def test_replay_confirm_scans_delays_the_first_row_only(tiny, tmp_path):
     assert res.returncode == 2 and "confirm-scans" in res.stderr
 
 
+def test_replay_max_tracks_bounds_the_robots_tracked_at_once(tiny, tmp_path):
+    """``--max-tracks N`` (the model's track slots, 8 as trained): three robots crossing fill three
+    slots; with two slots no scan reports more than two, and with twelve the rows are the trained
+    model's (the slots are array sizes, nothing learnt). 0 is a usage error (exit 2)."""
+    log, site = simulate("spl-crossing", seed=35, n_scans=120)
+    save_log(log, tmp_path / "log.npz")
+    save_site(site, tmp_path / "site.json")
+    per_scan = {}
+    rows_of = {}
+    for n in (None, 2, 12):
+        out = tmp_path / f"gtd-{n}.csv"
+        extra = () if n is None else ("--max-tracks", str(n))
+        res = run_cli("replay", tmp_path / "log.npz", "--site", tmp_path / "site.json", "--model", tiny["path"],
+                      "--out", out, *extra)
+        assert res.returncode == 0, res.stderr
+        with open(out, newline="") as f:
+            rows_of[n] = list(csv.reader(f))[1:]
+        per_scan[n] = np.unique([r[0] for r in rows_of[n]], return_counts=True)[1]
+    assert per_scan[None].max() == 3 and per_scan[2].max() == 2
+    assert [r[:3] for r in rows_of[12]] == [r[:3] for r in rows_of[None]]
+    res = run_cli("replay", tmp_path / "log.npz", "--site", tmp_path / "site.json", "--model", tiny["path"],
+                  "--out", tmp_path / "x.csv", "--max-tracks", "0")
+    assert res.returncode == 2 and "max-tracks" in res.stderr
+
+
 def test_replay_bad_inputs_exit_2_with_one_line(tiny, tmp_path):
     log, site = simulate("spl-eval", seed=1, n_scans=5)
     good_log, good_site = tmp_path / "log.npz", tmp_path / "site.json"

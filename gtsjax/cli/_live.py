@@ -42,7 +42,7 @@ def live_view(model, link, stats, output, stamp) -> Group:
 def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Path | None = None,
                json_lines: bool = False, udp: str | None = None, duration: float | None = None,
                frames: int | None = None, intensity: bool = True, view: bool = True, console: Console | None = None,
-               confirm_scans: int | None = None, sensor: str | None = None):
+               confirm_scans: int | None = None, sensor: str | None = None, max_tracks: int | None = None):
     """Open the sensor, run the live loop, show the view; returns (live stats, link stats)."""
     from ..drivers.live import Outputs, check_sensor, run_live, warm_up
     from ..io.modelfile import load_model
@@ -52,7 +52,8 @@ def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Pa
 
     console = console or Console(stderr=True)
     site_obj = one_sensor(load_site(site), sensor, site)
-    model = load_model(model_path).with_site(site_obj, where=str(site)).with_confirmation(confirm_scans)
+    model = load_model(model_path).with_site(site_obj, where=str(site)).with_confirmation(
+        confirm_scans).with_capacity(max_tracks)
     # Compile before the sensor streams, when the model names a known scanner (else after connecting).
     compiled = warm_up(model, MODELS[model.sensor_model]) if model.sensor_model in MODELS else None
     link = Link(port, intensity=intensity)
@@ -86,7 +87,7 @@ def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Pa
 def track_live_several(lasers: "dict[str, str]", model_path: Path, site: Path, out: Path, *, record: Path | None,
                        json_lines: bool, udp: str | None, duration: float | None, frames: int | None,
                        intensity: bool, view: bool, confirm_scans: int | None, summary: Path | None,
-                       console: Console | None = None):
+                       console: Console | None = None, max_tracks: int | None = None):
     """``run --port NAME=PORT ...``: every laser's link, one track table (see
     :mod:`gtsjax.drivers.live_several`); per-laser status when it stops, and in ``summary``."""
     import dataclasses
@@ -104,7 +105,7 @@ def track_live_several(lasers: "dict[str, str]", model_path: Path, site: Path, o
     site_obj = load_site(site)
     names = list(lasers)
     model = load_model(model_path).with_site(one_sensor(site_obj, names[0]), where=str(site)).with_confirmation(
-        confirm_scans)
+        confirm_scans).with_capacity(max_tracks)
     poses = site_poses(site_obj, names)
     compiled = warm_up_several(model, MODELS[model.sensor_model], poses) if model.sensor_model in MODELS else None
     links = {}

@@ -9,7 +9,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from ._app import CONFIRM_HELP, app, fail
+from ._app import CONFIRM_HELP, MAX_TRACKS_HELP, app, fail
 from ._common import check_out_dir
 
 # The ground truth as written (confirmed tracks), and the paper's per-sample figures (each scan's
@@ -59,6 +59,7 @@ def evaluate_cmd(
     scenario: list[str] = typer.Option(None, "--scenario", help="Simulated scenario(s) instead of logs (NAME or NAME:SEED)."),
     out_dir: Path = typer.Option(Path("eval-out"), "--out-dir", help="Where to write results.md, results.json, PNGs."),
     confirm_scans: int | None = typer.Option(None, "--confirm-scans", min=1, help=CONFIRM_HELP),
+    max_tracks: int | None = typer.Option(None, "--max-tracks", min=1, help=MAX_TRACKS_HELP),
     robots: int = typer.Option(10, "--robots", min=1, max=14, help="spl-match-* scenarios: robots on the field."),
     seconds: float = typer.Option(60.0, "--seconds", min=1.0, help="spl-match-* scenarios: how long."),
     without_outline: bool = typer.Option(False, "--without-outline",
@@ -79,7 +80,7 @@ def evaluate_cmd(
         raise fail("evaluate", "give labelled logs with --site, or --scenario NAME[:SEED]")
     if logs and site is None:
         raise fail("evaluate", "logs need --site SITE.json")
-    base = load_model(model).with_confirmation(confirm_scans)
+    base = load_model(model).with_confirmation(confirm_scans).with_capacity(max_tracks)
     if without_outline:
         base = base.without_outline()
     jobs, matches = [], []
@@ -97,6 +98,9 @@ def evaluate_cmd(
                 raise fail(p, "not a labelled log (no truth_poses)")
             log = fit_to_model(log, base, p)
             jobs.append((str(p), lambda log=log: (log, site_obj)))
+    if matches and robots > base.max_tracks:
+        Console(stderr=True).print(f"warning: {robots} robots on the field and {base.max_tracks} track slots in the model: "
+                                   f"it cannot track them all (--max-tracks {robots + 4})", soft_wrap=True)
     check_out_dir(out_dir)  # after the inputs are checked (a bad one leaves nothing behind), before any replay
     results = {}
     for spec, name, seed in matches:

@@ -19,7 +19,7 @@ from ..drivers.replay import replay_log, replay_logs
 from ..errors import InputError
 from ..io.importers import detect_format, format_name
 from ..io.logs import fit_to_model
-from ._app import CONFIRM_HELP, app
+from ._app import CONFIRM_HELP, MAX_TRACKS_HELP, app
 from ._common import (
     INPUT_HELP,
     TOPIC_HELP,
@@ -53,6 +53,7 @@ def replay_cmd(
     crop_fov: bool = typer.Option(False, "--crop-fov",
                                   help="Crop a wider field of view to the model's, and its range window."),
     confirm_scans: int | None = typer.Option(None, "--confirm-scans", min=1, help=CONFIRM_HELP),
+    max_tracks: int | None = typer.Option(None, "--max-tracks", min=1, help=MAX_TRACKS_HELP),
     step_by_step: bool = typer.Option(False, "--step-by-step",
                                       help="Run each scan's whole step in turn, as the live loop does (bit for bit), "
                                            "instead of perceiving groups of scans at once (faster; equal to float32 round-off, "
@@ -65,11 +66,12 @@ def replay_cmd(
         if logs or sensor is not None or step_by_step:
             raise InputError("replay", "--log NAME=LOG (several lasers) takes no positional logs, --sensor or "
                                        "--step-by-step")
-        _replay_lasers(laser_logs, site, model, out, chunk, topic, crop_fov, confirm_scans, console, sensor_out)
+        _replay_lasers(laser_logs, site, model, out, chunk, topic, crop_fov, confirm_scans, console, sensor_out,
+                       max_tracks)
         return
     if not logs:
         raise InputError("replay", "give a log (or --log NAME=LOG per laser of a site with several)")
-    m = load_for_run(model, site, sensor).with_confirmation(confirm_scans)
+    m = load_for_run(model, site, sensor).with_confirmation(confirm_scans).with_capacity(max_tracks)
     outs, sensor_outs = _outputs(logs, out, sensor_out)
     scan_logs = [_load_fitted(log, topic, m, crop_fov, console) for log in logs]
     t0 = time.perf_counter()
@@ -151,7 +153,8 @@ def _load_fitted(log: Path, topic: str | None, m, crop_fov: bool, console: Conso
 
 
 def _replay_lasers(specs: list[str], site_path: Path, model_path: Path, out: Path, chunk: int, topic: str | None,
-                   crop_fov: bool, confirm_scans: int | None, console: Console, sensor_out: Path | None) -> None:
+                   crop_fov: bool, confirm_scans: int | None, console: Console, sensor_out: Path | None,
+                   max_tracks: int | None = None) -> None:
     """``replay --log NAME=LOG ...``: the lasers' logs merged by stamp into one track table."""
     from ..drivers.several import replay_several
     from ..io import load_site
@@ -178,7 +181,7 @@ def _replay_lasers(specs: list[str], site_path: Path, model_path: Path, out: Pat
         check_out_file(sensor_out, "--sensor-out")
     first = next(iter(paths))
     m = load_model(model_path).with_site(one_sensor(site_obj, first), where=str(site_path))
-    m = m.with_confirmation(confirm_scans)
+    m = m.with_confirmation(confirm_scans).with_capacity(max_tracks)
     logs = {name: _load_fitted(path, topic, m, crop_fov, console) for name, path in paths.items()}
     t0 = time.perf_counter()
     total = sum(lg.n_scans for lg in logs.values())

@@ -7,7 +7,7 @@ import typer
 from rich.console import Console
 
 from ..errors import InputError
-from ._app import CONFIRM_HELP, app
+from ._app import CONFIRM_HELP, MAX_TRACKS_HELP, app
 from ._common import check_out_file, track_summary
 from ._live import track_live
 
@@ -31,6 +31,7 @@ def run_cmd(
                                    help="Stream intensities (ME) if the sensor has them (models trained with them need them)."),
     quiet: bool = typer.Option(False, help="No live view."),
     confirm_scans: int | None = typer.Option(None, "--confirm-scans", min=1, help=CONFIRM_HELP),
+    max_tracks: int | None = typer.Option(None, "--max-tracks", min=1, help=MAX_TRACKS_HELP),
     summary: Path | None = typer.Option(None, "--summary", help="Write the run's counters (frames, rows, latency, "
                                         "link faults by cause) as JSON here when it stops."),
 ):
@@ -44,12 +45,12 @@ def run_cmd(
 
         track_live_several(lasers, model, site, out, record=record, json_lines=json_lines, udp=udp,
                            duration=duration, frames=frames, intensity=intensity, view=not quiet,
-                           confirm_scans=confirm_scans, summary=summary)
+                           confirm_scans=confirm_scans, summary=summary, max_tracks=max_tracks)
         return
     port = port[0]
     stats, link_stats = track_live(port, model, site, out, record=record, json_lines=json_lines, udp=udp,
                                    duration=duration, frames=frames, intensity=intensity, view=not quiet,
-                                   confirm_scans=confirm_scans, sensor=sensor)
+                                   confirm_scans=confirm_scans, sensor=sensor, max_tracks=max_tracks)
     med, p99 = stats.latency()
     Console(stderr=True).print(
         f"{stats.frames} frames, {stats.rows} rows -> {out}; latency median {med:.2f} ms, p99 {p99:.2f} ms; "

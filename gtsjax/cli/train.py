@@ -15,6 +15,7 @@ from ..errors import InputError
 from ..io import load_log, load_site
 from ..io.modelfile import save_model
 from ..io.site import one_sensor
+from ..model import MAX_TRACKS_LIMIT
 from ..train import TrainConfig, fit_background, train
 from ._app import app
 from ._common import check_out_file, load_input
@@ -47,6 +48,10 @@ def train_cmd(
                                           "the position, one for the heading (two kernel rows per candidate in the "
                                           "step), 1 = one for all, 4 = each its own. 3 is not a layout."),
     restarts: int = typer.Option(TrainConfig.restarts, help="Optimiser starts per GP fit."),
+    max_tracks: int = typer.Option(TrainConfig.max_tracks, "--max-tracks", min=1, max=MAX_TRACKS_LIMIT,
+                                   help="Track slots of the model (and robots given a pose per scan): at least as many "
+                                        "as robots on the field, a few more for look-alikes; run, replay and evaluate "
+                                        "can change it."),
     seed: int = typer.Option(TrainConfig.seed, help="Seed for sampling, the held-out split and restarts."),
     report: Path | None = typer.Option(None, "--report", help="Also write the training report as JSON."),
     background: list[Path] = typer.Option(
@@ -88,7 +93,7 @@ def train_cmd(
     cfg = dataclasses.replace(TrainConfig(), max_per_class=max_per_class, max_pose_examples=max_pose,
                               max_pose_fit=max_pose_fit, pose_kernels=pose_kernels,
                               max_landmark_examples=max_landmark, n_inducing=inducing, n_inducing_class=inducing_class,
-                              restarts=restarts, seed=seed, max_background=max_background, max_mobile=max_mobile,
+                              restarts=restarts, seed=seed, max_tracks=max_tracks, max_background=max_background, max_mobile=max_mobile,
                               max_speed=_per_class(max_speed, "--max-speed"),
                               max_turn_rate=_per_class(max_turn_rate, "--max-turn-rate"))
     loaded = [load_log(p) for p in logs]

@@ -124,6 +124,48 @@ def fit_transform(
     return tf, ok
 
 
+# Associations a rigid motion must explain (metres): a scan plane tilted by a few degrees stretches
+# what the sensor sees by a percent or two, centimetres across a field; a candidate taken for a
+# landmark it is not (a robot beside a post, a post hidden behind it) sits decimetres off.
+RIGID_TOLERANCE = 0.15
+# Wrong associations dropped per scan, worst first (a fixed, unrolled count).
+RIGID_DROPS = 2
+
+
+def rigid_inliers(det_s: Float[Array, "landmarks 2"], map_o: Float[Array, "landmarks 2"], hit: Bool[Array, " landmarks"],
+                  tol: float = RIGID_TOLERANCE, drops: int = RIGID_DROPS) -> Bool[Array, " landmarks"]:
+    """The associations (``hit``) that one rigid motion of S onto O explains within ``tol``: up to
+    ``drops`` times, the closed-form least-squares rotation and translation (2-D Procrustes) of the
+    pairs still kept, and the pair furthest from it dropped if it is further than ``tol``.
+
+    The affine fit (:func:`fit_transform`) has six degrees of freedom: three pairs determine it
+    exactly, whatever they are, so a single wrong pair among three or four bends it to fit and the
+    next scan's association starts from the bent transform (on a crowded field a robot walking past
+    a goal post took a laser's transform metres off, for good). A rigid motion has three: three pairs
+    over-determine it and a wrong one shows as a residual. (The tilt the affine map absorbs stays far
+    inside ``tol``.) With fewer than three pairs left the fit is unsupported anyway."""
+    sx, sy, ox, oy = det_s[:, 0], det_s[:, 1], map_o[:, 0], map_o[:, 1]
+    # Per pair, the products whose sums the fit needs (raw moments: one reduction per pass).
+    terms = jnp.stack([jnp.ones_like(sx), sx, sy, ox, oy, sx * ox + sy * oy, sx * oy - sy * ox], -1)
+    for _ in range(drops):
+        mom = hit.astype(terms.dtype) @ terms
+        # Means, then the Procrustes rotation's cosine and sine (unnormalised: (Σ a·b, Σ a×b)); written
+        # with one reciprocal and one rsqrt so that XLA fuses the scalar arithmetic into the residuals.
+        n = mom[0]
+        mean = mom[1:5] * (1.0 / jnp.maximum(n, 1.0))  # μs_x, μs_y, μo_x, μo_y
+        dot = mom[5] - n * (mean[0] * mean[2] + mean[1] * mean[3])  # Σ (s − μs)·(o − μo)
+        cross = mom[6] - n * (mean[0] * mean[3] - mean[1] * mean[2])  # Σ (s − μs) × (o − μo)
+        norm2 = dot * dot + cross * cross
+        inv = jax.lax.rsqrt(jnp.where(norm2 > 0, norm2, 1.0))
+        c, s = jnp.where(norm2 > 0, dot * inv, 1.0), cross * inv
+        ax, ay = sx - mean[0], sy - mean[1]
+        ex, ey = c * ax - s * ay - (ox - mean[2]), s * ax + c * ay - (oy - mean[3])
+        r2 = jnp.where(hit, ex * ex + ey * ey, -1.0)
+        worst = jnp.max(r2)
+        hit = hit & ~((r2 >= worst) & (worst > tol * tol) & (n >= 3))
+    return hit
+
+
 def update_transform(
     prev: Transform,
     det_s: Float[Array, "dets 2"],
@@ -142,6 +184,7 @@ def update_transform(
     slack = GUESS_HEADING_SLACK * unsupported.astype(gate.dtype)
     idx, hit = associate(prev, det_s, det_class, det_mask, map_o, map_class, gate, slack)
     matched_s = det_s[idx]
+    hit = rigid_inliers(matched_s, map_o, hit)
     new, ok = fit_transform(matched_s, map_o, hit, min_spread)
     tf = jax.tree.map(lambda a, b: jnp.where(ok, a, b), new, prev)
     tf = eqx.tree_at(lambda t: (t.degraded, t.n_landmarks), tf, (~ok, jnp.sum(hit).astype(jnp.int32)))

@@ -134,6 +134,7 @@ def train(logs: Sequence[ScanLog], site: "Site | Sequence[Site]", cfg: TrainConf
         site=None,
         classes=classes,
         max_tracks=cfg.max_tracks,
+        max_objects=cfg.max_tracks,
         sensor_model=first.sensor_model or "unknown",
         n_beams=n_beams,
         gp_columns=columns,
