@@ -12,6 +12,10 @@
   dispatch floor per extra call.
 * **Batch**: ``process_log`` over a simulated log (``spl-trajectory``) in chunks of 256, both the
   bit-exact loop and the ``vmap`` variant, and the front end alone in batch (``front_end_batch``).
+* **Several lasers** (issue 18): a two-laser match (``spl-match-2``, ten robots): the several-laser
+  step (``step_several``, jitted with the model closed over, the laser a traced index) per laser-scan,
+  against the one-laser step on the same scans of one laser; batch replay of the merged log
+  (``process_several``) against the one-laser batch replay of one laser's log, per scan.
 """
 
 import jax
@@ -27,8 +31,10 @@ from gtsjax.core.f_maptransform import poses_to_field, update_transform
 from gtsjax.core.frontend import front_end, front_end_batch
 from gtsjax.core.g_track import Detections, track_step
 from gtsjax.core.geometry import wrap
+from gtsjax.core.multi import init_several, step_several
 from gtsjax.core.pipeline import init_state, landmark_cap, perceive
 from gtsjax.drivers.replay import process_log, process_logs
+from gtsjax.drivers.several import merge_logs, process_several, site_poses
 from gtsjax.io import to_scans
 
 from . import _data
@@ -224,6 +230,58 @@ def bench_batch(ctx, model, n_scans: int, runs: int) -> None:
                  label="front end a–c in batch, URG-04LX (front_end_batch)")
 
 
+def bench_several(ctx, n_pool: int, repeats: int, runs: int, seconds: float) -> None:
+    """Two lasers on the full-size field: the step per laser-scan and batch replay per scan, each beside
+    the one-laser form on one laser's scans of the same match (same model, the shipped one: the cost
+    of a step depends on the scans' shapes and what is in view, not on what the model was trained on)."""
+    from gtsjax.io.site import one_sensor
+    from gtsjax.sim.match import simulate_match
+
+    res = ctx.results
+    logs, site = simulate_match("spl-match-2", seed=3, n_robots=10, seconds=seconds)
+    names = list(logs)
+    model = _data.demo_model(one_sensor(site, names[0])).with_capacity(14)
+    merged = merge_logs(logs)
+    poses = jnp.asarray(site_poses(site, merged.names), jnp.float32)
+    scans = to_scans(merged.log, model.n_beams)
+    n = min(n_pool, merged.log.n_scans)
+    pool = jax.block_until_ready([take(scans, i) for i in range(n)])
+    lasers = [jnp.asarray(int(k), jnp.int32) for k in merged.laser[:n]]
+    spans = [jnp.asarray(float(d), jnp.float32) for d in merged.span_dt[:n]]
+    step2 = jax.jit(lambda st, scan, k, span: step_several(model, st, scan, k, span))
+    state = {"s": init_several(model, poses)}
+
+    def run2(i):
+        state["s"], out = step2(state["s"], pool[i % n], lasers[i % n], spans[i % n])
+        return out
+
+    params = {"lasers": 2, "M": model.max_tracks, "robots": 10, "sensor": model.sensor_model}
+    res.add("step.several2.end_to_end", "us", ctx.time_calls(run2, repeats, warmup=20), section=SECTION,
+            label="step, one laser's scan of two (step_several), spl-match-2, 10 robots, 14 track slots", **params)
+    one_log = logs[names[0]]
+    one_scans = to_scans(one_log, model.n_beams)
+    one_pool = jax.block_until_ready([take(one_scans, i) for i in range(min(n_pool, one_log.n_scans))])
+    step1 = closed_step(model)
+    state1 = {"s": init_state(model)}
+
+    def run1(i):
+        state1["s"], out = step1(state1["s"], one_pool[i % len(one_pool)])
+        return out
+
+    res.add("step.several1.end_to_end", "us", ctx.time_calls(run1, repeats, warmup=20), section=SECTION,
+            label="step, the same match's north laser alone (one-laser step), 14 track slots", **params)
+    samples = ctx.time_calls(lambda i: process_several(model, merged, poses), runs, warmup=1)
+    res.add_rate("batch.several2.vmap", merged.log.n_scans, samples, section=SECTION,
+                 label="batch replay, two lasers merged (replay --log NAME=LOG ...), per scan of either", **params)
+    samples = ctx.time_calls(lambda i: process_log(model, one_scans, chunk=256, vectorise=True), runs, warmup=1)
+    res.add_rate("batch.several1.vmap", one_log.n_scans, samples, section=SECTION,
+                 label="batch replay, the north laser's log alone (replay LOG)", **params)
+    res.ratio("several.step_per_laser_scan_over_one", "step.several2.end_to_end", "step.several1.end_to_end",
+              meaning="step per laser-scan, two lasers / one laser (issue 18: at most 1.3)")
+    res.ratio("several.batch_one_over_two", "batch.several1.vmap", "batch.several2.vmap",
+              meaning="batch replay per scan, one laser's rate / two lasers' rate (issue 18: at most 1)")
+
+
 def run(ctx) -> None:
     q = ctx.quick
     n_pool = 60 if q else 200
@@ -242,5 +300,6 @@ def run(ctx) -> None:
     bench_sensor(ctx, "utm-30lx", umodel, to_scans(ulog, umodel.n_beams), n_pool, repeats, stage_repeats,
                  stages=not q)
     bench_batch(ctx, model, 512 if q else 3000, 2 if q else 5)
+    bench_several(ctx, n_pool, repeats, 2 if q else 5, 5.0 if q else 30.0)
     ctx.results.sections[SECTION] = {"urg_log": "spl-crossing seed 3", "utm_log": "lab-trajectory seed 5",
                                      "pool": n_pool, "batch_log": "spl-trajectory seed 4"}
