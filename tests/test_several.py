@@ -251,3 +251,34 @@ def test_cross_laser_disagreement_against_a_loop():
         shared = [] if u is None else [m for m in range(L) if seen[t, m] and seen[u, m]]
         want = max((np.hypot(*(res[t, m] - res[u, m])) for m in shared), default=np.nan)
         assert (np.isnan(got[t]) and np.isnan(want)) or got[t] == pytest.approx(want), t
+
+
+def test_live_calibration_watch_warns_once_per_spell_against_a_loop():
+    """The live calibration check's warning (``LaserStats.watch``): against a plain loop over the same
+    random sequence of checks (NaN: no shared landmark, skipped), a warning where the check has stayed
+    above the limit for the warning's duration, once per spell."""
+    from gtsjax.drivers.live_several import CALIBRATION_WARN_M, CALIBRATION_WARN_S, LaserStats
+
+    rng = np.random.default_rng(5)
+    stamps = np.cumsum(rng.uniform(0.05, 0.15, 600))
+    spells = np.repeat(rng.uniform(size=60) < 0.4, 10)  # stretches of 10 scans above or within the limit
+    d = np.where(spells, rng.uniform(CALIBRATION_WARN_M * 1.01, 0.3, 600), rng.uniform(0.0, CALIBRATION_WARN_M, 600))
+    d[rng.uniform(size=600) < 0.1] = np.nan
+    p = LaserStats()
+    got = [p.watch(float(t), float(x)) for t, x in zip(stamps, d, strict=True)]
+    want, since, warned = [], None, False
+    for t, x in zip(stamps, d, strict=True):
+        if np.isnan(x):
+            want.append(False)
+            continue
+        if x <= CALIBRATION_WARN_M:
+            since, warned = None, False
+            want.append(False)
+            continue
+        since = t if since is None else since
+        fire = not warned and t - since >= CALIBRATION_WARN_S
+        warned |= fire
+        want.append(fire)
+    assert got == want and sum(got) >= 3
+    assert p.moved_warnings == sum(want) and len(p.disagreement_m) == int(np.sum(~np.isnan(d)))
+    assert p.disagreement_max_m == np.nanmax(d)

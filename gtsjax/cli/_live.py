@@ -128,7 +128,8 @@ def track_live_several(lasers: "dict[str, str]", model_path: Path, site: Path, o
 
         stats, per, out_of_order = run_live_several(
             links, model, poses, out, record=record_paths, outputs=Outputs(json_lines, udp), duration=duration,
-            on_scan=on_scan, with_intensity=intensity, compiled=compiled, max_frames=frames)
+            on_scan=on_scan, with_intensity=intensity, compiled=compiled, max_frames=frames,
+            warn=lambda msg: console.print(f"warning: {msg}", soft_wrap=True))
     finally:
         for link in links.values():
             link.stop()
@@ -143,11 +144,21 @@ def track_live_several(lasers: "dict[str, str]", model_path: Path, site: Path, o
         lat = np.asarray(p.latencies_ms) if p.latencies_ms else np.asarray([np.nan])
         link = dataclasses.asdict(ls)
         link["received"] = link.pop("frames")  # frames the link delivered, processed or not
+        dis = np.asarray(p.disagreement_m) if p.disagreement_m else np.asarray([np.nan])
         doc["lasers"][n] = {**link, "frames": p.frames, "degraded": p.degraded, "late": p.late,
-                            "latency_ms_median": float(np.median(lat)), "latency_ms_p99": float(np.percentile(lat, 99))}
+                            "latency_ms_median": float(np.median(lat)), "latency_ms_p99": float(np.percentile(lat, 99)),
+                            "disagreement_m_median": _finite(np.median(dis)), "disagreement_m_max": _finite(np.max(dis)),
+                            "moved_warnings": p.moved_warnings}
         console.print(f"  {n}: {p.frames} frames ({p.degraded} without a new map transformation), link: "
                       f"{ls.bad_frames} bad, {ls.salvaged} salvaged, {ls.dropped} dropped, {ls.reconnects} reconnects"
+                      + (f"; calibration check: landmarks shared with another laser at most {p.disagreement_max_m * 100:.1f} cm "
+                         "apart" if p.disagreement_m else "; no landmark shared with another laser")
                       + (f"; raw scans -> {record_paths[n]}" if record_paths else ""))
     if summary is not None:
         summary.write_text(json.dumps(doc) + "\n")
     return stats
+
+
+def _finite(x: float) -> float | None:
+    """``x`` for JSON, ``None`` where it is NaN (no sample)."""
+    return None if np.isnan(x) else float(x)

@@ -27,6 +27,7 @@ from ..io.gtd import GTDWriter
 from ..model import Model
 from ..sensors import SensorModel
 from .live import LiveStats, Outputs, check_sensor, frame_arrays, pack_tracks, rows_from_packed
+from .several import Disagreement
 
 
 @dataclasses.dataclass
@@ -37,6 +38,40 @@ class LaserStats:
     degraded: int = 0
     late: int = 0
     latencies_ms: collections.deque = dataclasses.field(default_factory=lambda: collections.deque(maxlen=2000))
+    # The calibration check (:class:`~gtsjax.drivers.several.Disagreement`) of this laser's scans that
+    # shared a landmark with another laser's latest (metres), the largest, and how many times it stayed
+    # above ``CALIBRATION_WARN_M`` for ``CALIBRATION_WARN_S`` (each such spell warned once).
+    disagreement_m: collections.deque = dataclasses.field(default_factory=lambda: collections.deque(maxlen=2000))
+    disagreement_max_m: float = 0.0
+    moved_warnings: int = 0
+    above_since: float | None = None  # stamp of the first scan of the present spell above the limit
+    warned: bool = False  # this spell has been warned about
+
+    def watch(self, stamp: float, d: float) -> bool:
+        """Count one scan's calibration check ``d`` (metres; NaN: no landmark shared, not counted);
+        True when this scan ends ``CALIBRATION_WARN_S`` of scans above ``CALIBRATION_WARN_M`` (once
+        per spell: the next warning needs the check back within the limit first)."""
+        if np.isnan(d):
+            return False
+        self.disagreement_m.append(d)
+        self.disagreement_max_m = max(self.disagreement_max_m, d)
+        if d <= CALIBRATION_WARN_M:
+            self.above_since, self.warned = None, False
+            return False
+        if self.above_since is None:
+            self.above_since = stamp
+        if self.warned or stamp - self.above_since < CALIBRATION_WARN_S:
+            return False
+        self.warned = True
+        self.moved_warnings += 1
+        return True
+
+
+# Two lasers' transforms that put a shared landmark further apart than this (metres) for this long
+# (seconds) are out of calibration with each other: a tripod was bumped or a laser's transform went
+# stale. With both lasers' transforms fresh the check stays within 1–3 cm on the simulated match.
+CALIBRATION_WARN_M = 0.05
+CALIBRATION_WARN_S = 1.0
 
 
 def make_several_step(model: Model, sensor: SensorModel):
@@ -67,11 +102,13 @@ def warm_up_several(model: Model, sensor: SensorModel, poses: np.ndarray):
 def run_live_several(links: "dict[str, object]", model: Model, poses: np.ndarray, out: Path, *,
                      record: "dict[str, Path] | None" = None, outputs: Outputs | None = None,
                      duration: float | None = None, stop=None, on_scan=None, with_intensity: bool = False,
-                     compiled=None, max_frames: int | None = None, hold_s: float | None = None):
+                     compiled=None, max_frames: int | None = None, hold_s: float | None = None, warn=None):
     """Track from started links (one per laser, ``poses`` their rough pose guesses in the same order)
     until ``duration``, ``max_frames`` frames (all lasers together), ``stop`` or Ctrl-C. Returns the
     run's :class:`~gtsjax.drivers.live.LiveStats`, the lasers' :class:`LaserStats` and the count of
-    frames processed out of stamp order."""
+    frames processed out of stamp order. ``warn(message)`` is called with a line when two lasers' map
+    transformations disagree about the landmarks both see (:data:`CALIBRATION_WARN_M` for
+    :data:`CALIBRATION_WARN_S`): a tripod bumped."""
     from ..io.record import Recorder
 
     names = list(links)
@@ -92,6 +129,7 @@ def run_live_several(links: "dict[str, object]", model: Model, poses: np.ndarray
     heads: dict[str, collections.deque] = {n: collections.deque() for n in names}
     last_stamp, last_own = None, dict.fromkeys(names)
     out_of_order = 0
+    check = Disagreement()
     t_end = None if duration is None else time.monotonic() + duration
     failed = None
     try:
@@ -145,6 +183,11 @@ def run_live_several(links: "dict[str, object]", model: Model, poses: np.ndarray
                 p.degraded += int(degraded)
                 p.late += int(late)
                 p.latencies_ms.append(lat)
+                d = check.update(k, o.landmark_residual, o.landmark_seen)
+                if p.watch(lf.stamp, d) and warn is not None:
+                    warn(f"laser {n}: its map transformation and another laser's put landmarks both see "
+                         f"{d * 100:.0f} cm apart for {CALIBRATION_WARN_S:g} s: a tripod moved? (check the "
+                         "site's sensor poses, or restart once it stands still)")
                 if on_scan is not None:
                     on_scan(stats, o, lf.stamp)
     except KeyboardInterrupt:

@@ -157,28 +157,35 @@ def replay_several(logs: "dict[str, ScanLog]", model: Model, site: Site, out: Pa
                                                        for k, n in enumerate(merged.names)}}
 
 
-def cross_laser_disagreement(merged: Merged, o: Output) -> np.ndarray:
-    """Per scan, how far this laser's map transformation and the others' disagree about the landmarks
-    they both see (item 4 of issue 18): each laser's transform places its detection of a landmark at
-    the landmark's map position plus that laser's residual, so two lasers put the same landmark
-    ``|r_k − r_j|`` apart; the largest such distance over the landmarks this scan saw and another
-    laser saw in its latest scan (NaN where none is shared). A tripod bumped, a laser whose transform
-    went stale (degraded) after it moved, shows as a step here."""
-    T = merged.log.n_scans
-    res = np.asarray(o.landmark_residual, np.float64)  # [T, L, 2]
-    seen = np.asarray(o.landmark_seen, bool)  # [T, L]
-    latest: dict[int, int] = {}
-    out = np.full(T, np.nan)
-    for t in range(T):
-        k = int(merged.laser[t])
+class Disagreement:
+    """The cross-laser calibration check of issue 18 (item 4), one scan at a time: each laser's map
+    transformation places its detection of a landmark at the landmark's map position plus that
+    laser's residual, so two lasers put the same landmark ``|r_k − r_j|`` apart. :meth:`update` gives
+    the largest such distance over the landmarks a scan saw and another laser saw in its latest scan
+    (NaN where none is shared). A tripod bumped, a laser whose transform went stale (degraded) after
+    it moved, shows as a step. Used by batch replay (:func:`cross_laser_disagreement`) and the live
+    loop alike (host arrays, a few landmarks: microseconds)."""
+
+    def __init__(self):
+        self.latest: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+    def update(self, k: int, residual, seen) -> float:
+        residual, seen = np.asarray(residual, np.float64), np.asarray(seen, bool)
         worst = np.nan
-        for j, u in latest.items():
+        for j, (res_j, seen_j) in self.latest.items():
             if j == k:
                 continue
-            both = seen[t] & seen[u]
+            both = seen & seen_j
             if both.any():
-                d = np.linalg.norm(res[t, both] - res[u, both], axis=1).max()
+                d = float(np.linalg.norm(residual[both] - res_j[both], axis=1).max())
                 worst = d if np.isnan(worst) else max(worst, d)
-        out[t] = worst
-        latest[k] = t
-    return out
+        self.latest[k] = (residual, seen)
+        return worst
+
+
+def cross_laser_disagreement(merged: Merged, o: Output) -> np.ndarray:
+    """Per scan of a merged replay, :class:`Disagreement` (NaN where no landmark is shared)."""
+    check = Disagreement()
+    res = np.asarray(o.landmark_residual, np.float64)  # [T, L, 2]
+    seen = np.asarray(o.landmark_seen, bool)  # [T, L]
+    return np.array([check.update(int(merged.laser[t]), res[t], seen[t]) for t in range(merged.log.n_scans)])
