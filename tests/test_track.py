@@ -832,3 +832,36 @@ def test_a_gap_in_the_scans_counts_as_the_periods_it_spans():
         r = {t.track_id: (t.confirmed, t.misses) for t in ref.slots if t is not None}
         assert g == r == after, (period, g, r)
         assert np.asarray(reported(state, CONFIRM3)).sum() == (0 if period else 1)
+
+
+def test_a_track_two_lasers_watch_lives_as_long_unseen_as_one_a_single_laser_watches():
+    """Several lasers: each laser that scans and misses a track counts a miss (``span_dt`` of one
+    period each), so two lasers interleaved at half periods count two per period. With ``watchers``
+    the limits scale with them: unseen, the track stops being reported and ends after the same time
+    as under one laser (the same number of periods), not half of it."""
+    period = 0.1
+    watch = jnp.ones(3, jnp.int32)
+
+    def life(n_lasers):
+        state = TrackerState.empty(3)
+        dt = jnp.asarray(period / n_lasers, F32)
+        span = jnp.asarray(period, F32)
+        w = watch * n_lasers
+        for _ in range(int(PARAMS.n_confirm) * n_lasers):
+            state, _ = track_step(state, dets([1.0, 1.0, 0.0]), dt, PARAMS, period, visible=watch > 0, span_dt=span,
+                                  watchers=w)
+        t_report = t_dead = None
+        for i in range(1, 40 * n_lasers):
+            state, _ = track_step(state, dets(np.zeros((0, 3))), dt, PARAMS, period, visible=watch > 0, span_dt=span,
+                                  watchers=w)
+            t = i * period / n_lasers
+            if t_report is None and not np.asarray(reported(state, PARAMS, w)).any():
+                t_report = t
+            if t_dead is None and not np.asarray(state.live).any():
+                t_dead = t
+        return t_report, t_dead
+
+    one, two = life(1), life(2)
+    assert one[0] == pytest.approx(int(PARAMS.m_report) * period) and one[1] == pytest.approx(int(PARAMS.m_delete) * period)
+    # Under two lasers the last miss that ends it may be either laser's: within half a period.
+    assert abs(two[0] - one[0]) <= period / 2 + 1e-6 and abs(two[1] - one[1]) <= period / 2 + 1e-6

@@ -573,14 +573,18 @@ def _count_up_to(x: Bool[Array, " n"]) -> Int[Array, " n"]:
     return jnp.sum(x[None, :] & (i[None, :] <= i[:, None]), axis=1, dtype=jnp.int32)
 
 
-def reported(state: TrackerState, params: TrackerParams) -> Bool[Array, " tracks"]:
-    """Tracks to report: confirmed, and observed within the last ``m_report`` scans."""
-    return state.live & state.confirmed & (state.misses < params.m_report)
+def reported(state: TrackerState, params: TrackerParams, watchers: Int[Array, " tracks"] | None = None
+             ) -> Bool[Array, " tracks"]:
+    """Tracks to report: confirmed, and observed within the last ``m_report`` scans (of each of the
+    ``watchers`` lasers that can see the track, where several do: see :func:`track_step`)."""
+    m_report = params.m_report if watchers is None else params.m_report * watchers
+    return state.live & state.confirmed & (state.misses < m_report)
 
 
 def track_step(
     state: TrackerState, det: Detections, dt: Float[Array, ""], params: TrackerParams, period: float | None = None,
     visible: Bool[Array, " tracks"] | None = None, span_dt: Float[Array, ""] | None = None,
+    watchers: Int[Array, " tracks"] | None = None,
 ) -> tuple[TrackerState, Bool[Array, " dets"]]:
     """Stage g for one scan: predict, gate, assign, update, start, confirm and end tracks.
 
@@ -593,7 +597,12 @@ def track_step(
     Several lasers (:mod:`gtsjax.core.multi`): ``visible`` marks the tracks this scan's laser could
     have seen (within its range and field of view); a track it could not see is not missed by it.
     ``span_dt`` is then the time since this laser's previous scan (the periods a miss spans), ``dt``
-    the time since the previous scan of any laser (the prediction's step).
+    the time since the previous scan of any laser (the prediction's step). ``watchers``: how many lasers
+    can see each track (at least 1). Each of them that scans and misses the track counts a miss, so a
+    track two lasers watch gathers misses twice as fast as one a single laser watches; its limits
+    (``m_tentative``, ``m_delete``, ``m_report``) are multiplied by ``watchers``, so that a track ends
+    (and stops being reported) after the same time unseen however many lasers watch it. (Counted per
+    scan, a robot hidden for half a second from both of two lasers lost its track and its id.)
 
     Returns the new state and, per detection, whether it was used by an existing track.
     """
@@ -712,7 +721,8 @@ def track_step(
     hits = jnp.where(sane, hits, 0)
     contrary = jnp.where(sane, contrary, 0)
     confirmed = state.live & sane & (state.confirmed | ((hits >= params.n_confirm) & (hits > contrary)))
-    dead = state.live & jnp.where(confirmed, misses >= params.m_delete, misses >= params.m_tentative)
+    w = jnp.ones((), jnp.int32) if watchers is None else watchers
+    dead = state.live & jnp.where(confirmed, misses >= params.m_delete * w, misses >= params.m_tentative * w)
     live = state.live & ~dead
 
     # Births: the i-th free slot takes the i-th unused detection of a tracked class.

@@ -69,11 +69,14 @@ def _put_row(tree, k, row):
 def update_several(model: Model, state: SeveralState, p, scan: Scan, k: Int[Array, ""],
                    span_dt: Float[Array, ""]) -> tuple[SeveralState, Output]:
     """Stages f–g for laser ``k``'s scan: its own transform, the shared tracker. A track outside every
-    laser's reach (by each laser's latest transform) is missed by whichever laser scans."""
+    laser's reach (by each laser's latest transform) is missed by whichever laser scans; a track
+    within several lasers' reach may be missed by each of them as long as by one (``watchers``,
+    :func:`~gtsjax.core.g_track.track_step`)."""
     xy = state.tracker.mean[:, :2]
     watched = jax.vmap(lambda tf: in_coverage(scan, tf, xy, model.range_max))(state.transforms)  # [lasers, tracks]
+    n_watch = jnp.sum(watched, axis=0, dtype=jnp.int32)
     tf, tracker, out = update_view(model, _row(state.transforms, k), state.tracker, p, scan, span_dt=span_dt,
-                                   several=True, unwatched=~jnp.any(watched, axis=0))
+                                   several=True, unwatched=n_watch == 0, watchers=jnp.maximum(n_watch, 1))
     n = state.n_scans + (jnp.arange(state.n_scans.shape[0], dtype=jnp.int32) == k).astype(jnp.int32)
     return SeveralState(_put_row(state.transforms, k, tf), tracker, n), out
 

@@ -183,7 +183,8 @@ def update(model: Model, state: PipelineState, p: Perception, scan: Scan) -> tup
 
 
 def update_view(model: Model, prev_tf: Transform, tracker: TrackerState, p: Perception, scan: Scan, *,
-                span_dt=None, several: bool = False, unwatched=None) -> tuple[Transform, TrackerState, Output]:
+                span_dt=None, several: bool = False, unwatched=None, watchers=None
+                ) -> tuple[Transform, TrackerState, Output]:
     """Stages f–g: re-estimate the map transformation from this scan's landmarks, map detections into
     O, and track. The transform estimated from a scan is used for that same scan's detections.
 
@@ -212,7 +213,8 @@ def update_view(model: Model, prev_tf: Transform, tracker: TrackerState, p: Perc
         visible = in_coverage(scan, tf, tracker.mean[:, :2], model.range_max)
         if unwatched is not None:
             visible = visible | unwatched
-    tracker, _ = track_step(tracker, det, dt, model.tracker, model.scan_period, visible=visible, span_dt=span_dt)
+    tracker, _ = track_step(tracker, det, dt, model.tracker, model.scan_period, visible=visible, span_dt=span_dt,
+                            watchers=watchers)
     ts = tracker
     out = Output(
         track_id=ts.track_id,
@@ -221,7 +223,7 @@ def update_view(model: Model, prev_tf: Transform, tracker: TrackerState, p: Perc
         track_var=jnp.diagonal(ts.cov, axis1=1, axis2=2)[:, :3],
         # Confirmed, recently observed, inside the site's bounds (a coasting track may leave them), and
         # if missed in this scan, not where the scan sees through.
-        track_mask=reported(ts, model.tracker) & _inside(site, ts.mean[:, :3])
+        track_mask=reported(ts, model.tracker, watchers) & _inside(site, ts.mean[:, :3])
         & ((ts.misses == 0) | ~seen_through(scan, tf, ts.mean[:, :2], model.range_max if several else None)),
         transform=tf,
         sensor_pose=tf.sensor_pose(),
