@@ -841,6 +841,8 @@ def test_a_track_two_lasers_watch_lives_as_long_unseen_as_one_a_single_laser_wat
     as under one laser (the same number of periods), not half of it."""
     period = 0.1
     watch = jnp.ones(3, jnp.int32)
+    several = jax.jit(lambda st, d, dt, span, w: track_step(st, d, dt, PARAMS, period, visible=w > 0, span_dt=span,
+                                                             watchers=w))
 
     def life(n_lasers):
         state = TrackerState.empty(3)
@@ -848,12 +850,10 @@ def test_a_track_two_lasers_watch_lives_as_long_unseen_as_one_a_single_laser_wat
         span = jnp.asarray(period, F32)
         w = watch * n_lasers
         for _ in range(int(PARAMS.n_confirm) * n_lasers):
-            state, _ = track_step(state, dets([1.0, 1.0, 0.0]), dt, PARAMS, period, visible=watch > 0, span_dt=span,
-                                  watchers=w)
+            state, _ = several(state, dets([1.0, 1.0, 0.0]), dt, span, w)
         t_report = t_dead = None
         for i in range(1, 40 * n_lasers):
-            state, _ = track_step(state, dets(np.zeros((0, 3))), dt, PARAMS, period, visible=watch > 0, span_dt=span,
-                                  watchers=w)
+            state, _ = several(state, dets(np.zeros((0, 3))), dt, span, w)
             t = i * period / n_lasers
             if t_report is None and not np.asarray(reported(state, PARAMS, w)).any():
                 t_report = t
