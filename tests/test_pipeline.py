@@ -205,55 +205,48 @@ def test_replay_writes_spec_csv(tiny, tmp_path):
     assert np.sqrt(np.mean(e_pos**2)) <= 0.03 and np.degrees(np.sqrt(np.mean(e_th**2))) <= 6.0, (e_pos, e_th)
 
 
+def _replay_with(tiny, tmp_path, scenario: str, seed: int, n_scans: int, option: str, values):
+    """``replay`` of a simulated log with ``option`` at each of ``values`` (``None``: left off): the
+    log and each value's GTD rows (without the header); and that ``option 0`` is a usage error (exit 2,
+    naming the option)."""
+    log, site = simulate(scenario, seed=seed, n_scans=n_scans)
+    save_log(log, tmp_path / "log.npz")
+    save_site(site, tmp_path / "site.json")
+    args = ("replay", tmp_path / "log.npz", "--site", tmp_path / "site.json", "--model", tiny["path"])
+    rows = {}
+    for n in values:
+        out = tmp_path / f"gtd-{n}.csv"
+        res = run_cli(*args, "--out", out, *(() if n is None else (option, str(n))))
+        assert res.returncode == 0, res.stderr
+        with open(out, newline="") as f:
+            rows[n] = list(csv.reader(f))[1:]
+    res = run_cli(*args, "--out", tmp_path / "x.csv", option, "0")
+    assert res.returncode == 2 and option.lstrip("-") in res.stderr
+    return log, rows
+
+
 def test_replay_confirm_scans_delays_the_first_row_only(tiny, tmp_path):
     """``--confirm-scans N``: a track is reported from its N-th scan of detections on, later than with
     the model's own confirmation, and from then on in the same scans; 0 is a usage error (exit 2)."""
-    log, site = simulate("spl-trajectory", seed=33, n_scans=60)
-    save_log(log, tmp_path / "log.npz")
-    save_site(site, tmp_path / "site.json")
+    log, rows = _replay_with(tiny, tmp_path, "spl-trajectory", 33, 60, "--confirm-scans", (None, 12))
     first, stamps = {}, {}
-    for n in (None, 12):
-        out = tmp_path / f"gtd-{n}.csv"
-        extra = () if n is None else ("--confirm-scans", str(n))
-        res = run_cli("replay", tmp_path / "log.npz", "--site", tmp_path / "site.json", "--model", tiny["path"],
-                      "--out", out, *extra)
-        assert res.returncode == 0, res.stderr
-        with open(out, newline="") as f:
-            rows = list(csv.reader(f))[1:]
-        assert rows, "the robot is tracked"
-        stamps[n] = [float(r[0]) for r in rows]
+    for n, r in rows.items():
+        assert r, "the robot is tracked"
+        stamps[n] = [float(x[0]) for x in r]
         first[n] = int(np.searchsorted(log.stamps, stamps[n][0]))
     n_default = int(tiny["model"].tracker.n_confirm)
     assert first[None] >= n_default - 1 and first[12] >= 11 and first[12] > first[None]
     assert stamps[12] == [t for t in stamps[None] if t >= stamps[12][0]]
-    res = run_cli("replay", tmp_path / "log.npz", "--site", tmp_path / "site.json", "--model", tiny["path"],
-                  "--out", tmp_path / "x.csv", "--confirm-scans", "0")
-    assert res.returncode == 2 and "confirm-scans" in res.stderr
 
 
 def test_replay_max_tracks_bounds_the_robots_tracked_at_once(tiny, tmp_path):
     """``--max-tracks N`` (the model's track slots, 8 as trained): three robots crossing fill three
     slots; with two slots no scan reports more than two, and with twelve the rows are the trained
     model's (the slots are array sizes, nothing learnt). 0 is a usage error (exit 2)."""
-    log, site = simulate("spl-crossing", seed=35, n_scans=120)
-    save_log(log, tmp_path / "log.npz")
-    save_site(site, tmp_path / "site.json")
-    per_scan = {}
-    rows_of = {}
-    for n in (None, 2, 12):
-        out = tmp_path / f"gtd-{n}.csv"
-        extra = () if n is None else ("--max-tracks", str(n))
-        res = run_cli("replay", tmp_path / "log.npz", "--site", tmp_path / "site.json", "--model", tiny["path"],
-                      "--out", out, *extra)
-        assert res.returncode == 0, res.stderr
-        with open(out, newline="") as f:
-            rows_of[n] = list(csv.reader(f))[1:]
-        per_scan[n] = np.unique([r[0] for r in rows_of[n]], return_counts=True)[1]
+    _, rows = _replay_with(tiny, tmp_path, "spl-crossing", 35, 120, "--max-tracks", (None, 2, 12))
+    per_scan = {n: np.unique([x[0] for x in r], return_counts=True)[1] for n, r in rows.items()}
     assert per_scan[None].max() == 3 and per_scan[2].max() == 2
-    assert [r[:3] for r in rows_of[12]] == [r[:3] for r in rows_of[None]]
-    res = run_cli("replay", tmp_path / "log.npz", "--site", tmp_path / "site.json", "--model", tiny["path"],
-                  "--out", tmp_path / "x.csv", "--max-tracks", "0")
-    assert res.returncode == 2 and "max-tracks" in res.stderr
+    assert [x[:3] for x in rows[12]] == [x[:3] for x in rows[None]]
 
 
 def test_replay_bad_inputs_exit_2_with_one_line(tiny, tmp_path):
