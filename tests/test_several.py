@@ -225,7 +225,7 @@ def test_occluded_share_counts_robots_behind_robots():
 
     truth = np.array([[[2.0, 0.0, 0.0], [4.0, 0.0, 0.0], [2.0, 1.5, 0.0], [8.0, 0.0, 0.0]]])
     log = SimpleNamespace(truth_poses=truth, sensor_model="URG-04LX")
-    merged = SimpleNamespace(log=log, laser=np.array([0]), names=("a",))
+    merged = SimpleNamespace(log=log, laser=np.array([0]), names=("a",), sources={})
     site = Site((Landmark("post", 0, 1), Landmark("post", 1, 0), Landmark("post", 1, 1)), (0.0, 0.0, 0.0), None, {},
                 (SiteSensor("a", (0.0, 0.0, 0.0)),))
     assert occluded_share(merged, site) == pytest.approx(1 / 3)
@@ -282,3 +282,139 @@ def test_live_calibration_watch_warns_once_per_spell_against_a_loop():
     assert got == want and sum(got) >= 3
     assert p.moved_warnings == sum(want) and len(p.disagreement_m) == int(np.sum(~np.isnan(d)))
     assert p.disagreement_max_m == np.nanmax(d)
+
+
+# ------------------------------------------------------------------- lasers of different scanners
+
+
+@pytest.fixture(scope="module")
+def mixed(tmp_path_factory):
+    """A URG-04LX (north) and a UTM-30LX (south) on the full-size field, two robots, 6 s, the lasers
+    at their true poses: the shipped model for the URG-04LX, a small model trained here on simulated
+    UTM-30LX scans of the 6 × 4 m field for the other (the same classes)."""
+    from gtsjax.io import save_site
+    from gtsjax.io.modelfile import save_model
+    from gtsjax.sim import simulate
+    from gtsjax.train import TrainConfig, train
+
+    d = tmp_path_factory.mktemp("mixed")
+    config = dataclasses.replace(TrainConfig(), max_per_class=60, max_pose_examples=80, n_inducing=32, restarts=1)
+    train_log, train_site = simulate("spl-train", seed=11, n_scans=500, sensor="UTM-30LX")
+    legs, _ = simulate("spl-legs", seed=12, n_scans=150, sensor="UTM-30LX")
+    utm, report = train([train_log, legs], train_site, config)
+    save_model(utm, d / "utm.npz", summary=report)
+    logs, site = simulate_match("spl-match-2-mixed", seed=11, n_robots=2, seconds=6.0, referee=False)
+    truth = {n: tuple(map(float, log.extra["truth_sensor_pose"][0])) for n, log in logs.items()}
+    site = dataclasses.replace(site, sensors=tuple(dataclasses.replace(s, pose=truth[s.name]) for s in site.sensors))
+    save_site(site, d / "site.json")
+    urg = load_model(demo_model_path()).with_site(one_sensor(site, "north"))
+    utm = load_model(d / "utm.npz").with_site(one_sensor(site, "north"))
+    return {"dir": d, "logs": logs, "site": site, "urg": urg, "utm": utm}
+
+
+def _mixed_run(mixed, names=("north", "south")):
+    from gtsjax.drivers.several import models_for_lasers
+
+    logs, site = mixed["logs"], mixed["site"]
+    models, kinds = models_for_lasers([mixed["utm"], mixed["urg"]], site, list(names))
+    fitted = {n: fit_to_model(logs[n], models[kinds[i]], n) for i, n in enumerate(names)}
+    merged = merge_logs(fitted, mixed=len(models) > 1)
+    _, out = process_several(models, merged, site_poses(site, merged.names), kinds=kinds, chunk=64)
+    return models, merged, out
+
+
+def test_lasers_of_different_scanners_each_with_its_model_give_one_track_per_robot(mixed):
+    """Each laser's scans read by the model for its scanner (models_for_lasers, by the site's
+    ``model`` of each laser), one track table: one track per robot, never two confirmed within 0.3 m,
+    no false track, and recall at least each laser's alone with its own model."""
+    models, merged, out = _mixed_run(mixed)
+    assert [m.sensor_model for m in models] == ["UTM-30LX", "URG-04LX"]
+    assert merged.log.n_scans == 60 + 240  # 10 Hz and 40 Hz for 6 s
+    res = evaluate_outputs(models[0], merged.log, out)
+    assert res["false_tracks_per_scan"] == 0.0 and res["recall"] >= 0.95, res
+    assert len(_reported_ids(out)) == 2
+    pose, mask = np.asarray(out.track_pose), np.asarray(out.track_mask)
+    for t in range(pose.shape[0]):
+        xy = pose[t, mask[t], :2]
+        d = np.linalg.norm(xy[:, None] - xy[None], axis=-1) + np.eye(len(xy)) * 9
+        assert d.size == 0 or d.min() > 0.3, t
+    for name in ("north", "south"):
+        (m,), alone_merged, alone = _mixed_run(mixed, (name,))
+        one = evaluate_outputs(m, alone_merged.log, alone)
+        assert res["recall"] >= one["recall"] - 1e-9, (name, one["recall"], res["recall"])
+
+
+def test_mixed_batch_equals_the_live_loop_frame_by_frame(mixed, tmp_path):
+    """The two-pass batch form (each laser's log perceived by its model, then the merged updates with a
+    ``lax.switch`` over the models, perception and scans padded to the UTM-30LX's) against the live
+    loop, which runs each scanner's own compiled step frame by frame on one state: the same rows
+    (ids, classes), poses within float32 round-off."""
+    from gtsjax.drivers.live_several import run_live_several, warm_up_several
+    from gtsjax.io.gtd import read_gtd
+    from gtsjax.sensors import URG_04LX, UTM_30LX
+
+    models, merged, out = _mixed_run(mixed)
+    logs, site = mixed["logs"], mixed["site"]
+    poses = site_poses(site, ["north", "south"])
+    compiled = warm_up_several(models, (UTM_30LX, URG_04LX), poses, (1, 0))
+    t0 = time.monotonic() + 0.2  # every frame handed over once the loop has started (none taken for stale)
+    links = {}
+    for name, sensor in (("north", URG_04LX), ("south", UTM_30LX)):
+        log = logs[name]
+        frames = [_Frame(np.where(log.valid()[i], log.ranges[i], 0.0).astype(np.float32), float(log.stamps[i]))
+                  for i in range(log.n_scans)]
+        if log.intensities is not None:
+            for f, inten in zip(frames, log.intensities, strict=True):
+                f.intensities = inten.astype(np.float32)
+        links[name] = _Link(sensor, frames, [t0] * log.n_scans)
+    csv = tmp_path / "live.csv"
+    _, per, out_of_order = run_live_several(links, models, poses, csv, kinds=(1, 0), compiled=compiled,
+                                            max_frames=merged.log.n_scans, duration=120.0, with_intensity=True)
+    assert out_of_order == 0 and per["north"].frames == 60 and per["south"].frames == 240
+    live = read_gtd(csv)
+    mask = np.asarray(out.track_mask)
+    assert len(live) == int(mask.sum()) > 0
+    t_idx = {float(s): t for t, s in enumerate(merged.log.stamps)}
+    for r in live:
+        t = t_idx[r.stamp]
+        slot = int(np.flatnonzero(np.asarray(out.track_id[t]) == r.track_id)[0])
+        assert mask[t, slot]
+        np.testing.assert_allclose((r.x, r.y), np.asarray(out.track_pose[t, slot, :2]), atol=1e-3)
+
+
+def test_mixed_form_with_one_model_twice_equals_the_one_model_form(match):
+    """The mixed form's plumbing (each laser's log perceived on its own, reordered into the merged
+    sequence, the switch) with the same model in both slots gives the one-model form's tracks."""
+    logs, site, model = match
+    merged = merge_logs(logs)
+    poses = site_poses(site, merged.names)
+    _, one = process_several(model, merged, poses, chunk=32)
+    _, two = process_several((model, model), merged, poses, kinds=(0, 1), chunk=32)
+    np.testing.assert_array_equal(np.asarray(two.track_mask), np.asarray(one.track_mask))
+    np.testing.assert_array_equal(np.asarray(two.track_id), np.asarray(one.track_id))
+    np.testing.assert_allclose(np.asarray(two.track_pose)[..., :2], np.asarray(one.track_pose)[..., :2], atol=1e-4)
+
+
+def test_models_for_lasers_picks_by_the_sites_scanner_and_refuses_what_does_not_fit(mixed):
+    """Each laser gets the model for the scanner its sensors entry names; one model serves every
+    laser whatever they name; a laser naming no scanner, a scanner without a model, two models for
+    one scanner and models of different classes are one-line errors."""
+    from gtsjax.drivers.several import models_for_lasers
+    from gtsjax.errors import InputError
+
+    site, urg, utm = mixed["site"], mixed["urg"], mixed["utm"]
+    models, kinds = models_for_lasers([urg, utm], site, ["south", "north"])
+    assert [models[k].sensor_model for k in kinds] == ["UTM-30LX", "URG-04LX"]
+    assert models_for_lasers([urg], site, ["north", "south"]) == ((urg,), (0, 0))
+    unnamed = dataclasses.replace(site, sensors=(dataclasses.replace(site.sensors[0], model=None), site.sensors[1]))
+    fewer = dataclasses.replace(utm, classes=("background", "post", "robot", "ball"))
+    for models, s, match_ in (([urg, utm], unnamed, "names no scanner"), ([urg], site, None),
+                              ([utm, utm], site, "two models for the UTM-30LX"),
+                              ([utm], dataclasses.replace(site, sensors=site.sensors[:1]), None),
+                              ([urg, fewer], site, "classes")):
+        if match_ is None:
+            continue
+        with pytest.raises(InputError, match=match_):
+            models_for_lasers(models, s, ["north", "south"])
+    with pytest.raises(InputError, match="no model given for it"):
+        models_for_lasers([utm, dataclasses.replace(urg, sensor_model="UST-10LX")], site, ["north", "south"])

@@ -63,6 +63,23 @@ def load_for_run(model_path: Path, site_path: Path, sensor: str | None = None):
     return load_model(model_path).with_site(site, where=str(site_path))
 
 
+def one_model(models: list[Path]) -> Path:
+    """The one ``--model`` of a command on one laser (several are for lasers of different scanners)."""
+    if len(models) != 1:
+        raise InputError("--model", f"given {len(models)} times; several models are for a site's lasers of different "
+                                    "scanner models (--log NAME=LOG or --port NAME=PORT)")
+    return models[0]
+
+
+def load_for_lasers(model_paths: list[Path], site_path: Path, site, confirm_scans: int | None = None,
+                    max_tracks: int | None = None) -> list:
+    """Each ``--model`` for a site's several lasers, with the site attached (as its first laser sees
+    it: each laser's own guess is in the several-laser state) and the run's settings."""
+    first = site.sensor_list[0].name
+    return [load_model(p).with_site(one_sensor(site, first), where=str(site_path))
+            .with_confirmation(confirm_scans).with_capacity(max_tracks) for p in model_paths]
+
+
 def check_out_file(path: Path, option: str = "--out") -> None:
     """A file a command will write, checked before any work: a missing folder is created; the path
     being a folder, a file where a folder should be, or a place that cannot be written is one line

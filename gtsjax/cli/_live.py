@@ -84,30 +84,33 @@ def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Pa
     return stats, link.stats
 
 
-def track_live_several(lasers: "dict[str, str]", model_path: Path, site: Path, out: Path, *, record: Path | None,
+def track_live_several(lasers: "dict[str, str]", model_paths: "list[Path]", site: Path, out: Path, *, record: Path | None,
                        json_lines: bool, udp: str | None, duration: float | None, frames: int | None,
                        intensity: bool, view: bool, confirm_scans: int | None, summary: Path | None,
                        console: Console | None = None, max_tracks: int | None = None):
     """``run --port NAME=PORT ...``: every laser's link, one track table (see
-    :mod:`gtsjax.drivers.live_several`); per-laser status when it stops, and in ``summary``."""
+    :mod:`gtsjax.drivers.live_several`); per-laser status when it stops, and in ``summary``. One
+    model for every laser, or one per scanner model (each laser gets the one for the scanner the
+    site names for it)."""
     import dataclasses
     import json
 
     from ..drivers.live import Outputs
     from ..drivers.live_several import run_live_several, warm_up_several
-    from ..drivers.several import site_poses
-    from ..io.modelfile import load_model
+    from ..drivers.several import models_for_lasers, site_poses
     from ..io.serial import Link
-    from ..io.site import load_site, one_sensor
+    from ..io.site import load_site
     from ..sensors import MODELS
+    from ._common import load_for_lasers
 
     console = console or Console(stderr=True)
     site_obj = load_site(site)
     names = list(lasers)
-    model = load_model(model_path).with_site(one_sensor(site_obj, names[0]), where=str(site)).with_confirmation(
-        confirm_scans).with_capacity(max_tracks)
+    models, kinds = models_for_lasers(load_for_lasers(model_paths, site, site_obj, confirm_scans, max_tracks),
+                                      site_obj, names)
     poses = site_poses(site_obj, names)
-    compiled = warm_up_several(model, MODELS[model.sensor_model], poses) if model.sensor_model in MODELS else None
+    compiled = (warm_up_several(models, tuple(MODELS[m.sensor_model] for m in models), poses, kinds)
+                if all(m.sensor_model in MODELS for m in models) else None)
     links = {}
     record_paths = ({n: record.with_name(f"{record.stem}-{n}{record.suffix or '.npz'}") for n in names}
                     if record is not None else None)
@@ -127,7 +130,7 @@ def track_live_several(lasers: "dict[str, str]", model_path: Path, site: Path, o
                               f"p99 {p99:.2f} ms  tracks {int(np.sum(np.asarray(o.track_mask)))}")
 
         stats, per, out_of_order = run_live_several(
-            links, model, poses, out, record=record_paths, outputs=Outputs(json_lines, udp), duration=duration,
+            links, models, poses, out, record=record_paths, kinds=kinds, outputs=Outputs(json_lines, udp), duration=duration,
             on_scan=on_scan, with_intensity=intensity, compiled=compiled, max_frames=frames,
             warn=lambda msg: console.print(f"warning: {msg}", soft_wrap=True))
     finally:

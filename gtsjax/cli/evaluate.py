@@ -51,7 +51,9 @@ def _markdown(columns, results):
 
 @app.command("evaluate")
 def evaluate_cmd(
-    model: Path = typer.Option(..., "--model", help="Model file from gtsjax train."),
+    models: list[Path] = typer.Option(..., "--model", help="Model file from gtsjax train; for a match of lasers of "
+                                                           "different scanners (spl-match-N-mixed), one per scanner "
+                                                           "model."),
     logs: list[Path] = typer.Argument(None, help="Labelled scan logs (.npz); with --site."),
     site: Path | None = typer.Option(None, "--site", help="Site file of the logs."),
     sensor: str | None = typer.Option(None, "--sensor", help="With a site of several lasers: the one the scans are "
@@ -80,9 +82,10 @@ def evaluate_cmd(
         raise fail("evaluate", "give labelled logs with --site, or --scenario NAME[:SEED]")
     if logs and site is None:
         raise fail("evaluate", "logs need --site SITE.json")
-    base = load_model(model).with_confirmation(confirm_scans).with_capacity(max_tracks)
+    bases = [load_model(p).with_confirmation(confirm_scans).with_capacity(max_tracks) for p in models]
     if without_outline:
-        base = base.without_outline()
+        bases = [b.without_outline() for b in bases]
+    base = bases[0]
     jobs, matches = [], []
     for spec in scenario or []:
         name, _, seed = spec.partition(":")
@@ -98,13 +101,16 @@ def evaluate_cmd(
                 raise fail(p, "not a labelled log (no truth_poses)")
             log = fit_to_model(log, base, p)
             jobs.append((str(p), lambda log=log: (log, site_obj)))
+    if jobs and len(bases) > 1:
+        raise fail("--model", f"given {len(bases)} times: several models are for match scenarios of lasers of "
+                              "different scanners (spl-match-N-mixed), not for logs or one-laser scenarios")
     if matches and robots > base.max_tracks:
         Console(stderr=True).print(f"warning: {robots} robots on the field and {base.max_tracks} track slots in the model: "
                                    f"it cannot track them all (--max-tracks {robots + 4})", soft_wrap=True)
     check_out_dir(out_dir)  # after the inputs are checked (a bad one leaves nothing behind), before any replay
     results = {}
     for spec, name, seed in matches:
-        results.update(_evaluate_match(base, spec, name, seed, robots, seconds))
+        results.update(_evaluate_match(bases, spec, name, seed, robots, seconds))
     for label, get in jobs:
         log, site_obj = get()
         if not log.labelled:
@@ -125,7 +131,7 @@ def evaluate_cmd(
         results[label] = res
         del errors
     console = Console(width=140)
-    what = f"{model}" + (" without its outlines" if without_outline else "")
+    what = " and ".join(map(str, models)) + (" without its outlines" if without_outline else "")
     console.print(_table(f"ground truth (confirmed tracks) of {what}", COLUMNS, results))
     console.print(_table("per scan, before tracking (the paper's per-sample errors)", DET_COLUMNS, results))
     (out_dir / "results.json").write_text(json.dumps(results, indent=1) + "\n")
@@ -135,19 +141,21 @@ def evaluate_cmd(
     Console(stderr=True).print(f"wrote {out_dir / 'results.md'} and {out_dir / 'results.json'}")
 
 
-def _evaluate_match(base, spec: str, name: str, seed: int, robots: int, seconds: float) -> dict:
+def _evaluate_match(bases, spec: str, name: str, seed: int, robots: int, seconds: float) -> dict:
     """A match of several lasers (``spl-match-N``), scored with each laser alone, with two opposite
-    ones (of four) and with all: rows ``SPEC LASER[+LASER...]``."""
+    ones (of four) and with all: rows ``SPEC LASER[+LASER...]``. ``bases``: the models, one per
+    scanner model of the match's lasers (:func:`~gtsjax.drivers.several.models_for_lasers`)."""
     from ..drivers.evaluation import evaluate_outputs
-    from ..drivers.several import merge_logs, process_several, site_poses
+    from ..drivers.several import merge_logs, models_for_lasers, process_several, site_poses
     from ..io.logs import fit_to_model
     from ..io.site import one_sensor
     from ..sim.match import simulate_match
 
     logs, site = simulate_match(name, seed=seed, n_robots=robots, seconds=seconds)
     names = list(logs)
-    m = base.with_site(one_sensor(site, names[0]))
-    logs = {n: fit_to_model(log, m, f"{spec} {n}") for n, log in logs.items()}
+    models, kinds = models_for_lasers([b.with_site(one_sensor(site, names[0])) for b in bases], site, names)
+    model_of = {n: models[kinds[i]] for i, n in enumerate(names)}
+    logs = {n: fit_to_model(log, model_of[n], f"{spec} {n}") for n, log in logs.items()}
     combos = [(n,) for n in names]
     if len(names) == 4:
         combos.append((names[0], names[3]))  # north-west and south-east: two lasers facing each other
@@ -155,9 +163,13 @@ def _evaluate_match(base, spec: str, name: str, seed: int, robots: int, seconds:
         combos.append(tuple(names))
     out = {}
     for combo in combos:
-        merged = merge_logs({n: logs[n] for n in combo})
-        _, o = process_several(m, merged, site_poses(site, merged.names))
-        res = evaluate_outputs(m, merged.log, o)
+        used = sorted({kinds[names.index(n)] for n in combo})
+        mixed = len(used) > 1
+        merged = merge_logs({n: logs[n] for n in combo}, mixed=mixed)
+        combo_models = tuple(models[i] for i in used)
+        _, o = process_several(combo_models, merged, site_poses(site, merged.names),
+                               kinds=tuple(used.index(kinds[names.index(n)]) for n in combo))
+        res = evaluate_outputs(combo_models[0], merged.log, o)
         res.pop("_errors")
         res["lasers"] = len(combo)
         res["occluded_share"] = occluded_share(merged, site)
@@ -172,11 +184,12 @@ def occluded_share(merged, site, radius: float = 0.15) -> float:
     truth alone: what the scene hides, whatever the model does."""
     from ..sensors import get_model
 
-    sensor = get_model(merged.log.sensor_model)
+    sensors = [get_model((merged.sources.get(n) or merged.log).sensor_model) for n in merged.names]
     truth = merged.log.truth_poses
-    fov = (sensor.angle_min, sensor.angle_min + sensor.angle_increment * (sensor.n_beams - 1))
     views = hidden = 0
     for t in range(truth.shape[0]):
+        sensor = sensors[merged.laser[t]]
+        fov = (sensor.angle_min, sensor.angle_min + sensor.angle_increment * (sensor.n_beams - 1))
         sx, sy, sth = site.sensor(merged.names[merged.laser[t]]).pose
         xy = truth[t, :, :2]
         present = ~np.isnan(xy[:, 0])

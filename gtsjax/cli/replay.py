@@ -25,8 +25,10 @@ from ._common import (
     TOPIC_HELP,
     check_out_file,
     describe,
+    load_for_lasers,
     load_for_run,
     load_input,
+    one_model,
     source_of,
     track_summary,
 )
@@ -42,7 +44,9 @@ def replay_cmd(
     site: Path = typer.Option(..., "--site", help="Site file (.json)."),
     sensor: str | None = typer.Option(None, "--sensor", help="With a site of several lasers: the one the scans are "
                                                           "from (its name in the site's sensors list)."),
-    model: Path = typer.Option(..., "--model", help="Model file from gtsjax train."),
+    models: list[Path] = typer.Option(..., "--model", help="Model file from gtsjax train. With --log, one per scanner "
+                                                           "model of the site's lasers (each laser gets the one "
+                                                           "trained for the scanner its sensors entry names)."),
     out: Path = typer.Option(..., "--out", help="Ground-truth CSV to write; with several logs, the folder that gets one "
                                                 "LOG-NAME.csv per log."),
     sensor_out: Path | None = typer.Option(None, "--sensor-out", help="Also write the estimated sensor pose per scan "
@@ -66,11 +70,12 @@ def replay_cmd(
         if logs or sensor is not None or step_by_step:
             raise InputError("replay", "--log NAME=LOG (several lasers) takes no positional logs, --sensor or "
                                        "--step-by-step")
-        _replay_lasers(laser_logs, site, model, out, chunk, topic, crop_fov, confirm_scans, console, sensor_out,
+        _replay_lasers(laser_logs, site, models, out, chunk, topic, crop_fov, confirm_scans, console, sensor_out,
                        max_tracks)
         return
     if not logs:
         raise InputError("replay", "give a log (or --log NAME=LOG per laser of a site with several)")
+    model = one_model(models)
     m = load_for_run(model, site, sensor).with_confirmation(confirm_scans).with_capacity(max_tracks)
     outs, sensor_outs = _outputs(logs, out, sensor_out)
     scan_logs = [_load_fitted(log, topic, m, crop_fov, console) for log in logs]
@@ -152,14 +157,12 @@ def _load_fitted(log: Path, topic: str | None, m, crop_fov: bool, console: Conso
     return scan_log
 
 
-def _replay_lasers(specs: list[str], site_path: Path, model_path: Path, out: Path, chunk: int, topic: str | None,
+def _replay_lasers(specs: list[str], site_path: Path, model_paths: list[Path], out: Path, chunk: int, topic: str | None,
                    crop_fov: bool, confirm_scans: int | None, console: Console, sensor_out: Path | None,
                    max_tracks: int | None = None) -> None:
     """``replay --log NAME=LOG ...``: the lasers' logs merged by stamp into one track table."""
-    from ..drivers.several import replay_several
+    from ..drivers.several import models_for_lasers, replay_several
     from ..io import load_site
-    from ..io.modelfile import load_model
-    from ..io.site import one_sensor
 
     site_obj = load_site(site_path)
     paths: dict[str, Path] = {}
@@ -179,17 +182,17 @@ def _replay_lasers(specs: list[str], site_path: Path, model_path: Path, out: Pat
     check_out_file(out)
     if sensor_out is not None:
         check_out_file(sensor_out, "--sensor-out")
-    first = next(iter(paths))
-    m = load_model(model_path).with_site(one_sensor(site_obj, first), where=str(site_path))
-    m = m.with_confirmation(confirm_scans).with_capacity(max_tracks)
-    logs = {name: _load_fitted(path, topic, m, crop_fov, console) for name, path in paths.items()}
+    loaded = load_for_lasers(model_paths, site_path, site_obj, confirm_scans, max_tracks)
+    models, kinds = models_for_lasers(loaded, site_obj, list(paths))
+    logs = {name: _load_fitted(path, topic, models[kinds[i]], crop_fov, console)
+            for i, (name, path) in enumerate(paths.items())}
     t0 = time.perf_counter()
     total = sum(lg.n_scans for lg in logs.values())
     with Progress(TextColumn("replay"), BarColumn(), MofNCompleteColumn(), TextColumn("scans"),
                   TimeRemainingColumn(), console=console, transient=True) as bar:
         task = bar.add_task("replay", total=total)
-        totals = replay_several(logs, m, site_obj, out, chunk=chunk, progress=lambda n: bar.update(task, completed=n),
-                                sensor_out=sensor_out)
+        totals = replay_several(logs, models, site_obj, out, kinds=kinds, chunk=chunk,
+                                progress=lambda n: bar.update(task, completed=n), sensor_out=sensor_out)
     dt = time.perf_counter() - t0
     per = ", ".join(f"{n} {totals['scans_per_laser'][n]} scans ({totals['degraded'][n]} without a new map "
                     "transformation)" for n in logs)

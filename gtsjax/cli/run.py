@@ -8,7 +8,7 @@ from rich.console import Console
 
 from ..errors import InputError
 from ._app import CONFIRM_HELP, MAX_TRACKS_HELP, app
-from ._common import check_out_file, track_summary
+from ._common import check_out_file, one_model, track_summary
 from ._live import track_live
 
 
@@ -20,7 +20,9 @@ def run_cmd(
     site: Path = typer.Option(..., "--site", help="Site file (.json)."),
     sensor: str | None = typer.Option(None, "--sensor", help="With a site of several lasers: the one the scans are "
                                                           "from (its name in the site's sensors list)."),
-    model: Path = typer.Option(..., "--model", help="Model file from gtsjax train."),
+    models: list[Path] = typer.Option(..., "--model", help="Model file from gtsjax train. With --port NAME=PORT, one "
+                                                           "per scanner model of the site's lasers (each laser gets "
+                                                           "the one trained for the scanner its sensors entry names)."),
     out: Path = typer.Option(..., "--out", help="Ground-truth CSV to write (flushed every scan)."),
     record: Path | None = typer.Option(None, "--record", help="Also record the raw scans (crash-safe) to this .npz."),
     json_lines: bool = typer.Option(False, "--json", help="Stream each scan's tracks as JSON lines on stdout."),
@@ -43,11 +45,11 @@ def run_cmd(
     if lasers is not None:
         from ._live import track_live_several
 
-        track_live_several(lasers, model, site, out, record=record, json_lines=json_lines, udp=udp,
+        track_live_several(lasers, models, site, out, record=record, json_lines=json_lines, udp=udp,
                            duration=duration, frames=frames, intensity=intensity, view=not quiet,
                            confirm_scans=confirm_scans, summary=summary, max_tracks=max_tracks)
         return
-    port = port[0]
+    port, model = port[0], one_model(models)
     stats, link_stats = track_live(port, model, site, out, record=record, json_lines=json_lines, udp=udp,
                                    duration=duration, frames=frames, intensity=intensity, view=not quiet,
                                    confirm_scans=confirm_scans, sensor=sensor, max_tracks=max_tracks)
@@ -92,7 +94,7 @@ def emulate_cmd(
     if is_match(scenario):
         if sensor is not None:
             raise InputError("--model", "a match scenario names its scanner (spl-match-N: URG-04LX, "
-                                        "spl-match-N-utm: UTM-30LX)")
+                                        "spl-match-N-utm: UTM-30LX, spl-match-N-mixed: both)")
         serve_match(scenario, faults, seed=seed, n_robots=robots, seconds=seconds, referee=referee,
                     print_fn=lambda s: print(s, flush=True))
         return

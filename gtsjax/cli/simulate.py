@@ -35,8 +35,9 @@ def simulate_cmd(
         table.add_column("what it simulates")
         for name, desc in SCENARIOS.items():
             table.add_row(name, desc)
-        table.add_row("spl-match-N[-utm]", "full-size SPL field (9 × 6 m, its goals' posts), N = 1, 2 or 4 lasers "
-                      "(URG-04LX, or UTM-30LX with -utm) 0.5 m outside the side lines, --robots walking (10), a "
+        table.add_row("spl-match-N[-utm|-mixed]", "full-size SPL field (9 × 6 m, its goals' posts), N = 1, 2 or 4 "
+                      "lasers (URG-04LX, UTM-30LX with -utm, alternately one and the other with -mixed) 0.5 m "
+                      "outside the side lines, --robots walking (10), a "
                       "referee; one log per laser (OUT-NAME.npz), the site with its sensors list")
         Console(width=120).print(table)
         return

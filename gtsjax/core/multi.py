@@ -15,7 +15,14 @@ reach is missed by all, so that it ends.
 ``step_several(model, state, scan, k, span_dt)``: laser ``k`` (a traced index: one compiled program
 serves every laser of a model) scanned ``scan``; ``scan.dt`` is the time since the previous scan of
 any laser, ``span_dt`` since laser ``k``'s previous one. The number of lasers is a static shape (the
-leading axis of ``SeveralState.transforms``); every laser here uses the same model (one scanner type).
+leading axis of ``SeveralState.transforms``).
+
+Lasers of different scanner models (a URG-04LX and a UTM-30LX) each use a model trained for their
+scanner, with one track table: the models must agree on the classes and the number of track slots
+(:func:`check_models`). Each laser's reach (field of view, range) is part of the state, so that every
+laser's coverage is judged by its own scanner. Live, each scanner model has its own compiled step
+(its model closed over) on the one state; in batch, :func:`update_mixed` picks the scanning laser's
+model with ``lax.switch``, its perception and scan padded to the widest model's.
 """
 
 import equinox as eqx
@@ -26,7 +33,7 @@ from jaxtyping import Array, Float, Int
 from ..model import Model
 from .f_maptransform import Transform
 from .g_track import TrackerState
-from .pipeline import Output, in_coverage, perceive, update_view
+from .pipeline import Output, Perception, in_reach, perceive, update_view
 from .precision import exact_products
 from .scan import Scan
 
@@ -38,17 +45,50 @@ class SeveralState(eqx.Module):
     transforms: Transform
     tracker: TrackerState
     n_scans: Int[Array, " lasers"]
+    # Each laser's reach: the bearings of its first and last beams in S, its range (m). Constant.
+    reach: Float[Array, "lasers 3"]
 
 
-def init_several(model: Model, sensor_poses: Float[Array, "lasers 3"]) -> SeveralState:
+def laser_reach(model: Model) -> tuple[float, float, float]:
+    """The reach of a laser of the scanner ``model`` was trained for: first and last beam's bearing,
+    range (host floats)."""
+    return (model.angle_min, model.angle_min + model.angle_increment * (model.n_beams - 1), model.range_max)
+
+
+def init_several(model: "Model | tuple[Model, ...]", sensor_poses: Float[Array, "lasers 3"],
+                 kinds: "tuple[int, ...] | None" = None) -> SeveralState:
     """Before the first scan: each laser's rough pose guess (the site's ``sensors``) as its first
-    transform, no tracks."""
+    transform, no tracks. ``model``: every laser's, or one per scanner model with ``kinds`` (each
+    laser's index into them)."""
+    models = model if isinstance(model, tuple) else (model,)
     poses = jnp.asarray(sensor_poses, jnp.float32)
+    kinds = kinds if kinds is not None else (0,) * poses.shape[0]
+    if len(kinds) != poses.shape[0]:
+        raise ValueError(f"{len(kinds)} kinds for {poses.shape[0]} lasers")
     return SeveralState(
         transforms=jax.vmap(Transform.from_sensor_pose)(poses),
-        tracker=TrackerState.empty(model.max_tracks),
+        tracker=TrackerState.empty(models[0].max_tracks),
         n_scans=jnp.zeros(poses.shape[0], jnp.int32),
+        reach=jnp.asarray([laser_reach(models[i]) for i in kinds], jnp.float32),
     )
+
+
+def check_models(models: "tuple[Model, ...]", where: object = "--model") -> None:
+    """Models of different scanners that are to share one track table must know the same classes
+    (in the same order), have as many track slots and carry the same site's landmarks."""
+    from ..errors import InputError
+
+    first = models[0]
+    for m in models[1:]:
+        if m.classes != first.classes:
+            raise InputError(where, f"the {m.sensor_model} model's classes ({', '.join(m.classes)}) differ from the "
+                                    f"{first.sensor_model} model's ({', '.join(first.classes)}): one track table needs "
+                                    "the same classes")
+        if m.max_tracks != first.max_tracks:
+            raise InputError(where, f"the {m.sensor_model} model has {m.max_tracks} track slots, the "
+                                    f"{first.sensor_model} model {first.max_tracks}: give --max-tracks")
+        if m.site is not None and first.site is not None and m.site.landmark_xy.shape != first.site.landmark_xy.shape:
+            raise InputError(where, "the models carry different sites")
 
 
 def _row(tree, k):
@@ -73,12 +113,52 @@ def update_several(model: Model, state: SeveralState, p, scan: Scan, k: Int[Arra
     within several lasers' reach may be missed by each of them as long as by one (``watchers``,
     :func:`~gtsjax.core.g_track.track_step`)."""
     xy = state.tracker.mean[:, :2]
-    watched = jax.vmap(lambda tf: in_coverage(scan, tf, xy, model.range_max))(state.transforms)  # [lasers, tracks]
+    watched = jax.vmap(lambda tf, r: in_reach(r, tf, xy))(state.transforms, state.reach)  # [lasers, tracks]
     n_watch = jnp.sum(watched, axis=0, dtype=jnp.int32)
     tf, tracker, out = update_view(model, _row(state.transforms, k), state.tracker, p, scan, span_dt=span_dt,
                                    several=True, unwatched=n_watch == 0, watchers=jnp.maximum(n_watch, 1))
     n = state.n_scans + (jnp.arange(state.n_scans.shape[0], dtype=jnp.int32) == k).astype(jnp.int32)
-    return SeveralState(_put_row(state.transforms, k, tf), tracker, n), out
+    return SeveralState(_put_row(state.transforms, k, tf), tracker, n, state.reach), out
+
+
+def widest(models: "tuple[Model, ...]") -> tuple[int, int]:
+    """The candidate slots and beams a perception and a scan are padded to for :func:`update_mixed`."""
+    return max(m.frontend.max_candidates for m in models), max(m.n_beams for m in models)
+
+
+def pad_perception(p: Perception, n_cands: int) -> Perception:
+    """``p`` with its candidate axis padded to ``n_cands`` (slots neither kept nor objects)."""
+    return jax.tree.map(lambda a: a if a.ndim == p.ok.ndim - 1 else _pad_axis(a, p.ok.ndim - 1, n_cands), p)
+
+
+def _pad_axis(a, axis: int, size: int):
+    pad = [(0, 0)] * a.ndim
+    pad[axis] = (0, size - a.shape[axis])
+    return jnp.pad(a, pad)
+
+
+def update_mixed(models: "tuple[Model, ...]", state: SeveralState, p: Perception, scan: Scan, k: Int[Array, ""],
+                 kind: Int[Array, ""], span_dt: Float[Array, ""]) -> tuple[SeveralState, Output]:
+    """:func:`update_several` for laser ``k``, whose scanner's model is ``models[kind]`` (traced: one
+    program serves every laser). ``p`` and ``scan`` are padded to :func:`widest`; the chosen model
+    reads its own candidate slots and beams, and the output's detections are padded back."""
+    n_cands, _ = widest(models)
+
+    def branch(m: Model):
+        def run(state, p, scan, k, span_dt):
+            c, b = m.frontend.max_candidates, m.n_beams
+            mine = jax.tree.map(lambda a: a if a.ndim == 0 else a[:c], p)
+            sc = Scan(scan.ranges[:b], scan.intensities[:b], scan.valid[:b], scan.angle_min, scan.angle_increment,
+                      scan.dt)
+            new, out = update_several(m, state, mine, sc, k, span_dt)
+            return new, eqx.tree_at(lambda o: (o.det_pose, o.det_class, o.det_mask), out,
+                                    (_pad_axis(out.det_pose, 0, n_cands), _pad_axis(out.det_class, 0, n_cands),
+                                     _pad_axis(out.det_mask, 0, n_cands)))
+        return run
+
+    if len(models) == 1:
+        return branch(models[0])(state, p, scan, k, span_dt)
+    return jax.lax.switch(kind, [branch(m) for m in models], state, p, scan, k, span_dt)
 
 
 def step_several(model: Model, state: SeveralState, scan: Scan, k: Int[Array, ""], span_dt: Float[Array, ""]

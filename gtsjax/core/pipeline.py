@@ -172,11 +172,17 @@ def seen_through(scan: Scan, tf: Transform, xy_o: Float[Array, "n 2"], range_max
 def in_coverage(scan: Scan, tf: Transform, xy_o: Float[Array, "n 2"], range_max: float) -> Bool[Array, " n"]:
     """Whether each field position lies where the scan's laser can see: inside its field of view
     and its range (less ``SEE_THROUGH_MARGIN``), as its transform ``tf`` places it."""
+    last = scan.angle_min + scan.angle_increment * (scan.n_beams - 1)
+    return in_reach(jnp.stack([scan.angle_min, last, jnp.asarray(range_max, scan.angle_min.dtype)]), tf, xy_o)
+
+
+def in_reach(reach: Float[Array, "3"], tf: Transform, xy_o: Float[Array, "n 2"]) -> Bool[Array, " n"]:
+    """:func:`in_coverage` for a laser described by ``reach``: the bearings of its first and last
+    beams in S and its range (m)."""
     xy_s = tf.to_sensor(xy_o)
     rho = jnp.sqrt(jnp.sum(xy_s**2, axis=-1))
     bearing = jnp.arctan2(xy_s[:, 1], xy_s[:, 0])
-    last = scan.angle_min + scan.angle_increment * (scan.n_beams - 1)
-    return (bearing >= scan.angle_min) & (bearing <= last) & (rho <= range_max - SEE_THROUGH_MARGIN)
+    return (bearing >= reach[0]) & (bearing <= reach[1]) & (rho <= reach[2] - SEE_THROUGH_MARGIN)
 
 
 @exact_products

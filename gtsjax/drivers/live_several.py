@@ -89,22 +89,32 @@ def make_several_step(model: Model, sensor: SensorModel):
     return several_step
 
 
-def warm_up_several(model: Model, sensor: SensorModel, poses: np.ndarray):
-    """The step for ``model`` on ``sensor``'s frames, compiled before the lasers stream, and the
-    initial state (each laser at its rough pose guess ``poses``, ``[lasers, 3]``)."""
-    state = init_several(model, jnp.asarray(poses, jnp.float32))
-    f = make_several_step(model, sensor)
-    r, inten, valid = frame_arrays(np.zeros(sensor.n_beams, np.float32), None, sensor, model.n_beams)
-    jax.block_until_ready(f(state, r, inten, valid, np.float32(0.0), np.int32(0), np.float32(0.0)))
-    return f, state
+def warm_up_several(model: "Model | tuple[Model, ...]", sensor: "SensorModel | tuple[SensorModel, ...]",
+                    poses: np.ndarray, kinds: "tuple[int, ...] | None" = None):
+    """The steps, compiled before the lasers stream, and the initial state (each laser at its rough
+    pose guess ``poses``, ``[lasers, 3]``): one step per model of ``model`` (every laser's, or one
+    per scanner model, ``kinds`` each laser's index into them), for ``sensor``'s frames (one per model)."""
+    models = model if isinstance(model, tuple) else (model,)
+    sensors = sensor if isinstance(sensor, tuple) else (sensor,)
+    state = init_several(models, jnp.asarray(poses, jnp.float32), kinds)
+    steps = []
+    for m, sen in zip(models, sensors, strict=True):
+        f = make_several_step(m, sen)
+        r, inten, valid = frame_arrays(np.zeros(sen.n_beams, np.float32), None, sen, m.n_beams)
+        jax.block_until_ready(f(state, r, inten, valid, np.float32(0.0), np.int32(0), np.float32(0.0)))
+        steps.append(f)
+    return tuple(steps), state
 
 
-def run_live_several(links: "dict[str, object]", model: Model, poses: np.ndarray, out: Path, *,
+def run_live_several(links: "dict[str, object]", model: "Model | tuple[Model, ...]", poses: np.ndarray, out: Path, *,
                      record: "dict[str, Path] | None" = None, outputs: Outputs | None = None,
                      duration: float | None = None, stop=None, on_scan=None, with_intensity: bool = False,
-                     compiled=None, max_frames: int | None = None, hold_s: float | None = None, warn=None):
+                     compiled=None, max_frames: int | None = None, hold_s: float | None = None, warn=None,
+                     kinds: "tuple[int, ...] | None" = None):
     """Track from started links (one per laser, ``poses`` their rough pose guesses in the same order)
-    until ``duration``, ``max_frames`` frames (all lasers together), ``stop`` or Ctrl-C. Returns the
+    until ``duration``, ``max_frames`` frames (all lasers together), ``stop`` or Ctrl-C. ``model``:
+    every laser's, or one per scanner model with ``kinds`` (each laser's index into them; see
+    :func:`~gtsjax.drivers.several.models_for_lasers`). Returns the
     run's :class:`~gtsjax.drivers.live.LiveStats`, the lasers' :class:`LaserStats` and the count of
     frames processed out of stamp order. ``warn(message)`` is called with a line when two lasers' map
     transformations disagree about the landmarks both see (:data:`CALIBRATION_WARN_M` for
@@ -113,10 +123,14 @@ def run_live_several(links: "dict[str, object]", model: Model, poses: np.ndarray
 
     names = list(links)
     sensors = [links[n].model for n in names]
-    for n, sen in zip(names, sensors, strict=True):
-        check_sensor(model, sen, f"{n} ({getattr(links[n], 'port', 'sensor')})", intensity=with_intensity)
-    sensor = sensors[0]
-    step_fn, state = compiled if compiled is not None else warm_up_several(model, sensor, poses)
+    models = model if isinstance(model, tuple) else (model,)
+    kinds = tuple(kinds) if kinds is not None else (0,) * len(names)
+    for n, sen, i in zip(names, sensors, kinds, strict=True):
+        check_sensor(models[i], sen, f"{n} ({getattr(links[n], 'port', 'sensor')})", intensity=with_intensity)
+    first_of = [kinds.index(i) for i in range(len(models))]  # a laser of each model: its frames' geometry
+    steps, state = compiled if compiled is not None else warm_up_several(
+        models, tuple(sensors[k] for k in first_of), poses, kinds)
+    model = models[0]
     stats, per = LiveStats(), {n: LaserStats() for n in names}
     for n in names:  # frames that queued up while compiling are stale
         while links[n].get(timeout=0) is not None:
@@ -166,8 +180,10 @@ def run_live_several(links: "dict[str, object]", model: Model, poses: np.ndarray
                 last_stamp = lf.stamp if last_stamp is None else max(last_stamp, lf.stamp)
                 span = 0.0 if last_own[n] is None else max(lf.stamp - last_own[n], 0.0)
                 last_own[n] = lf.stamp
-                r, inten, valid = frame_arrays(lf.ranges_m, lf.intensities, sensor, model.n_beams)
-                state, o, packed = step_fn(state, r, inten, valid, np.float32(dt), np.int32(k), np.float32(span))
+                mine = models[kinds[k]]
+                r, inten, valid = frame_arrays(lf.ranges_m, lf.intensities, sensors[k], mine.n_beams)
+                state, o, packed = steps[kinds[k]](state, r, inten, valid, np.float32(dt), np.int32(k),
+                                                   np.float32(span))
                 packed = np.asarray(packed)
                 rows = rows_from_packed(lf.stamp, packed, model.classes)
                 writer.write(rows)

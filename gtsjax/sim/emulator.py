@@ -651,7 +651,7 @@ def serve_match(
     stop: threading.Event | None = None,
     link_dir: "str | os.PathLike | None" = None,
 ) -> None:
-    """Serve every laser of a match scenario (``spl-match-N[-utm]``, :mod:`gtsjax.sim.match`), each on
+    """Serve every laser of a match scenario (``spl-match-N[-utm|-mixed]``, :mod:`gtsjax.sim.match`), each on
     its own pty, until Ctrl-C (or ``stop``): one line per laser, ``NAME: … emulator on PATH``. The
     lasers keep their phases: laser ``k`` of ``K`` starts ``k / K`` of a period after the first, so its
     scans come at the times its log was rendered for. ``link_dir``: a folder that gets one sub-folder
@@ -663,13 +663,13 @@ def serve_match(
 
     logs, _ = simulate_match(scenario, seed=seed, n_robots=n_robots, seconds=seconds, referee=referee)
     first = next(iter(logs.values()))
-    model = get_model(first.sensor_model)
     faults = faults or Faults()
     with contextlib.ExitStack() as stack:
         emus = []
         t_start = time.monotonic()
         for k, (name, log) in enumerate(logs.items()):
-            delay = t_start + k * model.period / len(logs) - time.monotonic()
+            model = get_model(log.sensor_model)  # each laser's own scanner (a mixed match has two)
+            delay = t_start + float(log.stamps[0] - first.stamps[0]) - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
             where = None
@@ -680,7 +680,7 @@ def serve_match(
             emus.append((name, stack.enter_context(SensorEmulator(model, log, faults=f, link_dir=where))))
         try:
             for name, emu in emus:
-                print_fn(f"{name}: {model.name} emulator on {emu.path} (pty {emu.pty_name})")
+                print_fn(f"{name}: {emu.model.name} emulator on {emu.path} (pty {emu.pty_name})")
             print_fn("Ctrl-C to stop")
             while not (stop is not None and stop.wait(0.2)):
                 if stop is None:

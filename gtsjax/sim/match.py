@@ -11,8 +11,10 @@ it renders what each laser sees, at its own scan times (the lasers are not synch
 writes the site with a ``sensors`` list (each pose the true one off by a few cm and degrees, as a
 user's tape measure gives it).
 
-Scenario names: ``spl-match-N`` (N lasers, URG-04LX), ``spl-match-N-utm`` (UTM-30LX); options:
-the number of robots, seconds, a referee or not.
+Scenario names: ``spl-match-N`` (N lasers, URG-04LX), ``spl-match-N-utm`` (UTM-30LX),
+``spl-match-N-mixed`` (the first laser and every other one a URG-04LX, the rest UTM-30LX: two
+scanner models on one field, each served by its own trained model); options: the number of robots,
+seconds, a referee or not.
 """
 
 import dataclasses
@@ -67,25 +69,35 @@ class Match:
     """What a match scenario is made of, before rendering: robots' poses on a fine time grid."""
 
     lasers: list[tuple[str, tuple[float, float, float]]]
-    sensor: SensorModel
-    dt: float  # the fine grid's step (a laser's period / number of lasers)
+    sensors: list[SensorModel]  # each laser's scanner
+    dt: float  # the fine grid's step (the fastest laser's period / number of lasers)
     robots: np.ndarray  # [n_fine, M, 3]
     legs: list[np.ndarray]  # the referee's two legs, [n_fine, 2] each
-    n_scans: int  # per laser
+    rows: list[np.ndarray]  # each laser's scans as rows of the fine grid
+
+    @property
+    def sensor(self) -> SensorModel:
+        """The first laser's scanner (every laser's, but in a mixed match)."""
+        return self.sensors[0]
 
 
-def plan_match(n_lasers: int, sensor: SensorModel, n_robots: int = 10, seconds: float = 60.0, referee: bool = True,
-               seed: int = 0) -> Match:
+def plan_match(n_lasers: int, sensor: "SensorModel | list[SensorModel]", n_robots: int = 10, seconds: float = 60.0,
+               referee: bool = True, seed: int = 0) -> Match:
     """Robots walking Lissajous paths in their own cells of the field (a grid of cells, one robot
     each; at 0.1–0.4 m/s, as :func:`~gtsjax.sim.scenarios.path_poses`), the referee walking the
-    field's length and back, all on a time grid ``K`` times finer than a laser's period."""
+    field's length and back, all on a time grid ``K`` times finer than the fastest laser's period.
+    ``sensor``: every laser's scanner, or one per laser. Laser ``k`` scans every ``period / dt``
+    rows of the grid from row ``k``."""
     if not 1 <= n_robots <= 14:
         raise InputError("spl-match", f"{n_robots} robots: 1 to 14")
     rng = np.random.default_rng(seed)
     lasers = laser_poses(n_lasers)
-    dt = sensor.period / len(lasers)
-    n_scans = int(round(seconds / sensor.period))
-    n_fine = n_scans * len(lasers)
+    sensors = list(sensor) if isinstance(sensor, (list, tuple)) else [sensor] * len(lasers)
+    K = len(lasers)
+    dt = min(s.period for s in sensors) / K
+    scan_rows = [np.arange(int(round(seconds / s.period))) * int(round(s.period / dt)) + k
+                 for k, s in enumerate(sensors)]
+    n_fine = max(int(r[-1]) + 1 for r in scan_rows)
     x0, y0, x1, y1 = FIELD
     cols = int(math.ceil(n_robots / 2)) if n_robots > 1 else 1
     rows = 2 if n_robots > 1 else 1
@@ -98,29 +110,29 @@ def plan_match(n_lasers: int, sensor: SensorModel, n_robots: int = 10, seconds: 
         ax, ay = rng.uniform(0.30, 0.40) * cw, rng.uniform(0.28, 0.36) * ch
         robots.append(path_poses(lissajous(cx, cy, ax, ay, rng.uniform(0, 2 * np.pi)), n_fine, dt, rng))
     legs = walking_legs((x0 + 0.5, y0 + 0.8), (x1 - 0.5, y1 - 1.0), n_fine, dt, speed=1.0, rng=rng) if referee else []
-    return Match(lasers, sensor, dt, np.stack(robots, 1), legs, n_scans)
+    return Match(lasers, sensors, dt, np.stack(robots, 1), legs, scan_rows)
 
 
 def render_match(match: Match, seed: int = 0) -> tuple[dict[str, ScanLog], Site]:
     """One labelled log per laser (its scans at its own times: laser ``k`` on the fine grid's rows
-    ``k, k + K, …``) and the site with every laser in its ``sensors`` list."""
+    ``match.rows[k]``: ``k, k + K, …`` for lasers of one scanner model) and the site with every laser
+    in its ``sensors`` list."""
     st = _scene_statics()
     scene = Scene(circles=list(st.circles), polygons=list(st.polygons),
                   movers=[Mover(robot_shape(), match.robots[:, m]) for m in range(match.robots.shape[1])],
                   moving_circles=[MovingCircle(0.06, leg) for leg in match.legs])
-    K = len(match.lasers)
     logs, sensors = {}, []
     guess_rng = np.random.default_rng([seed, 2])
     for k, (name, pose) in enumerate(match.lasers):
-        rows = np.arange(match.n_scans) * K + k
+        rows = match.rows[k]
         fine_poses = np.repeat(np.asarray(pose, float)[None], match.robots.shape[0], 0)
         # The scene's movers are indexed by the fine grid; render only this laser's rows.
         sub = Scene(circles=scene.circles, polygons=scene.polygons,
                     movers=[Mover(m.shape, m.poses[rows]) for m in scene.movers],
                     moving_circles=[MovingCircle(c.radius, c.centres[rows], c.reflectivity)
                                     for c in scene.moving_circles])
-        ranges, inten = render(sub, match.sensor, fine_poses[rows], rng=np.random.default_rng([seed, 1, k]))
-        m = match.sensor
+        m = match.sensors[k]
+        ranges, inten = render(sub, m, fine_poses[rows], rng=np.random.default_rng([seed, 1, k]))
         logs[name] = ScanLog(
             ranges=ranges, stamps=T0 + seed * 1000.0 + rows * match.dt, angle_min=m.angle_min,
             angle_increment=m.angle_increment, intensities=inten, range_min=m.range_min, range_max=m.range_max,
@@ -135,7 +147,7 @@ def render_match(match: Match, seed: int = 0) -> tuple[dict[str, ScanLog], Site]
     return logs, site
 
 
-MATCH_NAME = re.compile(r"^spl-match-(\d)(-utm)?$")
+MATCH_NAME = re.compile(r"^spl-match-(\d)(-utm|-mixed)?$")
 
 
 def is_match(name: str) -> bool:
@@ -144,10 +156,14 @@ def is_match(name: str) -> bool:
 
 def simulate_match(name: str, *, seed: int = 0, n_robots: int = 10, seconds: float = 60.0,
                    referee: bool = True) -> tuple[dict[str, ScanLog], Site]:
-    """``spl-match-N[-utm]``: N lasers (1, 2 or 4), URG-04LX or UTM-30LX, ``n_robots`` walking."""
+    """``spl-match-N[-utm|-mixed]``: N lasers (1, 2 or 4), URG-04LX, UTM-30LX or both (alternating:
+    the first a URG-04LX), ``n_robots`` walking."""
     m = MATCH_NAME.match(name)
     if m is None:
-        raise InputError(name, "not a match scenario (spl-match-N or spl-match-N-utm, N = 1, 2, 4)")
-    sensor = UTM_30LX if m.group(2) else URG_04LX
-    match = plan_match(int(m.group(1)), sensor, n_robots=n_robots, seconds=seconds, referee=referee, seed=seed)
+        raise InputError(name, "not a match scenario (spl-match-N, spl-match-N-utm or spl-match-N-mixed, N = 1, 2, 4)")
+    n = int(m.group(1))
+    kind = m.group(2)
+    sensor = ([URG_04LX if k % 2 == 0 else UTM_30LX for k in range(n)] if kind == "-mixed"
+              else UTM_30LX if kind == "-utm" else URG_04LX)
+    match = plan_match(n, sensor, n_robots=n_robots, seconds=seconds, referee=referee, seed=seed)
     return render_match(match, seed=seed)
