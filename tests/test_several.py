@@ -418,3 +418,27 @@ def test_models_for_lasers_picks_by_the_sites_scanner_and_refuses_what_does_not_
             models_for_lasers(models, s, ["north", "south"])
     with pytest.raises(InputError, match="no model given for it"):
         models_for_lasers([utm, dataclasses.replace(urg, sensor_model="UST-10LX")], site, ["north", "south"])
+
+
+def test_replay_command_with_a_model_per_scanner(mixed, tmp_path, capsys):
+    """``gtsjax replay --log north=… --log south=… --model URG --model UTM``: each laser's log read by
+    the model for its scanner, one CSV with the rows of the mixed replay. With the URG-04LX's model
+    alone, the UTM-30LX's log is refused (one line, exit 2, nothing written)."""
+    from gtsjax.cli import main
+    from gtsjax.io import save_log
+    from gtsjax.io.gtd import read_gtd
+
+    d = mixed["dir"]
+    for name, log in mixed["logs"].items():
+        save_log(log, tmp_path / f"{name}.npz")
+    args = ["replay", "--log", f"north={tmp_path / 'north.npz'}", "--log", f"south={tmp_path / 'south.npz'}",
+            "--site", str(d / "site.json"), "--chunk", "64"]
+    assert main(args + ["--model", str(demo_model_path()), "--out", str(tmp_path / "bad.csv")]) == 2
+    assert "south.npz" in capsys.readouterr().err
+    assert not (tmp_path / "bad.csv").exists()
+    code = main(args + ["--model", str(d / "utm.npz"), "--model", str(demo_model_path()),
+                        "--out", str(tmp_path / "gtd.csv")])
+    assert code == 0
+    _, merged, out = _mixed_run(mixed)
+    rows = read_gtd(tmp_path / "gtd.csv")
+    assert len(rows) == int(np.asarray(out.track_mask).sum()) > 0

@@ -52,9 +52,12 @@ def simulate_cmd(
         for path, log in zip(paths, logs.values(), strict=True):
             save_log(log, path)
         save_site(site_obj, site)
-        first = next(iter(logs.values()))
+        kinds = {}
+        for log in logs.values():
+            kinds.setdefault((log.n_scans, log.sensor_model), []).append(log)
+        each = " and ".join(f"{len(v)} × {n} scans ({sm})" for (n, sm), v in kinds.items())
         Console(stderr=True).print(
-            f"{scenario}: {len(logs)} lasers × {first.n_scans} scans ({first.sensor_model}), {robots} robots, "
+            f"{scenario}: {len(logs)} lasers, {each}, {robots} robots, "
             f"{seconds:g} s in {time.perf_counter() - t0:.1f} s -> {', '.join(map(str, paths))}, {site}")
         return
     log, site_obj = simulate(scenario, seed=seed, n_scans=scans, sensor=sensor)
