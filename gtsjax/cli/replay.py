@@ -17,6 +17,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from ..drivers.replay import replay_log, replay_logs
 from ..errors import InputError
+from ..io.bag_out import check_bag_dir
 from ..io.importers import detect_format, format_name
 from ..io.logs import fit_to_model
 from ._app import CONFIRM_HELP, MAX_TRACKS_HELP, app
@@ -52,6 +53,10 @@ def replay_cmd(
     sensor_out: Path | None = typer.Option(None, "--sensor-out", help="Also write the estimated sensor pose per scan "
                                                                       "(CSV; with several logs, a folder of "
                                                                       "LOG-NAME.csv)."),
+    out_bag: Path | None = typer.Option(None, "--out-bag", help="Also write a ROS 2 bag (MCAP storage) to this new "
+                                                                "folder: the scans (sensor_msgs/LaserScan), the laser "
+                                                                "pose (/tf), the tracks (PoseArray, and each track's "
+                                                                "PoseWithCovarianceStamped)."),
     chunk: int = typer.Option(256, min=1, help="Scans per compiled chunk."),
     topic: str | None = typer.Option(None, "--topic", help=TOPIC_HELP),
     crop_fov: bool = typer.Option(False, "--crop-fov",
@@ -67,15 +72,19 @@ def replay_cmd(
     lasers of one field into one."""
     console = Console(stderr=True)
     if laser_logs:
-        if logs or sensor is not None or step_by_step:
-            raise InputError("replay", "--log NAME=LOG (several lasers) takes no positional logs, --sensor or "
-                                       "--step-by-step")
+        if logs or sensor is not None or step_by_step or out_bag is not None:
+            raise InputError("replay", "--log NAME=LOG (several lasers) takes no positional logs, --sensor, "
+                                       "--step-by-step or --out-bag")
         _replay_lasers(laser_logs, site, models, out, chunk, topic, crop_fov, confirm_scans, console, sensor_out,
                        max_tracks)
         return
     if not logs:
         raise InputError("replay", "give a log (or --log NAME=LOG per laser of a site with several)")
     model = one_model(models)
+    if out_bag is not None:
+        if len(logs) > 1:
+            raise InputError("--out-bag", "takes one log (several logs side by side write one CSV each)")
+        check_bag_dir(out_bag)
     m = load_for_run(model, site, sensor).with_confirmation(confirm_scans).with_capacity(max_tracks)
     outs, sensor_outs = _outputs(logs, out, sensor_out)
     scan_logs = [_load_fitted(log, topic, m, crop_fov, console) for log in logs]
@@ -90,7 +99,7 @@ def replay_cmd(
 
         if len(scan_logs) == 1:
             results = [replay_log(scan_logs[0], m, outs[0], chunk=chunk, sensor_out=sensor_outs[0],
-                                  vectorise=not step_by_step, progress=done)]
+                                  vectorise=not step_by_step, progress=done, out_bag=out_bag)]
         else:
             results = replay_logs(scan_logs, m, outs, chunk=chunk, sensor_outs=sensor_outs, vectorise=not step_by_step,
                                   progress=done)

@@ -189,12 +189,24 @@ def process_logs(model: Model, scans: "list[Scan | None]", *, chunk: int = 256,
     return final, [jax.tree.map(lambda *a: np.concatenate(a), *o) if o else None for o in outs]
 
 
+def bag_for(log, path: Path | None):
+    """A :class:`~gtsjax.io.bag_out.BagOut` at ``path`` for ``log``'s scans (``None`` without a path)."""
+    if path is None:
+        return None
+    from ..io.bag_out import BagOut
+    from ..sensors import MODELS
+
+    known = MODELS.get(log.sensor_model or "")
+    return BagOut(path, angle_min=log.angle_min, angle_increment=log.angle_increment, range_min=log.range_min,
+                  range_max=log.range_max, scan_time=known.period if known is not None else 0.0)
+
+
 class _Sink:
     """One log's outputs as they come, block by block: its GTD CSV (rows flushed per scan), its
     sensor-pose rows, and the totals ``replay`` reports."""
 
-    def __init__(self, model: Model, out: Path, sensor_out: Path | None):
-        self.model, self.sensor_out = model, sensor_out
+    def __init__(self, model: Model, out: Path, sensor_out: Path | None, bag=None):
+        self.model, self.sensor_out, self.bag = model, sensor_out, bag
         self.writer = GTDWriter(out)
         self.totals = {"scans": 0, "rows": 0, "degraded": 0, "n_overflow": 0, "n_too_long": 0, "unlike": 0,
                        "off_envelope": 0, "track_ids": {}}
@@ -208,6 +220,10 @@ class _Sink:
                                     out_arrays.track_pose[i], out_arrays.track_var[i], out_arrays.track_mask[i],
                                     self.model.classes)
             self.writer.write(rows)
+            if self.bag is not None:
+                self.bag.write(float(part.stamps[i]), part.ranges[i],
+                               None if part.intensities is None else part.intensities[i], rows,
+                               np.asarray(out_arrays.sensor_pose[i], np.float64))
             for row in rows:
                 totals["track_ids"].setdefault(row.cls, set()).add(row.track_id)
         if self.sensor_out is not None:
@@ -220,8 +236,10 @@ class _Sink:
             totals[k] += int(np.sum(getattr(out_arrays, k)))
 
     def close(self) -> dict:
-        """Closes the CSV, writes the sensor-pose CSV; returns the totals."""
+        """Closes the CSV (and the bag), writes the sensor-pose CSV; returns the totals."""
         self.writer.close()
+        if self.bag is not None:
+            self.bag.close()
         self.totals["rows"] = self.writer.rows
         if self.sensor_out is not None:
             with open(self.sensor_out, "w", newline="") as f:
@@ -232,13 +250,14 @@ class _Sink:
 
 
 def replay_log(log, model, out: Path, *, chunk: int = 256, sensor_out: Path | None = None, progress=None,
-               vectorise: bool = True):
+               vectorise: bool = True, out_bag: Path | None = None):
     """Run ``log`` through ``model`` (site attached) and write the GTD CSV; returns stacked outputs'
     summary counters. The log is moved to the device a block at a time, so memory stays bounded.
-    ``vectorise``: see :func:`process_chunk` (off: bit for bit what the live loop computes)."""
+    ``vectorise``: see :func:`process_chunk` (off: bit for bit what the live loop computes).
+    ``out_bag``: also a ROS 2 bag of the scans, laser poses and tracks (:mod:`gtsjax.io.bag_out`)."""
     state = init_state(model)
     block = chunk * 16
-    sink = _Sink(model, out, sensor_out)
+    sink = _Sink(model, out, sensor_out, bag_for(log, out_bag))
     try:
         for start in range(0, log.n_scans, block):
             part = log.slice(start, start + block)
