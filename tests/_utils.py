@@ -104,3 +104,17 @@ def read_lines(proc, n, timeout):
                 break
             lines.append(line)
     return lines
+
+
+class _Msg:
+    def __init__(self, schema, channel, message, ros_msg):
+        self.schema, self.channel, self.log_time_ns, self.ros_msg = schema, channel, message.log_time, ros_msg
+
+
+def read_mcap(path) -> list:
+    """Every message of an MCAP file, decoded by the ``mcap`` library's ROS 2 decoder."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    with open(path, "rb") as f:
+        return [_Msg(*m) for m in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages()]

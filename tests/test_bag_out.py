@@ -12,19 +12,7 @@ from gtsjax.io import save_log, save_site
 from gtsjax.io.gtd import read_gtd
 from gtsjax.sim import simulate
 
-
-class _Msg:
-    def __init__(self, schema, channel, message, ros_msg):
-        self.schema, self.channel, self.log_time_ns, self.ros_msg = schema, channel, message.log_time, ros_msg
-
-
-def _read_mcap(path) -> list:
-    """Every message of an MCAP file, decoded by the ``mcap`` library's ROS 2 decoder."""
-    from mcap.reader import make_reader
-    from mcap_ros2.decoder import DecoderFactory
-
-    with open(path, "rb") as f:
-        return [_Msg(*m) for m in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages()]
+from ._utils import read_mcap as _read_mcap
 
 
 def _yaw(q) -> float:

@@ -13,6 +13,8 @@ from gtsjax.sensors import URG_04LX
 from gtsjax.sim import simulate
 from gtsjax.sim.emulator import Faults, SensorEmulator, log_source
 
+from ._utils import read_mcap
+
 
 def test_run_tracks_the_emulated_robot(tmp_path):
     # spl-eval begins with the robot put down at one point: 1 s away, 3 s at each heading, 1 s away, ...
@@ -28,7 +30,7 @@ def test_run_tracks_the_emulated_robot(tmp_path):
     with SensorEmulator(URG_04LX, source, faults=faults) as emu:
         code = main(["run", "--port", emu.path, "--site", str(tmp_path / "site.json"), "--model",
                      str(demo_model_path()), "--out", str(tmp_path / "gtd.csv"), "--record", str(tmp_path / "raw.npz"),
-                     "--frames", "60", "--quiet"])
+                     "--frames", "60", "--quiet", "--out-bag", str(tmp_path / "gt")])
         injected = emu.faults.checksum
     assert code == 0
     rows = read_gtd(tmp_path / "gtd.csv")
@@ -60,6 +62,15 @@ def test_run_tracks_the_emulated_robot(tmp_path):
     raw = load_log(tmp_path / "raw.npz")
     assert raw.n_scans >= len({r.stamp for r in rows}) and raw.n_beams == URG_04LX.n_beams
     assert injected > 0  # frames with bad sums were sent, their good lines kept, and survived
+    # --out-bag: every frame processed is a LaserScan, every row a pose on its track's topic (read back
+    # with the mcap library)
+    msgs = read_mcap(next((tmp_path / "gt").glob("*.mcap")))
+    assert sum(m.channel.topic == "/scan" for m in msgs) == 60
+    poses = sorted((m.log_time_ns, m.channel.topic, m.ros_msg.pose.pose.position.x)
+                   for m in msgs if m.channel.topic.startswith("/gtsjax/robot_"))
+    want = sorted((round(r.stamp * 1e9), f"/gtsjax/robot_{r.track_id}", r.x) for r in rows)
+    assert [p[:2] for p in poses] == [w[:2] for w in want]
+    np.testing.assert_allclose([p[2] for p in poses], [w[2] for w in want], atol=1e-6)  # the CSV's 6 decimals
 
 
 def test_a_robot_put_down_is_reported_with_its_heading_within_half_a_second(tmp_path):

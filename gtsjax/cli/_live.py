@@ -42,7 +42,8 @@ def live_view(model, link, stats, output, stamp) -> Group:
 def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Path | None = None,
                json_lines: bool = False, udp: str | None = None, duration: float | None = None,
                frames: int | None = None, intensity: bool = True, view: bool = True, console: Console | None = None,
-               confirm_scans: int | None = None, sensor: str | None = None, max_tracks: int | None = None):
+               confirm_scans: int | None = None, sensor: str | None = None, max_tracks: int | None = None,
+               out_bag: Path | None = None):
     """Open the sensor, run the live loop, show the view; returns (live stats, link stats)."""
     from ..drivers.live import Outputs, check_sensor, run_live, warm_up
     from ..io.modelfile import load_model
@@ -73,12 +74,12 @@ def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Pa
 
                 stats = run_live(link, model, out, record=record, outputs=Outputs(json_lines, udp),
                                  duration=duration, on_scan=on_scan, with_intensity=intensity,
-                                 compiled=compiled, max_frames=frames)
+                                 compiled=compiled, max_frames=frames, out_bag=out_bag)
             if not console.is_terminal:  # rich ends the last view with a newline only on a terminal
                 console.line()
         else:
             stats = run_live(link, model, out, record=record, outputs=Outputs(json_lines, udp), duration=duration,
-                             with_intensity=intensity, compiled=compiled, max_frames=frames)
+                             with_intensity=intensity, compiled=compiled, max_frames=frames, out_bag=out_bag)
     finally:
         link.stop()
     return stats, link.stats

@@ -34,6 +34,10 @@ def run_cmd(
     quiet: bool = typer.Option(False, help="No live view."),
     confirm_scans: int | None = typer.Option(None, "--confirm-scans", min=1, help=CONFIRM_HELP),
     max_tracks: int | None = typer.Option(None, "--max-tracks", min=1, help=MAX_TRACKS_HELP),
+    out_bag: Path | None = typer.Option(None, "--out-bag", help="Also write a ROS 2 bag (MCAP storage) to this new "
+                                                                "folder: each frame (LaserScan), the laser pose (/tf), "
+                                                                "the tracks (PoseArray and one PoseWithCovarianceStamped "
+                                                                "topic per track). One laser."),
     summary: Path | None = typer.Option(None, "--summary", help="Write the run's counters (frames, rows, latency, "
                                         "link faults by cause) as JSON here when it stops."),
 ):
@@ -41,8 +45,14 @@ def run_cmd(
     for path, option in ((out, "--out"), (record, "--record"), (summary, "--summary")):
         if path is not None:
             check_out_file(path, option)
+    if out_bag is not None:
+        from ..io.bag_out import check_bag_dir
+
+        check_bag_dir(out_bag)
     lasers = _laser_ports(port, site, sensor)
     if lasers is not None:
+        if out_bag is not None:
+            raise InputError("--out-bag", "is written for one laser (not yet with --port NAME=PORT)")
         from ._live import track_live_several
 
         track_live_several(lasers, models, site, out, record=record, json_lines=json_lines, udp=udp,
@@ -52,7 +62,8 @@ def run_cmd(
     port, model = port[0], one_model(models)
     stats, link_stats = track_live(port, model, site, out, record=record, json_lines=json_lines, udp=udp,
                                    duration=duration, frames=frames, intensity=intensity, view=not quiet,
-                                   confirm_scans=confirm_scans, sensor=sensor, max_tracks=max_tracks)
+                                   confirm_scans=confirm_scans, sensor=sensor, max_tracks=max_tracks,
+                                   out_bag=out_bag)
     med, p99 = stats.latency()
     Console(stderr=True).print(
         f"{stats.frames} frames, {stats.rows} rows -> {out}; latency median {med:.2f} ms, p99 {p99:.2f} ms; "

@@ -200,12 +200,16 @@ def warm_up(model: Model, sensor: SensorModel):
 
 def run_live(link, model: Model, out: Path, *, record: Path | None = None, outputs: Outputs | None = None,
              duration: float | None = None, stop: threading.Event | None = None, on_scan=None,
-             with_intensity: bool = False, compiled=None, max_frames: int | None = None) -> LiveStats:
+             with_intensity: bool = False, compiled=None, max_frames: int | None = None,
+             out_bag: Path | None = None) -> LiveStats:
     """Track from a started :class:`~gtsjax.io.serial.Link` until ``duration`` seconds, ``max_frames``
     frames processed, ``stop`` set, or Ctrl-C; then stop the link (QT) and finalise the recording.
     ``on_scan(stats, output, stamp)`` is called after each scan (the live view; ``output`` is the
     step's full output, still on the device).
-    ``compiled``: ``(step, state)`` from :func:`warm_up`, done before the link started streaming."""
+    ``compiled``: ``(step, state)`` from :func:`warm_up`, done before the link started streaming.
+    ``out_bag``: also a ROS 2 bag of the frames, laser poses and tracks (:mod:`gtsjax.io.bag_out`),
+    written after each frame's latency is taken."""
+    from ..io.bag_out import BagOut
     from ..io.record import Recorder
 
     sensor = link.model
@@ -216,6 +220,9 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
         stats.stale += 1
     outputs = outputs or Outputs()
     recorder = Recorder(record, model=sensor, intensities=with_intensity and sensor.has_intensity) if record else None
+    bag = (BagOut(out_bag, angle_min=sensor.angle_min, angle_increment=sensor.angle_increment,
+                  range_min=sensor.range_min, range_max=sensor.range_max, scan_time=sensor.period)
+           if out_bag is not None else None)
     t_end = None if duration is None else time.monotonic() + duration
     prev_stamp = None
     period_ms = sensor.period * 1000.0
@@ -240,6 +247,8 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
                 # Bookkeeping after the latency is taken: the recording and the view are not on the path.
                 if recorder is not None:
                     recorder.append_frame(lf)
+                if bag is not None:
+                    bag.write(lf.stamp, lf.ranges_m, lf.intensities, rows, np.asarray(o.sensor_pose, np.float64))
                 stats.count(rows, lat, degraded, period_ms)
                 stats.unlike += int(packed[-1, 2])
                 stats.off_envelope += int(packed[-1, 3])
@@ -256,6 +265,8 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
         # link's counters end with the loop.
         if hasattr(link, "stop"):
             link.stop()
+        if bag is not None:
+            bag.close()
         if recorder is not None:
             # After a failed write the scan log would not fit either: the journal keeps the scans.
             recorder.close(write_log=failed is None)
