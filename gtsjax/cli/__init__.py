@@ -24,6 +24,9 @@ from ._app import app
 # Options that take several values in a row (``--background A B C``), as argparse's ``nargs="+"``: Click's
 # options take one value each, so the values after the first are given their own option.
 _MULTI = ("--background",)
+# ``--view`` alone opens the native viewer, ``--view web`` serves the web viewer: Click's options take
+# a value or none, so a bare ``--view`` is given its value here.
+VIEW_MODES = ("native", "web")
 
 
 def _spread(argv: list[str]) -> list[str]:
@@ -31,6 +34,8 @@ def _spread(argv: list[str]) -> list[str]:
     i = 0
     while i < len(argv):
         out.append(argv[i])
+        if argv[i] == "--view" and (i + 1 == len(argv) or argv[i + 1] not in VIEW_MODES):
+            out.append("native")
         if argv[i] in _MULTI and i + 1 < len(argv):
             opt = argv[i]
             out.append(argv[i + 1])

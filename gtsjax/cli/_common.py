@@ -63,6 +63,42 @@ def load_for_run(model_path: Path, site_path: Path, sensor: str | None = None):
     return load_model(model_path).with_site(site, where=str(site_path))
 
 
+VIEW_HELP = ("Show the run in Rerun: --view opens the native viewer, --view web serves Rerun's web viewer on "
+             "localhost (its address printed; no internet needed). Needs the viewer extra: "
+             'pip install "gtsjax[viewer]".')
+VIEW_SAVE_HELP = "Record the view to this .rrd file (Rerun's viewer reopens it); needs the viewer extra."
+
+
+def open_view(model, mode: str | None, save: Path | None, console):
+    """The :class:`~gtsjax.viewer.View` a command's ``--view`` / ``--view-save`` ask for (``None``
+    without either); the web viewer's address printed."""
+    if mode is None and save is None:
+        return None
+    from ..viewer import View
+
+    if save is not None:
+        check_out_file(save, "--view-save")
+    view = View(model, mode=mode, save=save)
+    if view.url is not None:
+        console.print(f"view: {view.url}", soft_wrap=True)
+    return view
+
+
+def serve_view(view, console) -> None:
+    """After a batch command, keep the web viewer's server up until Ctrl-C (the recording stays
+    scrubbable in the browser); nothing for the native viewer, which holds its own copy."""
+    import time
+
+    if view is None or view.url is None:
+        return
+    console.print(f"the view stays at {view.url} until Ctrl-C", soft_wrap=True)
+    try:
+        while True:
+            time.sleep(0.5)
+    except KeyboardInterrupt:
+        pass
+
+
 def one_model(models: list[Path]) -> Path:
     """The one ``--model`` of a command on one laser (several are for lasers of different scanners)."""
     if len(models) != 1:

@@ -43,8 +43,9 @@ def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Pa
                json_lines: bool = False, udp: str | None = None, duration: float | None = None,
                frames: int | None = None, intensity: bool = True, view: bool = True, console: Console | None = None,
                confirm_scans: int | None = None, sensor: str | None = None, max_tracks: int | None = None,
-               out_bag: Path | None = None):
-    """Open the sensor, run the live loop, show the view; returns (live stats, link stats)."""
+               out_bag: Path | None = None, rerun_view: str | None = None, view_save: Path | None = None):
+    """Open the sensor, run the live loop, show the view (the terminal's table; with ``rerun_view`` or
+    ``view_save``, Rerun's: :mod:`gtsjax.viewer`); returns (live stats, link stats)."""
     from ..drivers.live import Outputs, check_sensor, run_live, warm_up
     from ..io.modelfile import load_model
     from ..io.serial import Link
@@ -57,6 +58,9 @@ def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Pa
         confirm_scans).with_capacity(max_tracks)
     # Compile before the sensor streams, when the model names a known scanner (else after connecting).
     compiled = warm_up(model, MODELS[model.sensor_model]) if model.sensor_model in MODELS else None
+    from ._common import open_view
+
+    shown = open_view(model, rerun_view, view_save, console)
     link = Link(port, intensity=intensity)
     link.start()
     last = {"t": 0.0}
@@ -74,12 +78,13 @@ def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Pa
 
                 stats = run_live(link, model, out, record=record, outputs=Outputs(json_lines, udp),
                                  duration=duration, on_scan=on_scan, with_intensity=intensity,
-                                 compiled=compiled, max_frames=frames, out_bag=out_bag)
+                                 compiled=compiled, max_frames=frames, out_bag=out_bag, view=shown)
             if not console.is_terminal:  # rich ends the last view with a newline only on a terminal
                 console.line()
         else:
             stats = run_live(link, model, out, record=record, outputs=Outputs(json_lines, udp), duration=duration,
-                             with_intensity=intensity, compiled=compiled, max_frames=frames, out_bag=out_bag)
+                             with_intensity=intensity, compiled=compiled, max_frames=frames, out_bag=out_bag,
+                             view=shown)
     finally:
         link.stop()
     return stats, link.stats

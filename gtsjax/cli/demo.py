@@ -18,6 +18,7 @@ from rich.console import Console
 
 from ..core.geometry import wrap
 from ._app import app
+from ._common import VIEW_HELP, VIEW_SAVE_HELP
 
 DEMO_SCENARIO = "spl-trajectory"
 DEMO_SEED = 7
@@ -42,17 +43,27 @@ def demo_cmd(
     seconds: float = typer.Option(20.0, help="How long to track."),
     out_dir: Path = typer.Option(Path("demo-out"), "--out-dir", help="Where to write the results."),
     quiet: bool = typer.Option(False, help="No live view."),
+    view: str | None = typer.Option(None, "--view", metavar="[web]", help=VIEW_HELP),
+    view_save: Path | None = typer.Option(None, "--view-save", help=VIEW_SAVE_HELP),
 ):
     """Track a simulated robot live for ~20 s over an emulated sensor; write demo-out/ (CSV + PNG)."""
+    import os
+
     from ..io.gtd import read_gtd, tracks_of
     from ..io.site import save_site
     from ..sim import simulate
     from ..sim.emulator import SensorEmulator, log_source
+    from ..viewer import VIEWER_EXTRA, rerun_available
     from ..viz import trajectory_figure
     from ._live import track_live
 
     console = Console(stderr=True)
     t0 = time.perf_counter()
+    if not rerun_available():
+        console.print(f"(to watch it in Rerun's viewer: {VIEWER_EXTRA}, then gtsjax demo --view, or --view web "
+                      "without a display)", soft_wrap=True)
+    elif view is None and not quiet and (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        view = "native"  # the extra is there and so is a screen
     out_dir.mkdir(parents=True, exist_ok=True)
     log, site = simulate(DEMO_SCENARIO, seed=DEMO_SEED)
     site_path = out_dir / "site.json"
@@ -71,7 +82,7 @@ def demo_cmd(
     with SensorEmulator(get_model(log.sensor_model), source) as emu:
         console.print(f"emulated {log.sensor_model} on {emu.path}: the SPL field, a robot walking ({DEMO_SCENARIO})")
         stats, link_stats = track_live(emu.path, demo_model_path(), site_path, gtd, duration=seconds,
-                                       view=not quiet, console=console)
+                                       view=not quiet, console=console, rerun_view=view, view_save=view_save)
     rows = read_gtd(gtd)
     tracks = {tid: arr for tid, _, arr in tracks_of(rows)}
     truth = log.truth_poses[:, 0]

@@ -24,12 +24,16 @@ from ._app import CONFIRM_HELP, MAX_TRACKS_HELP, app
 from ._common import (
     INPUT_HELP,
     TOPIC_HELP,
+    VIEW_HELP,
+    VIEW_SAVE_HELP,
     check_out_file,
     describe,
     load_for_lasers,
     load_for_run,
     load_input,
     one_model,
+    open_view,
+    serve_view,
     source_of,
     track_summary,
 )
@@ -57,6 +61,8 @@ def replay_cmd(
                                                                 "folder: the scans (sensor_msgs/LaserScan), the laser "
                                                                 "pose (/tf), the tracks (PoseArray, and each track's "
                                                                 "PoseWithCovarianceStamped)."),
+    view: str | None = typer.Option(None, "--view", metavar="[web]", help=VIEW_HELP),
+    view_save: Path | None = typer.Option(None, "--view-save", help=VIEW_SAVE_HELP),
     chunk: int = typer.Option(256, min=1, help="Scans per compiled chunk."),
     topic: str | None = typer.Option(None, "--topic", help=TOPIC_HELP),
     crop_fov: bool = typer.Option(False, "--crop-fov",
@@ -72,22 +78,24 @@ def replay_cmd(
     lasers of one field into one."""
     console = Console(stderr=True)
     if laser_logs:
-        if logs or sensor is not None or step_by_step or out_bag is not None:
+        if logs or sensor is not None or step_by_step or out_bag is not None or view or view_save:
             raise InputError("replay", "--log NAME=LOG (several lasers) takes no positional logs, --sensor, "
-                                       "--step-by-step or --out-bag")
+                                       "--step-by-step, --out-bag or --view (not yet)")
         _replay_lasers(laser_logs, site, models, out, chunk, topic, crop_fov, confirm_scans, console, sensor_out,
                        max_tracks)
         return
     if not logs:
         raise InputError("replay", "give a log (or --log NAME=LOG per laser of a site with several)")
     model = one_model(models)
+    for given, option in ((out_bag, "--out-bag"), (view, "--view"), (view_save, "--view-save")):
+        if given is not None and len(logs) > 1:
+            raise InputError(option, "takes one log (several logs side by side write one CSV each)")
     if out_bag is not None:
-        if len(logs) > 1:
-            raise InputError("--out-bag", "takes one log (several logs side by side write one CSV each)")
         check_bag_dir(out_bag)
     m = load_for_run(model, site, sensor).with_confirmation(confirm_scans).with_capacity(max_tracks)
     outs, sensor_outs = _outputs(logs, out, sensor_out)
     scan_logs = [_load_fitted(log, topic, m, crop_fov, console) for log in logs]
+    shown = open_view(m, view, view_save, console)
     t0 = time.perf_counter()
     total = sum(lg.n_scans for lg in scan_logs)
     with Progress(TextColumn("replay"), BarColumn(), MofNCompleteColumn(), TextColumn("scans"),
@@ -99,7 +107,7 @@ def replay_cmd(
 
         if len(scan_logs) == 1:
             results = [replay_log(scan_logs[0], m, outs[0], chunk=chunk, sensor_out=sensor_outs[0],
-                                  vectorise=not step_by_step, progress=done, out_bag=out_bag)]
+                                  vectorise=not step_by_step, progress=done, out_bag=out_bag, view=shown)]
         else:
             results = replay_logs(scan_logs, m, outs, chunk=chunk, sensor_outs=sensor_outs, vectorise=not step_by_step,
                                   progress=done)
@@ -114,6 +122,9 @@ def replay_cmd(
                       f"{totals['degraded']} scans without a new map transformation, "
                       f"{totals['n_overflow']} segments over the candidate limit, {totals['n_too_long']} over-long segments")
         console.print(track_summary(m, totals["track_ids"], totals["unlike"], totals["off_envelope"]), soft_wrap=True)
+    if view_save is not None:
+        console.print(f"view recorded to {view_save}")
+    serve_view(shown, console)
 
 
 def _outputs(logs: list[Path], out: Path, sensor_out: Path | None) -> tuple[list[Path], list[Path | None]]:

@@ -8,7 +8,7 @@ from rich.console import Console
 
 from ..errors import InputError
 from ._app import CONFIRM_HELP, MAX_TRACKS_HELP, app
-from ._common import check_out_file, one_model, track_summary
+from ._common import VIEW_HELP, VIEW_SAVE_HELP, check_out_file, one_model, track_summary
 from ._live import track_live
 
 
@@ -38,6 +38,8 @@ def run_cmd(
                                                                 "folder: each frame (LaserScan), the laser pose (/tf), "
                                                                 "the tracks (PoseArray and one PoseWithCovarianceStamped "
                                                                 "topic per track). One laser."),
+    view: str | None = typer.Option(None, "--view", metavar="[web]", help=VIEW_HELP),
+    view_save: Path | None = typer.Option(None, "--view-save", help=VIEW_SAVE_HELP),
     summary: Path | None = typer.Option(None, "--summary", help="Write the run's counters (frames, rows, latency, "
                                         "link faults by cause) as JSON here when it stops."),
 ):
@@ -51,8 +53,9 @@ def run_cmd(
         check_bag_dir(out_bag)
     lasers = _laser_ports(port, site, sensor)
     if lasers is not None:
-        if out_bag is not None:
-            raise InputError("--out-bag", "is written for one laser (not yet with --port NAME=PORT)")
+        for given, option in ((out_bag, "--out-bag"), (view, "--view"), (view_save, "--view-save")):
+            if given is not None:
+                raise InputError(option, "is for one laser (not yet with --port NAME=PORT)")
         from ._live import track_live_several
 
         track_live_several(lasers, models, site, out, record=record, json_lines=json_lines, udp=udp,
@@ -63,7 +66,7 @@ def run_cmd(
     stats, link_stats = track_live(port, model, site, out, record=record, json_lines=json_lines, udp=udp,
                                    duration=duration, frames=frames, intensity=intensity, view=not quiet,
                                    confirm_scans=confirm_scans, sensor=sensor, max_tracks=max_tracks,
-                                   out_bag=out_bag)
+                                   out_bag=out_bag, rerun_view=view, view_save=view_save)
     med, p99 = stats.latency()
     Console(stderr=True).print(
         f"{stats.frames} frames, {stats.rows} rows -> {out}; latency median {med:.2f} ms, p99 {p99:.2f} ms; "

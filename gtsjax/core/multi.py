@@ -105,18 +105,42 @@ def _put_row(tree, k, row):
     return jax.tree_util.tree_map(put, tree, row)
 
 
+def miss_period(models: "tuple[Model, ...]") -> float | None:
+    """The clock on which lasers of different rates count a track's misses: the fastest scanner's
+    period (``None`` for one scanner model: each model counts in its own scans, as ever)."""
+    periods = {m.scan_period for m in models}
+    if len(periods) < 2 or None in periods:
+        return None
+    return min(periods)
+
+
+def on_clock(model: Model, period: float | None) -> Model:
+    """``model`` with its tracker's miss limits (``m_tentative``, ``m_delete``, ``m_report``, in its own
+    scans) in scans of ``period``: a URG-04LX's 3 scans (0.3 s) are 12 of a UTM-30LX's 25 ms, so that
+    a miss means the same time whichever laser counts it."""
+    if period is None or model.scan_period is None:
+        return model
+    ratio = max(int(round(model.scan_period / period)), 1)
+    t = model.tracker
+    return eqx.tree_at(lambda m: (m.tracker.m_tentative, m.tracker.m_delete, m.tracker.m_report), model,
+                       (t.m_tentative * ratio, t.m_delete * ratio, t.m_report * ratio))
+
+
 @exact_products
 def update_several(model: Model, state: SeveralState, p, scan: Scan, k: Int[Array, ""],
-                   span_dt: Float[Array, ""]) -> tuple[SeveralState, Output]:
+                   span_dt: Float[Array, ""], period: float | None = None) -> tuple[SeveralState, Output]:
     """Stages f–g for laser ``k``'s scan: its own transform, the shared tracker. A track outside every
     laser's reach (by each laser's latest transform) is missed by whichever laser scans; a track
     within several lasers' reach may be missed by each of them as long as by one (``watchers``,
-    :func:`~gtsjax.core.g_track.track_step`)."""
+    :func:`~gtsjax.core.g_track.track_step`). ``period``: the clock misses are counted on where the
+    lasers' scanners differ in rate (:func:`miss_period`; ``model``'s limits are put on it)."""
+    model = on_clock(model, period)
     xy = state.tracker.mean[:, :2]
     watched = jax.vmap(lambda tf, r: in_reach(r, tf, xy))(state.transforms, state.reach)  # [lasers, tracks]
     n_watch = jnp.sum(watched, axis=0, dtype=jnp.int32)
     tf, tracker, out = update_view(model, _row(state.transforms, k), state.tracker, p, scan, span_dt=span_dt,
-                                   several=True, unwatched=n_watch == 0, watchers=jnp.maximum(n_watch, 1))
+                                   several=True, unwatched=n_watch == 0, watchers=jnp.maximum(n_watch, 1),
+                                   period=period)
     n = state.n_scans + (jnp.arange(state.n_scans.shape[0], dtype=jnp.int32) == k).astype(jnp.int32)
     return SeveralState(_put_row(state.transforms, k, tf), tracker, n, state.reach), out
 
@@ -143,6 +167,7 @@ def update_mixed(models: "tuple[Model, ...]", state: SeveralState, p: Perception
     program serves every laser). ``p`` and ``scan`` are padded to :func:`widest`; the chosen model
     reads its own candidate slots and beams, and the output's detections are padded back."""
     n_cands, _ = widest(models)
+    period = miss_period(models)
 
     def branch(m: Model):
         def run(state, p, scan, k, span_dt):
@@ -150,7 +175,7 @@ def update_mixed(models: "tuple[Model, ...]", state: SeveralState, p: Perception
             mine = jax.tree.map(lambda a: a if a.ndim == 0 else a[:c], p)
             sc = Scan(scan.ranges[:b], scan.intensities[:b], scan.valid[:b], scan.angle_min, scan.angle_increment,
                       scan.dt)
-            new, out = update_several(m, state, mine, sc, k, span_dt)
+            new, out = update_several(m, state, mine, sc, k, span_dt, period)
             return new, eqx.tree_at(lambda o: (o.det_pose, o.det_class, o.det_mask), out,
                                     (_pad_axis(out.det_pose, 0, n_cands), _pad_axis(out.det_class, 0, n_cands),
                                      _pad_axis(out.det_mask, 0, n_cands)))
@@ -161,8 +186,8 @@ def update_mixed(models: "tuple[Model, ...]", state: SeveralState, p: Perception
     return jax.lax.switch(kind, [branch(m) for m in models], state, p, scan, k, span_dt)
 
 
-def step_several(model: Model, state: SeveralState, scan: Scan, k: Int[Array, ""], span_dt: Float[Array, ""]
-                 ) -> tuple[SeveralState, Output]:
+def step_several(model: Model, state: SeveralState, scan: Scan, k: Int[Array, ""], span_dt: Float[Array, ""],
+                 period: float | None = None) -> tuple[SeveralState, Output]:
     """The whole pipeline for one scan of laser ``k`` among several: pure, not jitted (see
-    :func:`~gtsjax.core.pipeline.step`)."""
-    return update_several(model, state, perceive(model, scan), scan, k, span_dt)
+    :func:`~gtsjax.core.pipeline.step`). ``period``: see :func:`update_several`."""
+    return update_several(model, state, perceive(model, scan), scan, k, span_dt, period)

@@ -193,7 +193,7 @@ def update(model: Model, state: PipelineState, p: Perception, scan: Scan) -> tup
 
 
 def update_view(model: Model, prev_tf: Transform, tracker: TrackerState, p: Perception, scan: Scan, *,
-                span_dt=None, several: bool = False, unwatched=None, watchers=None
+                span_dt=None, several: bool = False, unwatched=None, watchers=None, period: float | None = None
                 ) -> tuple[Transform, TrackerState, Output]:
     """Stages f–g: re-estimate the map transformation from this scan's landmarks, map detections into
     O, and track. The transform estimated from a scan is used for that same scan's detections.
@@ -231,7 +231,8 @@ def update_view(model: Model, prev_tf: Transform, tracker: TrackerState, p: Perc
         visible = in_coverage(scan, tf, tracker.mean[:, :2], model.range_max)
         if unwatched is not None:
             visible = visible | unwatched
-    tracker, _ = track_step(tracker, det, dt, model.tracker, model.scan_period, visible=visible, span_dt=span_dt,
+    period = model.scan_period if period is None else period  # lasers of different rates: a common clock
+    tracker, _ = track_step(tracker, det, dt, model.tracker, period, visible=visible, span_dt=span_dt,
                             watchers=watchers)
     ts = tracker
     out = Output(

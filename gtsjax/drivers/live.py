@@ -201,14 +201,15 @@ def warm_up(model: Model, sensor: SensorModel):
 def run_live(link, model: Model, out: Path, *, record: Path | None = None, outputs: Outputs | None = None,
              duration: float | None = None, stop: threading.Event | None = None, on_scan=None,
              with_intensity: bool = False, compiled=None, max_frames: int | None = None,
-             out_bag: Path | None = None) -> LiveStats:
+             out_bag: Path | None = None, view=None) -> LiveStats:
     """Track from a started :class:`~gtsjax.io.serial.Link` until ``duration`` seconds, ``max_frames``
     frames processed, ``stop`` set, or Ctrl-C; then stop the link (QT) and finalise the recording.
     ``on_scan(stats, output, stamp)`` is called after each scan (the live view; ``output`` is the
     step's full output, still on the device).
     ``compiled``: ``(step, state)`` from :func:`warm_up`, done before the link started streaming.
     ``out_bag``: also a ROS 2 bag of the frames, laser poses and tracks (:mod:`gtsjax.io.bag_out`),
-    written after each frame's latency is taken."""
+    written after each frame's latency is taken; ``view``: a :class:`~gtsjax.viewer.View` shown each
+    frame (after the latency is taken; closed at the end)."""
     from ..io.bag_out import BagOut
     from ..io.record import Recorder
 
@@ -249,6 +250,9 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
                     recorder.append_frame(lf)
                 if bag is not None:
                     bag.write(lf.stamp, lf.ranges_m, lf.intensities, rows, np.asarray(o.sensor_pose, np.float64))
+                if view is not None:
+                    view.scan(lf.stamp, lf.ranges_m, sensor.angle_min, sensor.angle_increment, o, rows,
+                              latency_ms=lat, dropped=getattr(getattr(link, "stats", None), "dropped", None))
                 stats.count(rows, lat, degraded, period_ms)
                 stats.unlike += int(packed[-1, 2])
                 stats.off_envelope += int(packed[-1, 3])
@@ -267,6 +271,8 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
             link.stop()
         if bag is not None:
             bag.close()
+        if view is not None:
+            view.close()
         if recorder is not None:
             # After a failed write the scan log would not fit either: the journal keeps the scans.
             recorder.close(write_log=failed is None)

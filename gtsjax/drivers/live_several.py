@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..core.multi import init_several, step_several
+from ..core.multi import init_several, miss_period, step_several
 from ..core.scan import Scan
 from ..errors import InputError
 from ..io.gtd import GTDWriter
@@ -74,16 +74,18 @@ CALIBRATION_WARN_M = 0.05
 CALIBRATION_WARN_S = 1.0
 
 
-def make_several_step(model: Model, sensor: SensorModel):
+def make_several_step(model: Model, sensor: SensorModel, period: float | None = None):
     """``f(state, ranges, intensities, valid, dt, k, span_dt) -> (state, output, packed)``, jitted once
-    with the model closed over (see :func:`~gtsjax.drivers.live.make_live_step`); ``k`` is the laser."""
+    with the model closed over (see :func:`~gtsjax.drivers.live.make_live_step`); ``k`` is the laser.
+    ``period``: the clock misses are counted on, with lasers of different rates
+    (:func:`~gtsjax.core.multi.miss_period`)."""
     angle_min = jnp.asarray(sensor.angle_min, jnp.float32)
     angle_increment = jnp.asarray(sensor.angle_increment, jnp.float32)
 
     @jax.jit
     def several_step(state, ranges, intensities, valid, dt, k, span_dt):
         scan = Scan(ranges, intensities, valid, angle_min, angle_increment, jnp.asarray(dt, jnp.float32))
-        state, o = step_several(model, state, scan, k, jnp.asarray(span_dt, jnp.float32))
+        state, o = step_several(model, state, scan, k, jnp.asarray(span_dt, jnp.float32), period)
         return state, o, pack_tracks(o)
 
     return several_step
@@ -99,7 +101,7 @@ def warm_up_several(model: "Model | tuple[Model, ...]", sensor: "SensorModel | t
     state = init_several(models, jnp.asarray(poses, jnp.float32), kinds)
     steps = []
     for m, sen in zip(models, sensors, strict=True):
-        f = make_several_step(m, sen)
+        f = make_several_step(m, sen, miss_period(models))
         r, inten, valid = frame_arrays(np.zeros(sen.n_beams, np.float32), None, sen, m.n_beams)
         jax.block_until_ready(f(state, r, inten, valid, np.float32(0.0), np.int32(0), np.float32(0.0)))
         steps.append(f)

@@ -189,6 +189,15 @@ def process_logs(model: Model, scans: "list[Scan | None]", *, chunk: int = 256,
     return final, [jax.tree.map(lambda *a: np.concatenate(a), *o) if o else None for o in outs]
 
 
+def scan_row(outputs, i: int):
+    """Scan ``i`` of stacked outputs, each field read as it is asked for (what the view draws)."""
+    class _Row:
+        def __getattr__(self, name):
+            return np.asarray(getattr(outputs, name))[i]
+
+    return _Row()
+
+
 def bag_for(log, path: Path | None):
     """A :class:`~gtsjax.io.bag_out.BagOut` at ``path`` for ``log``'s scans (``None`` without a path)."""
     if path is None:
@@ -205,8 +214,8 @@ class _Sink:
     """One log's outputs as they come, block by block: its GTD CSV (rows flushed per scan), its
     sensor-pose rows, and the totals ``replay`` reports."""
 
-    def __init__(self, model: Model, out: Path, sensor_out: Path | None, bag=None):
-        self.model, self.sensor_out, self.bag = model, sensor_out, bag
+    def __init__(self, model: Model, out: Path, sensor_out: Path | None, bag=None, view=None):
+        self.model, self.sensor_out, self.bag, self.view = model, sensor_out, bag, view
         self.writer = GTDWriter(out)
         self.totals = {"scans": 0, "rows": 0, "degraded": 0, "n_overflow": 0, "n_too_long": 0, "unlike": 0,
                        "off_envelope": 0, "track_ids": {}}
@@ -224,6 +233,9 @@ class _Sink:
                 self.bag.write(float(part.stamps[i]), part.ranges[i],
                                None if part.intensities is None else part.intensities[i], rows,
                                np.asarray(out_arrays.sensor_pose[i], np.float64))
+            if self.view is not None:
+                self.view.scan(float(part.stamps[i]), np.where(part.valid()[i], part.ranges[i], 0.0), part.angle_min,
+                               part.angle_increment, scan_row(out_arrays, i), rows)
             for row in rows:
                 totals["track_ids"].setdefault(row.cls, set()).add(row.track_id)
         if self.sensor_out is not None:
@@ -240,6 +252,8 @@ class _Sink:
         self.writer.close()
         if self.bag is not None:
             self.bag.close()
+        if self.view is not None:
+            self.view.close()
         self.totals["rows"] = self.writer.rows
         if self.sensor_out is not None:
             with open(self.sensor_out, "w", newline="") as f:
@@ -250,14 +264,15 @@ class _Sink:
 
 
 def replay_log(log, model, out: Path, *, chunk: int = 256, sensor_out: Path | None = None, progress=None,
-               vectorise: bool = True, out_bag: Path | None = None):
+               vectorise: bool = True, out_bag: Path | None = None, view=None):
     """Run ``log`` through ``model`` (site attached) and write the GTD CSV; returns stacked outputs'
     summary counters. The log is moved to the device a block at a time, so memory stays bounded.
     ``vectorise``: see :func:`process_chunk` (off: bit for bit what the live loop computes).
-    ``out_bag``: also a ROS 2 bag of the scans, laser poses and tracks (:mod:`gtsjax.io.bag_out`)."""
+    ``out_bag``: also a ROS 2 bag of the scans, laser poses and tracks (:mod:`gtsjax.io.bag_out`);
+    ``view``: a :class:`~gtsjax.viewer.View` shown each scan (closed at the end)."""
     state = init_state(model)
     block = chunk * 16
-    sink = _Sink(model, out, sensor_out, bag_for(log, out_bag))
+    sink = _Sink(model, out, sensor_out, bag_for(log, out_bag), view)
     try:
         for start in range(0, log.n_scans, block):
             part = log.slice(start, start + block)

@@ -1,0 +1,155 @@
+"""The run as Rerun shows it (issue 19): ``--view`` (the native viewer), ``--view web`` (Rerun's web
+viewer served on localhost, no internet needed; ports 9090 for the page and 9876 for the data, or
+``$GTSJAX_VIEW_WEB_PORT`` and ``$GTSJAX_VIEW_GRPC_PORT``) and ``--view-save FILE.rrd`` on ``run``,
+``replay`` and ``demo``. ``rerun-sdk`` is an optional extra (``pip install "gtsjax[viewer]"``).
+
+What it shows, in the field frame O (entity ``field``), on the timeline ``stamp`` (the scans'
+stamps, so a replayed log can be scrubbed):
+
+* ``field/bounds``, ``field/landmarks`` (the site's, labelled by class), once;
+* ``field/laser``: the laser's pose as this scan's map transformation places it (an arrow);
+* ``field/scan``: the scan's returns, mapped into O by that pose;
+* ``field/landmarks_seen``: where this scan saw each landmark it associated (the map position plus its
+  residual), labelled with the residual in cm;
+* ``field/detections``: the scan's detections of tracked classes (before tracking), by class;
+* ``field/tracks/CLASS_ID``: each confirmed track: an arrow along its heading, its 2-σ position
+  ellipse and its trail, labelled ``CLASS ID``; a track that ended is cleared;
+* ``stats/latency_ms`` (live), ``stats/tracks``, ``stats/landmark_residual_cm``, ``stats/dropped``
+  (live: frames the link dropped): time series.
+"""
+
+import collections
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+
+VIEWER_EXTRA = 'pip install "gtsjax[viewer]"'
+TRAIL = 100  # scans of trail drawn behind each track
+_COLOURS = [(230, 25, 75), (60, 180, 75), (0, 130, 200), (245, 130, 48), (145, 30, 180), (70, 240, 240),
+            (240, 50, 230), (128, 128, 0), (0, 128, 128), (170, 110, 40)]
+
+
+def rerun_available() -> bool:
+    """Whether the optional viewer extra is installed."""
+    try:
+        import rerun  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def _rr():
+    try:
+        import rerun as rr
+    except ImportError:
+        raise InputError("--view", f"needs Rerun, the viewer extra: {VIEWER_EXTRA}") from None
+    return rr
+
+
+def _colour(track_id: int) -> tuple[int, int, int]:
+    return _COLOURS[int(track_id) % len(_COLOURS)]
+
+
+def ellipse(x: float, y: float, var_x: float, var_y: float, n_sigma: float = 2.0, n: int = 32) -> np.ndarray:
+    """The ``n_sigma`` ellipse of an axis-aligned position variance, as a closed line strip."""
+    t = np.linspace(0.0, 2 * np.pi, n + 1)
+    return np.stack([x + n_sigma * math.sqrt(max(var_x, 0.0)) * np.cos(t),
+                     y + n_sigma * math.sqrt(max(var_y, 0.0)) * np.sin(t)], axis=1)
+
+
+class View:
+    """A Rerun recording of one run. ``mode``: ``"native"`` (spawn the viewer), ``"web"`` (serve the
+    web viewer on localhost: :attr:`url` is the page) or ``None``; ``save``: also write an ``.rrd``."""
+
+    def __init__(self, model, *, mode: str | None = None, save: Path | None = None, web_port: int | None = None,
+                 grpc_port: int | None = None, name: str = "gtsjax"):
+        rr = _rr()
+        if mode not in (None, "native", "web"):
+            raise InputError("--view", f"{mode!r}: give --view (the native viewer) or --view web")
+        self.rr, self.model = rr, model
+        self.rec = rr.RecordingStream(name)
+        self.url = None
+        sinks = [rr.FileSink(str(save))] if save is not None else []
+        if mode == "web":  # a gRPC server buffers the recording; the web viewer's page connects to it
+            grpc_port = grpc_port or int(os.environ.get("GTSJAX_VIEW_GRPC_PORT", "9876"))
+            server = rr.GrpcServerSink(bind_ip="127.0.0.1", port=grpc_port)
+            sinks.append(server)
+            port = web_port or int(os.environ.get("GTSJAX_VIEW_WEB_PORT", "9090"))
+            rr.serve_web_viewer(web_port=port, open_browser=False, connect_to=server.uri)
+            self.url = f"http://localhost:{port}/?url={server.uri}"
+        elif mode == "native":
+            self.rec.spawn(connect=False)
+            sinks.append(rr.GrpcSink())
+        if sinks:
+            self.rec.set_sinks(*sinks)
+        self._trails: dict[str, collections.deque] = {}
+        self._static()
+
+    def _static(self) -> None:
+        rr, site = self.rr, self.model.site
+        if bool(np.asarray(site.has_bounds)):
+            x0, y0, x1, y1 = (float(v) for v in np.asarray(site.bounds))
+            rr.log("field/bounds", rr.LineStrips2D([[(x0, y0), (x1, y0), (x1, y1), (x0, y1), (x0, y0)]],
+                                                   colors=[(200, 200, 200)], radii=0.01), static=True, recording=self.rec)
+        xy = np.asarray(site.landmark_xy, np.float64)
+        names = [self.model.classes[int(c)] for c in np.asarray(site.landmark_class)]
+        rr.log("field/landmarks", rr.Points2D(xy, radii=0.06, colors=[(255, 255, 255)], labels=names),
+               static=True, recording=self.rec)
+
+    def scan(self, stamp: float, ranges, angle_min: float, angle_increment: float, out, rows, *,
+             latency_ms: float | None = None, dropped: int | None = None) -> None:
+        """One scan: its returns (metres; 0 or non-finite: none), the step's output ``out`` (host or
+        device arrays of one scan), its GTD rows."""
+        rr, rec = self.rr, self.rec
+        rr.set_time("stamp", timestamp=float(stamp), recording=rec)
+        sx, sy, sth = (float(v) for v in np.asarray(out.sensor_pose))
+        rr.log("field/laser", rr.Arrows2D(origins=[(sx, sy)], vectors=[(0.3 * math.cos(sth), 0.3 * math.sin(sth))],
+                                          colors=[(255, 255, 0)], labels=["laser"]), recording=rec)
+        r = np.asarray(ranges, np.float64)
+        ok = np.isfinite(r) & (r > 0)
+        a = angle_min + angle_increment * np.arange(r.size) + sth
+        pts = np.stack([sx + r[ok] * np.cos(a[ok]), sy + r[ok] * np.sin(a[ok])], axis=1)
+        rr.log("field/scan", rr.Points2D(pts, radii=0.012, colors=[(120, 120, 120)]), recording=rec)
+        seen = np.asarray(out.landmark_seen, bool)
+        res = np.asarray(out.landmark_residual, np.float64)
+        lm = np.asarray(self.model.site.landmark_xy, np.float64)
+        err_cm = np.linalg.norm(res[seen], axis=1) * 100 if seen.any() else np.zeros(0)
+        rr.log("field/landmarks_seen", rr.Points2D(lm[seen] + res[seen], radii=0.04, colors=[(0, 255, 0)],
+                                                   labels=[f"{e:.1f} cm" for e in err_cm]), recording=rec)
+        dm = np.asarray(out.det_mask, bool)
+        dp = np.asarray(out.det_pose, np.float64)[dm]
+        dc = [self.model.classes[int(c)] for c in np.asarray(out.det_class)[dm]]
+        rr.log("field/detections", rr.Points2D(dp[:, :2] if dp.size else np.zeros((0, 2)), radii=0.05,
+                                               colors=[(255, 255, 255, 90)], labels=dc), recording=rec)
+        present = set()
+        for row in rows:
+            key = f"{row.cls}_{row.track_id}"
+            present.add(key)
+            trail = self._trails.setdefault(key, collections.deque(maxlen=TRAIL))
+            trail.append((row.x, row.y))
+            c = _colour(row.track_id)
+            rr.log(f"field/tracks/{key}/pose", rr.Arrows2D(
+                origins=[(row.x, row.y)], vectors=[(0.25 * math.cos(row.theta), 0.25 * math.sin(row.theta))],
+                colors=[c], radii=0.015, labels=[f"{row.cls} {row.track_id}"]), recording=rec)
+            rr.log(f"field/tracks/{key}/ellipse", rr.LineStrips2D([ellipse(row.x, row.y, row.var_x, row.var_y)],
+                                                                  colors=[c], radii=0.005), recording=rec)
+            rr.log(f"field/tracks/{key}/trail", rr.LineStrips2D([list(trail)], colors=[c], radii=0.006), recording=rec)
+        for key in [k for k in self._trails if k not in present]:  # a track that ended (or is not reported)
+            rr.log(f"field/tracks/{key}", rr.Clear(recursive=True), recording=rec)
+            del self._trails[key]
+        rr.log("stats/tracks", rr.Scalars(float(len(rows))), recording=rec)
+        if err_cm.size:
+            rr.log("stats/landmark_residual_cm", rr.Scalars(float(err_cm.max())), recording=rec)
+        if latency_ms is not None:
+            rr.log("stats/latency_ms", rr.Scalars(float(latency_ms)), recording=rec)
+        if dropped is not None:
+            rr.log("stats/dropped", rr.Scalars(float(dropped)), recording=rec)
+
+    def close(self) -> None:
+        self.rec.flush()
+        if self.url is None:
+            self.rec.disconnect()
