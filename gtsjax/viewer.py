@@ -29,6 +29,7 @@ from .errors import InputError
 
 VIEWER_EXTRA = 'pip install "gtsjax[viewer]"'
 TRAIL = 100  # scans of trail drawn behind each track
+SEEN_COLOUR = (0, 200, 0)  # where a scan saw the landmarks
 _COLOURS = [(230, 25, 75), (60, 180, 75), (0, 130, 200), (245, 130, 48), (145, 30, 180), (70, 240, 240),
             (240, 50, 230), (128, 128, 0), (0, 128, 128), (170, 110, 40)]
 
@@ -85,9 +86,19 @@ class View:
             self.rec.spawn(connect=False)
             sinks.append(rr.GrpcSink())
         if sinks:
-            self.rec.set_sinks(*sinks)
+            self.rec.set_sinks(*sinks, default_blueprint=self._layout())
         self._trails: dict[str, collections.deque] = {}
         self._static()
+
+    def _layout(self):
+        """The field large on the left, the time series stacked on the right, the timeline below."""
+        import rerun.blueprint as rrb
+
+        series = [rrb.TimeSeriesView(origin=f"stats/{name}", name=title) for name, title in (
+            ("tracks", "tracks reported"), ("landmark_residual_cm", "largest landmark residual [cm]"),
+            ("latency_ms", "frame-to-GTD latency [ms] (live)"), ("dropped", "dropped frames (live)"))]
+        return rrb.Blueprint(rrb.Horizontal(rrb.Spatial2DView(origin="field", name="field (O)"), rrb.Vertical(*series),
+                                            column_shares=[3, 1]), collapse_panels=True)
 
     def _static(self) -> None:
         rr, site = self.rr, self.model.site
@@ -97,7 +108,7 @@ class View:
                                                    colors=[(200, 200, 200)], radii=0.01), static=True, recording=self.rec)
         xy = np.asarray(site.landmark_xy, np.float64)
         names = [self.model.classes[int(c)] for c in np.asarray(site.landmark_class)]
-        rr.log("field/landmarks", rr.Points2D(xy, radii=0.06, colors=[(255, 255, 255)], labels=names),
+        rr.log("field/landmarks", rr.Points2D(xy, radii=0.06, colors=[(110, 110, 110)], labels=names),
                static=True, recording=self.rec)
 
     def scan(self, stamp: float, ranges, angle_min: float, angle_increment: float, out, rows, *,
@@ -108,7 +119,7 @@ class View:
         rr.set_time("stamp", timestamp=float(stamp), recording=rec)
         sx, sy, sth = (float(v) for v in np.asarray(out.sensor_pose))
         rr.log("field/laser", rr.Arrows2D(origins=[(sx, sy)], vectors=[(0.3 * math.cos(sth), 0.3 * math.sin(sth))],
-                                          colors=[(255, 255, 0)], labels=["laser"]), recording=rec)
+                                          colors=[(230, 150, 0)], labels=["laser"]), recording=rec)
         r = np.asarray(ranges, np.float64)
         ok = np.isfinite(r) & (r > 0)
         a = angle_min + angle_increment * np.arange(r.size) + sth
@@ -118,13 +129,13 @@ class View:
         res = np.asarray(out.landmark_residual, np.float64)
         lm = np.asarray(self.model.site.landmark_xy, np.float64)
         err_cm = np.linalg.norm(res[seen], axis=1) * 100 if seen.any() else np.zeros(0)
-        rr.log("field/landmarks_seen", rr.Points2D(lm[seen] + res[seen], radii=0.04, colors=[(0, 255, 0)],
+        rr.log("field/landmarks_seen", rr.Points2D(lm[seen] + res[seen], radii=0.04, colors=[SEEN_COLOUR],
                                                    labels=[f"{e:.1f} cm" for e in err_cm]), recording=rec)
         dm = np.asarray(out.det_mask, bool)
         dp = np.asarray(out.det_pose, np.float64)[dm]
         dc = [self.model.classes[int(c)] for c in np.asarray(out.det_class)[dm]]
         rr.log("field/detections", rr.Points2D(dp[:, :2] if dp.size else np.zeros((0, 2)), radii=0.05,
-                                               colors=[(255, 255, 255, 90)], labels=dc), recording=rec)
+                                               colors=[(120, 120, 200, 140)], labels=dc), recording=rec)
         present = set()
         for row in rows:
             key = f"{row.cls}_{row.track_id}"

@@ -135,8 +135,8 @@ def _drew(png: Path) -> bool:
     the seen landmarks' green."""
     from PIL import Image
 
-    from gtsjax.viewer import _COLOURS
+    from gtsjax.viewer import _COLOURS, SEEN_COLOUR
 
     a = np.asarray(Image.open(png).convert("RGB")).astype(int)
     near = lambda c: np.sum(np.all(np.abs(a - np.asarray(c)) < 40, axis=-1))  # noqa: E731
-    return near(_COLOURS[0]) > 20 and near((0, 255, 0)) > 20
+    return near(_COLOURS[0]) > 20 and near(SEEN_COLOUR) > 20
