@@ -21,6 +21,7 @@ stamps, so a replayed log can be scrubbed):
 import collections
 import math
 import os
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -83,7 +84,19 @@ class View:
             rr.serve_web_viewer(web_port=port, open_browser=False, connect_to=server.uri)
             self.url = f"http://localhost:{port}/?url={server.uri}"
         elif mode == "native":
-            self.rec.spawn(connect=False)
+            if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+                raise InputError("--view", "no display to open Rerun's viewer on: --view web serves it to a browser, "
+                                           "--view-save FILE.rrd records it")
+            # The viewer's executable comes with the wheel, beside this Python (a venv's bin/, which need
+            # not be on PATH when gtsjax is run by its full path).
+            here = os.path.dirname(sys.executable)
+            if here not in os.environ.get("PATH", "").split(os.pathsep):
+                os.environ["PATH"] = here + os.pathsep + os.environ.get("PATH", "")
+            try:
+                self.rec.spawn(connect=False)
+            except RuntimeError as err:
+                raise InputError("--view", f"could not start Rerun's viewer ({str(err).splitlines()[0]}); "
+                                           "--view web serves it to a browser instead") from None
             sinks.append(rr.GrpcSink())
         if sinks:
             self.rec.set_sinks(*sinks, default_blueprint=self._layout())
@@ -161,6 +174,10 @@ class View:
             rr.log("stats/dropped", rr.Scalars(float(dropped)), recording=rec)
 
     def close(self) -> None:
-        self.rec.flush()
-        if self.url is None:
-            self.rec.disconnect()
+        """Everything logged sent on (the file written); a viewer that went away is said, not fatal."""
+        try:
+            self.rec.flush()
+            if self.url is None:
+                self.rec.disconnect()
+        except RuntimeError as err:
+            print(f"gtsjax: warning: the view: {str(err).splitlines()[0]}", file=sys.stderr)
