@@ -37,6 +37,16 @@ def _run(model, site, logs):
     return merged, out
 
 
+def _assert_one_track_per_robot(out, n_robots: int) -> None:
+    """As many tracks reported as robots, and never two confirmed tracks within 0.3 m of each other."""
+    assert len(_reported_ids(out)) == n_robots
+    pose, mask = np.asarray(out.track_pose), np.asarray(out.track_mask)
+    for t in range(pose.shape[0]):
+        xy = pose[t, mask[t], :2]
+        d = np.linalg.norm(xy[:, None] - xy[None], axis=-1) + np.eye(len(xy)) * 9
+        assert d.size == 0 or d.min() > 0.3, t
+
+
 def _reported_ids(out):
     return {int(i) for i in np.asarray(out.track_id)[np.asarray(out.track_mask)]}
 
@@ -48,12 +58,7 @@ def test_two_lasers_seeing_the_robots_give_one_track_each_and_more_recall(match)
     merged, out = _run(model, site, logs)
     res = evaluate_outputs(model, merged.log, out)
     assert res["false_tracks_per_scan"] == 0.0 and res["recall"] >= 0.95, res
-    assert len(_reported_ids(out)) == 2
-    pose, mask = np.asarray(out.track_pose), np.asarray(out.track_mask)
-    for t in range(pose.shape[0]):
-        xy = pose[t, mask[t], :2]
-        d = np.linalg.norm(xy[:, None] - xy[None], axis=-1) + np.eye(len(xy)) * 9
-        assert d.size == 0 or d.min() > 0.3, t
+    _assert_one_track_per_robot(out, 2)
     for name in logs:
         _, alone = _run(model, site, {name: logs[name]})
         one = evaluate_outputs(model, logs[name], alone)
@@ -332,12 +337,7 @@ def test_lasers_of_different_scanners_each_with_its_model_give_one_track_per_rob
     assert merged.log.n_scans == 60 + 240  # 10 Hz and 40 Hz for 6 s
     res = evaluate_outputs(models[0], merged.log, out)
     assert res["false_tracks_per_scan"] == 0.0 and res["recall"] >= 0.95, res
-    assert len(_reported_ids(out)) == 2
-    pose, mask = np.asarray(out.track_pose), np.asarray(out.track_mask)
-    for t in range(pose.shape[0]):
-        xy = pose[t, mask[t], :2]
-        d = np.linalg.norm(xy[:, None] - xy[None], axis=-1) + np.eye(len(xy)) * 9
-        assert d.size == 0 or d.min() > 0.3, t
+    _assert_one_track_per_robot(out, 2)
     for name in ("north", "south"):
         (m,), alone_merged, alone = _mixed_run(mixed, (name,))
         one = evaluate_outputs(m, alone_merged.log, alone)

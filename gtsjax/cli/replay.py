@@ -23,6 +23,7 @@ from ..io.logs import fit_to_model
 from ._app import CONFIRM_HELP, MAX_TRACKS_HELP, app
 from ._common import (
     INPUT_HELP,
+    OUT_BAG_HELP,
     TOPIC_HELP,
     VIEW_HELP,
     VIEW_SAVE_HELP,
@@ -57,10 +58,7 @@ def replay_cmd(
     sensor_out: Path | None = typer.Option(None, "--sensor-out", help="Also write the estimated sensor pose per scan "
                                                                       "(CSV; with several logs, a folder of "
                                                                       "LOG-NAME.csv)."),
-    out_bag: Path | None = typer.Option(None, "--out-bag", help="Also write a ROS 2 bag (MCAP storage) to this new "
-                                                                "folder: the scans (sensor_msgs/LaserScan), the laser "
-                                                                "pose (/tf), the tracks (PoseArray, and each track's "
-                                                                "PoseWithCovarianceStamped)."),
+    out_bag: Path | None = typer.Option(None, "--out-bag", help=OUT_BAG_HELP),
     view: str | None = typer.Option(None, "--view", metavar="[web]", help=VIEW_HELP),
     view_save: Path | None = typer.Option(None, "--view-save", help=VIEW_SAVE_HELP),
     chunk: int = typer.Option(256, min=1, help="Scans per compiled chunk."),

@@ -8,7 +8,7 @@ from rich.console import Console
 
 from ..errors import InputError
 from ._app import CONFIRM_HELP, MAX_TRACKS_HELP, app
-from ._common import VIEW_HELP, VIEW_SAVE_HELP, check_out_file, one_model, track_summary
+from ._common import OUT_BAG_HELP, VIEW_HELP, VIEW_SAVE_HELP, check_out_file, one_model, track_summary
 from ._live import track_live
 
 
@@ -34,10 +34,7 @@ def run_cmd(
     quiet: bool = typer.Option(False, help="No live view."),
     confirm_scans: int | None = typer.Option(None, "--confirm-scans", min=1, help=CONFIRM_HELP),
     max_tracks: int | None = typer.Option(None, "--max-tracks", min=1, help=MAX_TRACKS_HELP),
-    out_bag: Path | None = typer.Option(None, "--out-bag", help="Also write a ROS 2 bag (MCAP storage) to this new "
-                                                                "folder: each frame (LaserScan), the laser pose (/tf), "
-                                                                "the tracks (PoseArray and one PoseWithCovarianceStamped "
-                                                                "topic per track). One laser."),
+    out_bag: Path | None = typer.Option(None, "--out-bag", help=OUT_BAG_HELP),
     view: str | None = typer.Option(None, "--view", metavar="[web]", help=VIEW_HELP),
     view_save: Path | None = typer.Option(None, "--view-save", help=VIEW_SAVE_HELP),
     summary: Path | None = typer.Option(None, "--summary", help="Write the run's counters (frames, rows, latency, "
