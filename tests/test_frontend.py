@@ -96,16 +96,18 @@ def check_scan(cfg, scan, out):
     d = out.diagnostics
     assert int(d.n_segments) == len(segs)
     assert int(d.n_overflow) == max(len(segs) - k_max, 0)
-    assert int(d.n_too_long) == sum(length > win for _, length in segs[:k_max])
+    # Beyond K segments, the K whose first return is nearest (ties: the lower beam), in beam order.
+    kept = segs if len(segs) <= k_max else sorted(sorted(segs, key=lambda sg: (ranges[sg[0]], sg[0]))[:k_max])
+    assert int(d.n_too_long) == sum(length > win for _, length in kept)
     live = np.asarray(c.live)
-    assert live.sum() == min(len(segs), k_max) and live[: min(len(segs), k_max)].all()
+    assert live.sum() == len(kept) and live[: len(kept)].all()
     keep = np.asarray(out.keep)
     for k in range(k_max):
-        if k >= len(segs):
+        if k >= len(kept):
             assert not keep[k] and not np.asarray(c.mask[k]).any()
             np.testing.assert_array_equal(np.asarray(f.vector[k]), 0)
             continue
-        start, length = segs[k]
+        start, length = kept[k]
         assert int(c.start[k]) == start and int(c.length[k]) == length
         if length > win:
             assert bool(c.too_long[k]) and not keep[k] and not np.asarray(c.mask[k]).any()
@@ -271,6 +273,23 @@ def test_more_than_k_candidates_counted():
     out = front_end(cfg, scan)
     segs = check_scan(cfg, scan, out)
     assert len(segs) > 32 and int(out.diagnostics.n_overflow) == len(segs) - 32
+
+
+def test_beyond_k_candidates_the_nearest_are_kept():
+    """More segments than slots: a robot-sized object near the end of the scan is kept and far clutter
+    (short pieces of a distant wall, earlier in beam order) is dropped, whatever their order."""
+    cfg = FrontEndConfig()
+    n = URG_04LX.n_beams
+    r = np.zeros(n)
+    for i in range(40):  # 40 pieces of a wall 5 m away, each 6 beams, in the first part of the scan
+        r[10 * i: 10 * i + 6] = 5.0 + 0.01 * i
+    r[600:620] = 2.0  # a robot 2 m away near the end
+    scan = make_scan(URG_04LX, r)
+    out = front_end(cfg, scan)
+    segs = check_scan(cfg, scan, out)
+    assert len(segs) == 41 and int(out.diagnostics.n_overflow) == 9
+    starts = np.asarray(out.candidates.start)[np.asarray(out.candidates.live)]
+    assert 600 in starts.tolist() and max(starts[starts < 600]) == 10 * 30  # the 9 farthest pieces dropped
 
 
 def test_wall_longer_than_window_is_flagged_not_truncated():

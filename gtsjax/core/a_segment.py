@@ -9,15 +9,17 @@ a break sits before beam ``i`` when
   by ``g`` per metre of the nearer range (neighbouring beams spread apart with range, and so does the
   range noise).
 
-Everything runs on fixed shapes: break flags, a cumulative sum numbers the runs, a scatter puts the
-first ``K`` runs' starts and ends into ``[K]`` arrays, and a gather pulls each run's window of ``L``
-beams, and whether a nearer return lies just beside either end (the candidate is occluded there).
-Nothing is dropped silently: runs beyond ``K`` are counted in ``n_overflow``; a run longer
+Everything runs on fixed shapes: break flags; the runs' start beams, all of them when there are at
+most ``K``, else the ``K`` whose first return is nearest (``top_k``), in beam order; each run's end,
+the first end beam after its start (a reverse running minimum); a gather pulls each run's window of
+``L`` beams, and whether a nearer return lies just beside either end (the candidate is occluded
+there). Nothing is dropped silently: runs beyond ``K`` (the farthest) are counted in ``n_overflow``; a run longer
 than ``L`` beams is kept as a slot with ``too_long`` set and an *empty* point mask, so it can never be
 truncated into a smaller, false object (a long wall is not a robot).
 """
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
@@ -28,9 +30,10 @@ _I32 = jnp.int32
 
 
 class Candidates(eqx.Module):
-    """The first ``K`` segments of one scan, each as a window of ``L`` beams (stack: leading ``scans``).
+    """``K`` segments of one scan (all of them, or the ``K`` nearest), each as a window of ``L`` beams
+    (stack: leading ``scans``).
 
-        Slot ``k`` holds segment ``k`` in beam order when ``live[k]``; its beams are
+        Slot ``k`` holds the ``k``-th kept segment in beam order when ``live[k]``; its beams are
         ``index[k, l] = start[k] + l`` for ``l < length[k]``. ``mask`` marks the window entries that are
         the segment's measurements; it is all False for dead slots and for ``too_long`` segments.
         ``ranges``, ``angles``, ``xy`` (the points in S) and ``intensities`` are gathered from the scan and 0
@@ -113,13 +116,19 @@ def segment(
     starts, ends = break_flags(ranges, x, y, valid, break_distance, break_growth)
     beam = jnp.arange(n, dtype=_I32)
     # Segment number of each start/end beam: the count of starts up to and including it, minus one.
-    seg = jnp.cumsum(starts, dtype=_I32) - 1
-    slot_start = jnp.where(starts, seg, k_max)  # k_max is out of range: dropped by the scatter
-    slot_end = jnp.where(ends, seg, k_max)
-    start = jnp.full((k_max,), n, dtype=_I32).at[slot_start].set(beam, mode="drop")
-    end = jnp.full((k_max,), n - 1, dtype=_I32).at[slot_end].set(beam, mode="drop")
     n_segments = jnp.sum(starts, dtype=_I32)
+    # The slots take every segment when there are at most K, else the K whose first return is nearest:
+    # what lies beyond a field (far walls, cut into many pieces by the shadows of everything nearer)
+    # goes before what stands on it. A UTM-30LX beside a 9 × 6 m field in a hall sees 40 segments,
+    # and keeping the first K in beam order dropped the robots at one end of its view. The slots stay
+    # in beam order (a sort of the chosen start beams; ties of range go to the lower beam).
+    key = jnp.where(starts, -ranges, -jnp.inf)
+    top, first = jax.lax.top_k(key, k_max)
+    start = jnp.sort(jnp.where(top > -jnp.inf, first, n).astype(_I32))
+    # Each segment's end: the first end beam at or after its start (a reverse running minimum).
+    next_end = jnp.flip(jax.lax.cummin(jnp.flip(jnp.where(ends, beam, n - 1))))
     live = jnp.arange(k_max, dtype=_I32) < n_segments
+    end = jnp.where(live, next_end[jnp.minimum(start, n - 1)], n - 1)
     length = jnp.where(live, end - start + 1, 0)
     too_long = live & (length > win)
 
