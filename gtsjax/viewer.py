@@ -11,7 +11,10 @@ stamps, so a replayed log can be scrubbed):
 * ``field/scan``: the scan's returns, mapped into O by that pose;
 * ``field/landmarks_seen``: where this scan saw each landmark it associated (the map position plus its
   residual), labelled with the residual in cm;
-* ``field/detections``: the scan's detections of tracked classes (before tracking), by class;
+* ``field/candidates``: every candidate of the scan where its segment lies, the objects coloured by
+  class, the others faint, each labelled with its class or what became of it (filtered, background,
+  unlike its class's examples, off its class's envelope, beyond its class's cap:
+  :data:`~gtsjax.core.pipeline.REASONS`; hover for the label);
 * ``field/tracks/CLASS_ID``: each confirmed track: an arrow along its heading, its 2-σ position
   ellipse and its trail, labelled ``CLASS ID``; a track that ended is cleared;
 * ``stats/latency_ms`` (live), ``stats/tracks``, ``stats/landmark_residual_cm``, ``stats/dropped``
@@ -26,11 +29,16 @@ from pathlib import Path
 
 import numpy as np
 
+from .core.pipeline import REASONS
 from .errors import InputError
+
+OBJECT = REASONS.index("object")
 
 VIEWER_EXTRA = 'pip install "gtsjax[viewer]"'
 TRAIL = 100  # scans of trail drawn behind each track
 SEEN_COLOUR = (0, 200, 0)  # where a scan saw the landmarks
+CLASS_COLOURS = [(150, 150, 150), (40, 40, 40), (30, 90, 220), (200, 60, 200), (20, 160, 160)]  # by class index
+FAINT = (170, 170, 170, 90)  # candidates that are not objects
 _COLOURS = [(230, 25, 75), (60, 180, 75), (0, 130, 200), (245, 130, 48), (145, 30, 180), (70, 240, 240),
             (240, 50, 230), (128, 128, 0), (0, 128, 128), (170, 110, 40)]
 
@@ -144,11 +152,17 @@ class View:
         err_cm = np.linalg.norm(res[seen], axis=1) * 100 if seen.any() else np.zeros(0)
         rr.log("field/landmarks_seen", rr.Points2D(lm[seen] + res[seen], radii=0.04, colors=[SEEN_COLOUR],
                                                    labels=[f"{e:.1f} cm" for e in err_cm]), recording=rec)
-        dm = np.asarray(out.det_mask, bool)
-        dp = np.asarray(out.det_pose, np.float64)[dm]
-        dc = [self.model.classes[int(c)] for c in np.asarray(out.det_class)[dm]]
-        rr.log("field/detections", rr.Points2D(dp[:, :2] if dp.size else np.zeros((0, 2)), radii=0.05,
-                                               colors=[(120, 120, 200, 140)], labels=dc), recording=rec)
+        # Every candidate of the scan: the objects by class, the rest faint, labelled with what became of them.
+        reason = np.asarray(out.cand_reason)
+        shown = reason > 0
+        xy = np.asarray(out.cand_xy, np.float64)[shown]
+        cls = np.asarray(out.cand_class)[shown]
+        why = reason[shown]
+        obj = why == OBJECT
+        labels = [self.model.classes[int(c)] if o else REASONS[int(w)] for c, o, w in zip(cls, obj, why, strict=True)]
+        colours = [CLASS_COLOURS[int(c) % len(CLASS_COLOURS)] if o else FAINT for c, o in zip(cls, obj, strict=True)]
+        rr.log("field/candidates", rr.Points2D(xy if xy.size else np.zeros((0, 2)), radii=0.04, colors=colours,
+                                               labels=labels, show_labels=False), recording=rec)
         present = set()
         for row in rows:
             key = f"{row.cls}_{row.track_id}"

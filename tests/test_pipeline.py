@@ -378,3 +378,47 @@ def test_every_product_of_the_step_runs_at_full_precision_whatever_the_global_se
     precisions = _dot_precisions(jaxpr.jaxpr)
     highest = (jax.lax.Precision.HIGHEST, jax.lax.Precision.HIGHEST)
     assert len(precisions) > 10 and all(p == highest for p in precisions), set(precisions)
+
+
+def test_every_candidate_slot_says_what_became_of_it():
+    """``Perception.reason`` against the stage's own flags and counters, slot by slot: no segment,
+    filtered by stage c, an object (posed), and as many unlike, unposed and off-envelope verdicts as
+    the counters count; ``Output.cand_xy`` each slot's ORS origin mapped by the scan's transform."""
+    import jax
+
+    from gtsjax.cli.demo import demo_model_path
+    from gtsjax.core.frontend import front_end
+    from gtsjax.core.pipeline import REASONS, init_state, perceive, update
+    from gtsjax.io.logs import to_scans
+    from gtsjax.io.modelfile import load_model
+    from gtsjax.sim import simulate
+
+    log, site = simulate("spl-legs", seed=5, n_scans=40)
+    model = load_model(demo_model_path()).with_site(site)
+    scans = to_scans(log, model.n_beams)
+    state = init_state(model)
+    code = {r: i for i, r in enumerate(REASONS)}
+    seen = set()
+    perceive_j = jax.jit(lambda s: (perceive(model, s), front_end(model.frontend, s)))
+    update_j = jax.jit(lambda st, p, s: update(model, st, p, s))
+    for t in range(0, 40, 8):
+        scan = jax.tree.map(lambda a, t=t: a[t], scans)
+        p, fe = perceive_j(scan)
+        state, out = update_j(state, p, scan)
+        reason, live, kept = np.asarray(p.reason), np.asarray(fe.candidates.live), np.asarray(fe.keep)
+        for k in range(reason.size):
+            if not live[k]:
+                assert reason[k] == code["none"], k
+            elif not kept[k]:
+                assert reason[k] == code["filtered"], k
+            elif bool(p.ok[k]):
+                assert reason[k] == code["object"], k
+            else:
+                assert reason[k] in (code["background"], code["unlike"], code["off envelope"], code["unposed"]), k
+        assert np.sum(reason == code["unlike"]) == int(p.unlike)
+        assert np.sum(reason == code["unposed"]) == int(p.unposed)
+        assert np.sum(reason == code["off envelope"]) <= int(p.off_envelope)
+        np.testing.assert_allclose(np.asarray(out.cand_xy), np.asarray(out.transform.apply(fe.features.origin)),
+                                   atol=1e-5)
+        seen |= set(reason.tolist())
+    assert {code["none"], code["object"]} <= seen and len(seen) >= 3

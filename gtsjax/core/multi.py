@@ -176,9 +176,8 @@ def update_mixed(models: "tuple[Model, ...]", state: SeveralState, p: Perception
             sc = Scan(scan.ranges[:b], scan.intensities[:b], scan.valid[:b], scan.angle_min, scan.angle_increment,
                       scan.dt)
             new, out = update_several(m, state, mine, sc, k, span_dt, period)
-            return new, eqx.tree_at(lambda o: (o.det_pose, o.det_class, o.det_mask), out,
-                                    (_pad_axis(out.det_pose, 0, n_cands), _pad_axis(out.det_class, 0, n_cands),
-                                     _pad_axis(out.det_mask, 0, n_cands)))
+            per_cand = lambda o: (o.det_pose, o.det_class, o.det_mask, o.cand_xy, o.cand_class, o.cand_reason)  # noqa: E731
+            return new, eqx.tree_at(per_cand, out, tuple(_pad_axis(a, 0, n_cands) for a in per_cand(out)))
         return run
 
     if len(models) == 1:

@@ -53,6 +53,8 @@ class Perception(eqx.Module):
     side_pose: Float[Array, "cands sides 3"]  # side hypotheses in S (stage e′)
     side_logp: Float[Array, "cands sides"]
     refined: Bool[Array, " cands"]  # the pose comes from the outline fit (stage e′), not the GP
+    at_s: Float[Array, "cands 2"]  # where the candidate is in S (its ORS origin), whatever became of it
+    reason: Int[Array, " cands"]  # what became of it: an index into ``REASONS``
     n_segments: Int[Array, ""]
     n_kept: Int[Array, ""]
     n_overflow: Int[Array, ""]
@@ -60,6 +62,14 @@ class Perception(eqx.Module):
     unposed: Int[Array, ""]  # objects beyond their class's cap (see ``e_pose.regress``), dropped
     unlike: Int[Array, ""]  # candidates unlike every training example of their class (open set), dropped
     off_envelope: Int[Array, ""]  # candidates whose best class's shape envelope they lie outside
+
+
+# What became of each candidate slot of a scan (``Perception.reason``, ``Output.cand_reason``), for the
+# view and diagnostics: no segment in the slot; dropped by stage c's binary filters (or longer than the
+# window); taken for background by the classifier (or scored under its class's threshold); unlike every
+# training example of its class (open set); outside its best class's shape envelope; an object beyond
+# its class's cap of posed candidates; an object (landmark or tracked class), posed.
+REASONS = ("none", "filtered", "background", "unlike", "off envelope", "unposed", "object")
 
 
 class Output(eqx.Module):
@@ -77,6 +87,9 @@ class Output(eqx.Module):
     det_pose: Float[Array, "cands 3"]  # detections of tracked classes in O (diagnostics, evaluation)
     det_class: Int[Array, " cands"]
     det_mask: Bool[Array, " cands"]
+    cand_xy: Float[Array, "cands 2"]  # every candidate slot in O, its class and what became of it (``REASONS``)
+    cand_class: Int[Array, " cands"]
+    cand_reason: Int[Array, " cands"]
     n_segments: Int[Array, ""]
     n_kept: Int[Array, ""]  # candidates passing the binary filters
     n_objects: Int[Array, ""]  # candidates classified as landmarks or tracked objects
@@ -129,8 +142,11 @@ def perceive(model: Model, scan: Scan, *, bucket: bool | None = None, axis_name=
     count = lambda m: jnp.sum(m, dtype=jnp.int32)
     partial = partial_view(model.envelope, cls, fe.candidates.occluded)
     vague = vague_headings(model.pose, cls, var)
+    reason = jnp.where(ok & posed, 6, jnp.where(ok, 5, jnp.where(dec.unlike, 3, jnp.where(
+        dec.off_envelope, 4, jnp.where(fe.keep, 2, jnp.where(c.live, 1, 0)))))).astype(jnp.int32)
     return Perception(cls, ok & posed, fe.keep, partial, vague & ~sides.refined, scores, sides.pose, sides.cov,
-                      sides.side_pose, sides.side_logp, sides.refined, d.n_segments, d.n_kept, d.n_overflow,
+                      sides.side_pose, sides.side_logp, sides.refined, f.origin, reason, d.n_segments, d.n_kept,
+                      d.n_overflow,
                       d.n_too_long, unposed, count(dec.unlike), count(dec.off_envelope))
 
 
@@ -251,6 +267,9 @@ def update_view(model: Model, prev_tf: Transform, tracker: TrackerState, p: Perc
         det_pose=pose_o,
         det_class=p.cls,
         det_mask=tracked,
+        cand_xy=tf.apply(p.at_s),
+        cand_class=p.cls,
+        cand_reason=p.reason,
         n_segments=p.n_segments,
         n_kept=p.n_kept,
         n_objects=jnp.sum(p.ok, dtype=jnp.int32),
