@@ -442,3 +442,19 @@ def test_replay_command_with_a_model_per_scanner(mixed, tmp_path, capsys):
     _, merged, out = _mixed_run(mixed)
     rows = read_gtd(tmp_path / "gtd.csv")
     assert len(rows) == int(np.asarray(out.track_mask).sum()) > 0
+
+
+def test_misses_of_lasers_of_different_rates_are_counted_on_one_clock(mixed):
+    """A URG-04LX (10 Hz) and a UTM-30LX (40 Hz): misses are counted in the faster's periods, the
+    URG-04LX model's limits (3 and 10 scans: 0.3 s and 1 s) become 12 and 40 of them, the same times;
+    lasers of one scanner model keep their own scans."""
+    from gtsjax.core.multi import miss_period, on_clock
+
+    urg, utm = mixed["urg"], mixed["utm"]
+    assert miss_period((urg, utm)) == pytest.approx(0.025) and miss_period((urg,)) is None
+    for m in (urg, utm):
+        put = on_clock(m, 0.025).tracker
+        for name in ("m_tentative", "m_delete", "m_report"):
+            seconds = float(getattr(m.tracker, name)) * m.scan_period
+            assert float(getattr(put, name)) * 0.025 == pytest.approx(seconds), (m.sensor_model, name)
+    assert on_clock(urg, None) is urg
