@@ -61,7 +61,7 @@ def demo_cmd(
     t0 = time.perf_counter()
     if not rerun_available():
         console.print(f"(to watch it in Rerun's viewer: {VIEWER_EXTRA}, then gtsjax demo --view, or --view web "
-                      "without a display)", soft_wrap=True)
+                      "without a display)", soft_wrap=True, markup=False)  # the extra's [brackets] are not markup
     elif view is None and not quiet and (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
         view = "native"  # the extra is there and so is a screen
     out_dir.mkdir(parents=True, exist_ok=True)
