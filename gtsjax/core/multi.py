@@ -52,7 +52,17 @@ class SeveralState(eqx.Module):
 def laser_reach(model: Model) -> tuple[float, float, float]:
     """The reach of a laser of the scanner ``model`` was trained for: first and last beam's bearing,
     range (host floats)."""
-    return (model.angle_min, model.angle_min + model.angle_increment * (model.n_beams - 1), model.range_max)
+    import math
+
+    from ..sensors import MODELS
+
+    a0, da, n = model.angle_min, model.angle_increment, model.n_beams
+    if not (math.isfinite(a0) and math.isfinite(da)):  # a model from before its geometry was kept
+        known = MODELS.get(model.sensor_model)
+        if known is None:
+            return (-math.pi, math.pi, model.range_max)
+        a0, da, n = known.angle_min, known.angle_increment, known.n_beams
+    return (a0, a0 + da * (n - 1), model.range_max)
 
 
 def init_several(model: "Model | tuple[Model, ...]", sensor_poses: Float[Array, "lasers 3"],
