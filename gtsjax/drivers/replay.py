@@ -49,8 +49,9 @@ def _run_scans(model: Model, state: PipelineState, scans: Scan, n_real: Int[Arra
     return state, buf
 
 
-def _pad_chunk(scans: Scan, start: int, stop: int, size: int) -> Scan:
-    """Scans ``start:stop`` padded to ``size`` by repeating the last one (so shapes never change)."""
+def _pad_chunk(scans, start: int, stop: int, size: int):
+    """Rows ``start:stop`` of every leaf (scans, or any pytree stacked along its first axis) padded to
+    ``size`` by repeating the last row (so shapes never change)."""
     part = jax.tree.map(lambda a: a[start:stop], scans)
     pad = size - (stop - start)
     if pad == 0:
@@ -189,15 +190,6 @@ def process_logs(model: Model, scans: "list[Scan | None]", *, chunk: int = 256,
     return final, [jax.tree.map(lambda *a: np.concatenate(a), *o) if o else None for o in outs]
 
 
-def scan_row(outputs, i: int):
-    """Scan ``i`` of stacked outputs, each field read as it is asked for (what the view draws)."""
-    class _Row:
-        def __getattr__(self, name):
-            return np.asarray(getattr(outputs, name))[i]
-
-    return _Row()
-
-
 def bag_for(log, path: Path | None):
     """A :class:`~gtsjax.io.bag_out.BagOut` at ``path`` for ``log``'s scans (``None`` without a path)."""
     if path is None:
@@ -235,7 +227,7 @@ class _Sink:
                                np.asarray(out_arrays.sensor_pose[i], np.float64))
             if self.view is not None:
                 self.view.scan(float(part.stamps[i]), np.where(part.valid()[i], part.ranges[i], 0.0), part.angle_min,
-                               part.angle_increment, scan_row(out_arrays, i), rows)
+                               part.angle_increment, jax.tree.map(lambda a, i=i: a[i], out_arrays), rows)
             for row in rows:
                 totals["track_ids"].setdefault(row.cls, set()).add(row.track_id)
         if self.sensor_out is not None:

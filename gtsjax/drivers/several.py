@@ -57,11 +57,13 @@ def merge_logs(logs: "dict[str, ScanLog]", *, mixed: bool = False) -> Merged:
     if not names:
         raise InputError("replay", "no logs to merge")
     first = logs[names[0]]
-    for name, log in () if mixed else logs.items():
-        if log.n_beams != first.n_beams or not math.isclose(log.angle_increment, first.angle_increment, rel_tol=1e-6):
-            raise InputError(name, f"{log.n_beams} beams of {math.degrees(log.angle_increment):.4f}°, the first "
-                                   f"laser's log {first.n_beams} of {math.degrees(first.angle_increment):.4f}°: "
-                                   "the lasers of one replay must be one scanner model")
+    if not mixed:
+        for name, log in logs.items():
+            if log.n_beams != first.n_beams or not math.isclose(log.angle_increment, first.angle_increment,
+                                                                rel_tol=1e-6):
+                raise InputError(name, f"{log.n_beams} beams of {math.degrees(log.angle_increment):.4f}°, the first "
+                                       f"laser's log {first.n_beams} of {math.degrees(first.angle_increment):.4f}°: "
+                                       "the lasers of one replay must be one scanner model")
     stamps = np.concatenate([logs[n].stamps for n in names])
     laser = np.concatenate([np.full(logs[n].n_scans, k, np.int32) for k, n in enumerate(names)])
     index = np.concatenate([np.arange(logs[n].n_scans) for n in names])
@@ -126,18 +128,12 @@ def process_several(model: "Model | tuple[Model, ...]", merged: Merged, sensor_p
     outs = []
     for start in range(0, n, chunk):
         stop = min(start + chunk, n)
-        part = _pad_chunk(scans, start, stop, chunk)
-        k, sp = _pad_rows(laser, start, stop, chunk), _pad_rows(span, start, stop, chunk)
+        part, k, sp = _pad_chunk((scans, laser, span), start, stop, chunk)
         state, out = process_several_chunk(model, state, part, k, sp, jnp.asarray(stop - start, jnp.int32))
         outs.append(_host_rows(out, stop - start))
         if callback is not None:
             callback(stop)
     return state, jax.tree.map(lambda *a: np.concatenate(a), *outs)
-
-
-def _pad_rows(a, start: int, stop: int, size: int):
-    """Rows ``start:stop`` of ``a`` padded to ``size`` by repeating the last."""
-    return jnp.concatenate([a[start:stop], jnp.repeat(a[stop - 1:stop], size - (stop - start), axis=0)])
 
 
 def _host_rows(tree, n: int):
@@ -192,7 +188,7 @@ def process_mixed(models: "tuple[Model, ...]", kinds, merged: Merged, sensor_pos
     # The merged order: laser k's i-th scan is row offset[k] + i of the lasers' scans laid end to end.
     offset = np.cumsum([0] + [merged.sources[nm].n_scans for nm in merged.names])[:-1]
     rows = offset[merged.laser] + merged.index
-    percepts = jax.tree.map(lambda *a: np.concatenate(a)[rows], *percepts)
+    percepts = jax.tree.map(lambda *a: jnp.asarray(np.concatenate(a)[rows]), *percepts)  # to the device once
     cat = lambda f: jnp.asarray(np.concatenate([np.asarray(getattr(sc, f)) for sc in scans])[rows])  # noqa: E731
     scans = Scan(cat("ranges"), cat("intensities"), cat("valid"), cat("angle_min"), cat("angle_increment"),
                  jnp.asarray(scan_dt(merged.log.stamps)))
@@ -203,10 +199,8 @@ def process_mixed(models: "tuple[Model, ...]", kinds, merged: Merged, sensor_pos
     outs = []
     for start in range(0, n, chunk):
         stop = min(start + chunk, n)
-        p = jax.tree.map(lambda a, start=start, stop=stop: _pad_rows(jnp.asarray(a), start, stop, chunk), percepts)
-        state, out = process_mixed_chunk(models, state, p, _pad_chunk(scans, start, stop, chunk),
-                                         _pad_rows(laser, start, stop, chunk), _pad_rows(kind, start, stop, chunk),
-                                         _pad_rows(span, start, stop, chunk), jnp.asarray(stop - start, jnp.int32))
+        p, sc, k, c, sp = _pad_chunk((percepts, scans, laser, kind, span), start, stop, chunk)
+        state, out = process_mixed_chunk(models, state, p, sc, k, c, sp, jnp.asarray(stop - start, jnp.int32))
         outs.append(_host_rows(out, stop - start))
         if callback is not None:
             callback(stop)
