@@ -22,9 +22,19 @@ jax.config.update("jax_numpy_rank_promotion", "raise")
 # folder of the tests' own that every worker and every ``gtsjax`` subprocess shares: the step of the demo
 # model compiles once per run, not once per command. ``GTSJAX_CACHE_DIR=off`` turns it off.
 os.environ.setdefault("GTSJAX_CACHE_DIR", os.path.join(tempfile.gettempdir(), f"gtsjax-tests-xla-{os.getuid()}"))
-from gtsjax.cli import use_compile_cache  # noqa: E402  (after the import hook)
+from gtsjax.cli import release_compiled_if_crowded, use_compile_cache  # noqa: E402  (after the import hook)
 
 use_compile_cache()
+
+
+@pytest.fixture(autouse=True)
+def _release_compiled_programs():
+    """A worker runs hundreds of tests in one process, and every step it loads from the compilation
+    cache holds ~2 000 memory mappings until JAX's caches are cleared: past Linux's 65 530 the next
+    load crashes the worker (``release_compiled_if_crowded``). Cleared after any test that leaves
+    the process above half of that."""
+    yield
+    release_compiled_if_crowded()
 
 SHARED = Path(os.environ.get("GTSJAX_SHARED", Path(__file__).resolve().parents[1].parent / "shared"))
 

@@ -4,10 +4,12 @@ Skipped without the viewer extra or Chromium on a developer's machine; in CI (``
 run."""
 
 import os
+import queue
 import shutil
 import socket
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -95,11 +97,17 @@ def test_replay_view_web_draws_in_headless_chromium(tmp_path):
                              str(tmp_path / "site.json"), "--model", str(root / "gtsjax" / "data" / "demo-model.npz"),
                              "--out", str(tmp_path / "gtd.csv"), "--view", "web"],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env, cwd=root)
+    lines: queue.Queue[str] = queue.Queue()  # read in a thread: a silent, stuck replay must not block the test
+    threading.Thread(target=lambda: [lines.put(ln) for ln in proc.stdout], daemon=True).start()
     try:
         url, waited = None, []
         t0 = time.monotonic()
         while time.monotonic() - t0 < 240:
-            line = proc.stdout.readline()
+            try:
+                line = lines.get(timeout=5)
+            except queue.Empty:
+                assert proc.poll() is None, "".join(waited)
+                continue
             waited.append(line)
             if line.startswith("view: "):
                 url = line.split(" ", 1)[1].strip()
@@ -127,7 +135,11 @@ def test_replay_view_web_draws_in_headless_chromium(tmp_path):
             shutil.copy(shot, os.environ["GTSJAX_VIEW_SHOT"])
     finally:
         proc.terminate()
-        proc.wait(timeout=30)
+        try:
+            proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            raise
 
 
 def _drew(png: Path) -> bool:

@@ -66,6 +66,40 @@ def use_compile_cache() -> None:
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
 
 
+def memory_maps() -> int | None:
+    """How many memory mappings this process holds (lines of ``/proc/self/maps``); None where the
+    system does not say (not Linux)."""
+    try:
+        with open("/proc/self/maps", "rb") as f:
+            return f.read().count(b"\n")
+    except OSError:
+        return None
+
+
+def release_compiled_if_crowded(limit: int = 30_000) -> bool:
+    """Drop JAX's in-memory compiled programs (``jax.clear_caches()``) when this process holds more
+    than ``limit`` memory mappings; True if it did.
+
+    An executable loaded from the persistent cache (:func:`use_compile_cache`) keeps each of its XLA
+    kernels' code in mappings of its own: the step, some 470 kernels, takes about 2 000 mappings so
+    loaded, against about 90 compiled afresh. Linux refuses a process more than
+    ``vm.max_map_count`` (65 530 by default), and XLA's loader then aborts or crashes
+    ("LLVM ERROR: Unable to allocate section memory!"): the 33rd step loaded in one process. A
+    command loads a few; a long process that loads many (the test suite, the benchmarks) calls
+    this between its parts, and a program dropped here is loaded again from the cache when next
+    called."""
+    n = memory_maps()
+    if n is None or n <= limit:
+        return False
+    import gc
+
+    import jax
+
+    jax.clear_caches()
+    gc.collect()
+    return True
+
+
 # Signals that stop a command as Ctrl-C does: service managers and containers stop a program with
 # SIGTERM, a closed terminal or SSH session sends SIGHUP.
 STOP_SIGNALS = (signal.SIGTERM, signal.SIGHUP)
