@@ -5,7 +5,13 @@ import numpy as np
 TARGET_STEP_P99_US = 1000.0
 TARGET_BATCH = 3000.0
 TARGET_VS_REFERENCE = 30.0
-TARGET_GP_SPEEDUP = 3.0
+TARGET_GP_SPEEDUP = 5.0  # issue 16 (the benchmarks' first issue asked 3×)
+# Issue 16's further targets, beside the first issue's above: the step's ratio to the reference at p99,
+# batch replay against the reference's per-scan rate, live latency at 40 Hz, SCIP decode.
+TARGET_VS_REFERENCE_P99 = 20.0
+TARGET_BATCH_VS_REFERENCE = 70.0
+TARGET_LIVE_P99_MS = 2.0
+TARGET_SCIP_DECODE_US = 50.0
 LML_TOLERANCE = 0.1  # nats: "equal" LML
 
 
@@ -132,6 +138,46 @@ def evaluate_targets(res) -> None:
         targets.append({"name": "speedup_vs_numpy_reference", "target": f"≥ {TARGET_VS_REFERENCE:.0f}× per scan",
                         "measured": r["value"], "unit": "×", "met": r["value"] >= TARGET_VS_REFERENCE,
                         "why": why, "profile": "reference"})
+    try:
+        r99 = res.get_ratio("reference_over_gtsjax.p99")
+    except KeyError:
+        r99 = None
+    if r99 is not None:
+        ref, g = res.get(r99["numerator"]), res.get(r99["denominator"])
+        targets.append({"name": "speedup_vs_numpy_reference_p99", "target": f"≥ {TARGET_VS_REFERENCE_P99:.0f}× at p99",
+                        "measured": r99["value"], "unit": "×", "met": r99["value"] >= TARGET_VS_REFERENCE_P99,
+                        "why": f"p99 per scan: the reference {fmt(ref['p99'], 'us')}, gtsjax's step {fmt(g['p99'], 'us')}; "
+                               "what moves the median moves it (see speedup_vs_numpy_reference).",
+                        "profile": "reference"})
+    best_batch = max((res.get(k)["median"] for k in ("batch.urg-04lx.exact", "batch.urg-04lx.vmap") if res.has(k)),
+                     default=None)
+    if best_batch is not None and r is not None:
+        ref_rate = 1e6 / res.get(r["numerator"])["median"]
+        goal = TARGET_BATCH_VS_REFERENCE * ref_rate
+        targets.append({"name": "batch_vs_reference", "target": f"≥ {TARGET_BATCH_VS_REFERENCE:.0f}× the reference's "
+                        f"per-scan rate ({fmt(goal, 'scans/s')} in this run)", "measured": best_batch / ref_rate,
+                        "unit": "×", "met": best_batch >= goal,
+                        "why": f"The reference runs {fmt(ref_rate, 'scans/s')}, batch replay at best "
+                               f"{fmt(best_batch, 'scans/s')}; see batch_replay_throughput for where a scan's time goes.",
+                        "profile": "batch"})
+    if res.has("live.utm-30lx_40hz"):
+        lv = res.get("live.utm-30lx_40hz")
+        p99_ms = lv["p99"] / 1e3 if lv["unit"] == "us" else lv["p99"]
+        alone = (res.get("live.utm-30lx_40hz.step_every_period") if res.has("live.utm-30lx_40hz.step_every_period")
+                 else None)
+        targets.append({"name": "live_p99_40hz", "target": f"frame → GTD row p99 ≤ {TARGET_LIVE_P99_MS:.0f} ms at 40 Hz",
+                        "measured": p99_ms, "unit": "ms", "met": p99_ms <= TARGET_LIVE_P99_MS,
+                        "why": "Frame read to GTD row flushed, the emulator over a pty: "
+                               f"median {fmt(lv['median'], lv['unit'])}, p99 {fmt(lv['p99'], lv['unit'])}"
+                               + (f"; the step alone, called every 25 ms, {fmt(alone['median'], alone['unit'])} median "
+                                  f"(its code and constants leave the caches between frames, README, Speed)" if alone else "")
+                               + ".", "profile": "live"})
+    if res.has("scip.decode_me_1081"):
+        sd = res.get("scip.decode_me_1081")
+        targets.append({"name": "scip_decode_me", "target": f"median ≤ {TARGET_SCIP_DECODE_US:.0f} µs (UTM-30LX ME frame)",
+                        "measured": sd["median"], "unit": sd["unit"], "met": sd["median"] <= TARGET_SCIP_DECODE_US,
+                        "why": f"median {fmt(sd['median'], sd['unit'])}, p99 {fmt(sd['p99'], sd['unit'])}.",
+                        "profile": "scip"})
     for name in sorted(k for k in res.checks if k.startswith("gp_lml.")):
         tag = name.split(".", 1)[1]
         try:
@@ -271,9 +317,11 @@ def markdown(res, command: str) -> str:
         out += [f"- **{t['name']}** ({'met' if t['met'] else 'missed'}): {t['why']}"]
     missed = [t for t in res.targets if not t["met"]]
     if missed:
-        out += ["", "## Profiles of the missed targets", ""]
-        for t in missed:
-            out += [f"### {t['name']}", "", "```", _profile_text(res.profiles.get(t["profile"], {})), "```", ""]
+        profiled = [t for t in missed if res.profiles.get(t["profile"])]
+        if profiled:
+            out += ["", "## Profiles of the missed targets", ""]
+        for t in profiled:
+            out += [f"### {t['name']}", "", "```", _profile_text(res.profiles[t["profile"]]), "```", ""]
     out += ["", "## All measurements", ""]
     sections = []
     for meas in res.measurements:

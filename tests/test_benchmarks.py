@@ -30,7 +30,8 @@ EXPECTED = [
     "live.urg-04lx_10hz", "live.utm-30lx_40hz",
 ]
 OPTIONAL = {"tinygp": ["gp_fit.n100.tinygp"], "dynamax": ["kalman.sequence.dynamax", "kalman.one_step.dynamax"]}
-TARGETS = {"step_p99_urg04lx_8_tracks", "batch_replay_throughput", "speedup_vs_numpy_reference", "gp_fit_speedup_n100"}
+TARGETS = {"step_p99_urg04lx_8_tracks", "batch_replay_throughput", "speedup_vs_numpy_reference", "gp_fit_speedup_n100",
+           "speedup_vs_numpy_reference_p99", "batch_vs_reference", "live_p99_40hz", "scip_decode_me"}
 
 
 def _positive(x) -> bool:
