@@ -112,6 +112,27 @@ def test_step_traced_once_per_model_shape_and_replay_equals_stepping(tiny):
         np.testing.assert_array_equal(np.asarray(state.tracker.track_id), np.asarray(f.tracker.track_id))
 
 
+def test_logs_of_different_lengths_share_one_compiled_chunk(tiny):
+    """A log shorter than the chunk is padded to the power of two that holds it (``chunk_for``), so
+    logs of 35 and 45 scans run one compiled chunk of 64 (each length had compiled its own); and the
+    shorter log's rows are the longer one's first rows, as stepping gives them."""
+    from gtsjax.drivers.replay import chunk_for, process_chunk
+
+    assert [chunk_for(n, 256) for n in (1, 2, 3, 35, 45, 64, 65, 256, 600)] == [1, 2, 4, 64, 64, 64, 128, 256, 256]
+    assert chunk_for(45, 16) == 16
+    log, site = simulate("spl-crossing", seed=22, n_scans=45)
+    model = tiny["model"].with_site(site)
+    scans = to_scans(log, model.n_beams)
+    before = process_chunk._cache_size()
+    _, long = process_log(model, scans)
+    _, short = process_log(model, jax.tree.map(lambda a: a[:35], scans))
+    assert process_chunk._cache_size() - before <= 1
+    assert long.track_id.shape[0] == 45 and short.track_id.shape[0] == 35
+    assert long.track_mask.sum() > 20  # the robots were tracked
+    for name in ("track_id", "track_class", "track_mask", "det_mask", "track_pose", "track_var", "det_pose"):
+        np.testing.assert_array_equal(getattr(short, name), getattr(long, name)[:35], err_msg=name)
+
+
 def _same_tracks(a, b, what: str):
     """Stacked outputs of one log computed two ways: ids and masks equal, poses to float32 round-off."""
     for name in ("track_id", "track_class", "track_mask", "det_mask"):

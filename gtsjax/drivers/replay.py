@@ -59,6 +59,14 @@ def _pad_chunk(scans, start: int, stop: int, size: int):
     return jax.tree.map(lambda a: jnp.concatenate([a, jnp.repeat(a[-1:], pad, axis=0)]), part)
 
 
+def chunk_for(n: int, chunk: int) -> int:
+    """The chunk size for ``n`` scans: ``chunk``, or for a log shorter than that the power of two that
+    holds it (the chunk is padded, its padding leaves the state alone). The chunk's length is a shape
+    of the compiled program: sized to each log, every log length compiled a program of its own
+    (some 20 s on 2 cores, and a miss of the persistent cache); so bucketed, a few serve all."""
+    return max(1, min(chunk, 1 << max(0, n - 1).bit_length()))
+
+
 # Scans per ``vmap``ped group of perception in the vectorised batch form: each kernel's fixed cost is
 # shared by the group, and the size buckets (``core.buckets``) still work, one per group (its largest
 # count of robots and posts), where a whole chunk would pay for its busiest scan throughout.
@@ -141,7 +149,7 @@ def process_log(model: Model, scans: Scan, *, chunk: int = 256, state: PipelineS
     """
     state = init_state(model) if state is None else state
     n = scans.ranges.shape[0]
-    chunk = max(1, min(chunk, n))
+    chunk = chunk_for(n, chunk)
     outs = []
     for start in range(0, n, chunk):
         stop = min(start + chunk, n)
@@ -285,7 +293,7 @@ def replay_logs(logs, model, outs: list[Path], *, chunk: int = 256, sensor_outs:
     sensor_outs = sensor_outs or [None] * len(logs)
     states = [init_state(model) for _ in logs]
     longest = max(lg.n_scans for lg in logs)
-    chunk = max(1, min(chunk, longest))
+    chunk = chunk_for(longest, chunk)
     block = chunk * 16
     sinks = [_Sink(model, o, so) for o, so in zip(outs, sensor_outs, strict=True)]
     done = 0

@@ -31,7 +31,7 @@ from ..io.gtd import GTDWriter, rows_from_output
 from ..io.logs import ScanLog, scan_dt, to_scans
 from ..io.site import Site
 from ..model import Model
-from .replay import SUB_CHUNK, _pad_chunk, perceive_batch
+from .replay import SUB_CHUNK, _pad_chunk, chunk_for, perceive_batch
 
 
 @dataclasses.dataclass(frozen=True)
@@ -122,7 +122,7 @@ def process_several(model: "Model | tuple[Model, ...]", merged: Merged, sensor_p
     state = init_several(model, jnp.asarray(sensor_poses, jnp.float32)) if state is None else state
     scans = to_scans(merged.log, model.n_beams)
     n = merged.log.n_scans
-    chunk = max(1, min(chunk, n))
+    chunk = chunk_for(n, chunk)
     laser = jnp.asarray(merged.laser, jnp.int32)
     span = jnp.asarray(merged.span_dt, jnp.float32)
     outs = []
@@ -172,7 +172,7 @@ def process_mixed(models: "tuple[Model, ...]", kinds, merged: Merged, sensor_pos
     state = init_several(models, jnp.asarray(sensor_poses, jnp.float32), kinds) if state is None else state
     n_cands, n_beams = widest(models)
     n = merged.log.n_scans
-    chunk = max(1, min(chunk, n))
+    chunk = chunk_for(n, chunk)
     # Pass 1: each laser's scans, perceived by its own model, on the host in the laser's order.
     percepts, scans = [], []
     for k, name in enumerate(merged.names):
