@@ -36,6 +36,7 @@ def _release_compiled_programs():
     yield
     release_compiled_if_crowded()
 
+
 SHARED = Path(os.environ.get("GTSJAX_SHARED", Path(__file__).resolve().parents[1].parent / "shared"))
 
 
