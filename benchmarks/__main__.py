@@ -49,8 +49,6 @@ def main(argv: list[str] | None = None) -> int:
         jax.config.update("jax_compilation_cache_dir", str(HERE / ".cache" / "xla"))
     import importlib
 
-    from gtsjax.cli import release_compiled_if_crowded
-
     from ._harness import Context, Results, jsonable, machine_info
     from ._report import evaluate_targets, markdown, print_tables
 
@@ -89,9 +87,9 @@ def main(argv: list[str] | None = None) -> int:
             log(f"{name} FAILED:\n{traceback.format_exc()}")
         res.sections.setdefault(name, {})["seconds"] = round(time.perf_counter() - t0, 1)
         log(f"{name} done in {time.perf_counter() - t0:.0f} s")
-        # every section compiles its own programs: drop them before the next (memory mappings of
-        # programs loaded from the cache, gtsjax.cli.release_compiled_if_crowded)
-        release_compiled_if_crowded(limit=0)
+        # every section compiles its own programs: drop them before the next (a program loaded from
+        # the cache holds many memory mappings, gtsjax.cli.release_compiled_if_crowded)
+        jax.clear_caches()
     res.machine["load_average_end"] = list(os.getloadavg()) if hasattr(os, "getloadavg") else None
     res.settings["total_seconds"] = round(time.perf_counter() - t_all, 1)
     evaluate_targets(res)

@@ -78,6 +78,9 @@ def evaluate_targets(res) -> None:
         targets.append({"name": "step_p99_urg04lx_8_tracks", "target": f"p99 ≤ {TARGET_STEP_P99_US:.0f} µs",
                         "measured": m["p99"], "unit": "us", "met": met,
                         "why": why, "profile": "step_p99"})
+    # The best batch rate of the run: step by step or vectorised (both batch targets judge it).
+    best_batch = max((res.get(k)["median"] for k in ("batch.urg-04lx.exact", "batch.urg-04lx.vmap") if res.has(k)),
+                     default=None)
     if res.has("batch.urg-04lx.exact"):
         b = res.get("batch.urg-04lx.exact")
         v = res.get("batch.urg-04lx.vmap") if res.has("batch.urg-04lx.vmap") else None
@@ -88,7 +91,6 @@ def evaluate_targets(res) -> None:
                                  "frontend_batch_scans_per_s": res.get("batch.urg-04lx.frontend")["median"]
                                  if res.has("batch.urg-04lx.frontend") else None,
                                  "xla_cost_per_stage": res.profiles.get("xla_cost.urg-04lx", {})}
-        best = max(b["median"], v["median"] if v else 0)
         cost = res.profiles.get("xla_cost.urg-04lx", {})
         stages = _stage_breakdown(res, "urg-04lx")
         heavy = max(cost.items(), key=lambda kv: kv[1].get("mflop", 0.0), default=("?", {}))
@@ -106,7 +108,7 @@ def evaluate_targets(res) -> None:
                "1.57 against 1.78 ms) but cost tracked heading accuracy on the README's scenarios, so it is "
                "not the default (README, Speed).")
         targets.append({"name": "batch_replay_throughput", "target": f"≥ {TARGET_BATCH:.0f} scans/s",
-                        "measured": b["median"], "unit": "scans/s", "met": best >= TARGET_BATCH,
+                        "measured": b["median"], "unit": "scans/s", "met": best_batch >= TARGET_BATCH,
                         "why": why, "profile": "batch",
                         "note": "best of the step-by-step and the vectorised form"})
     try:
@@ -149,8 +151,6 @@ def evaluate_targets(res) -> None:
                         "why": f"p99 per scan: the reference {fmt(ref['p99'], 'us')}, gtsjax's step {fmt(g['p99'], 'us')}; "
                                "what moves the median moves it (see speedup_vs_numpy_reference).",
                         "profile": "reference"})
-    best_batch = max((res.get(k)["median"] for k in ("batch.urg-04lx.exact", "batch.urg-04lx.vmap") if res.has(k)),
-                     default=None)
     if best_batch is not None and r is not None:
         ref_rate = 1e6 / res.get(r["numerator"])["median"]
         goal = TARGET_BATCH_VS_REFERENCE * ref_rate

@@ -25,12 +25,15 @@ laser's coverage is judged by its own scanner. Live, each scanner model has its 
 model with ``lax.switch``, its perception and scan padded to the widest model's.
 """
 
+import math
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
 from ..model import Model
+from ..sensors import MODELS
 from .f_maptransform import Transform
 from .g_track import TrackerState
 from .pipeline import Output, Perception, in_reach, perceive, update_view
@@ -52,10 +55,6 @@ class SeveralState(eqx.Module):
 def laser_reach(model: Model) -> tuple[float, float, float]:
     """The reach of a laser of the scanner ``model`` was trained for: first and last beam's bearing,
     range (host floats)."""
-    import math
-
-    from ..sensors import MODELS
-
     a0, da, n = model.angle_min, model.angle_increment, model.n_beams
     if not (math.isfinite(a0) and math.isfinite(da)):  # a model from before its geometry was kept
         known = MODELS.get(model.sensor_model)
