@@ -25,6 +25,7 @@ from ..core.scan import Scan
 from ..io.gtd import GTDWriter, rows_from_output
 from ..io.logs import to_scans
 from ..model import Model
+from .compile import batch_jit
 
 
 def _run_scans(model: Model, state: PipelineState, scans: Scan, n_real: Int[Array, ""]):
@@ -83,7 +84,7 @@ def perceive_batch(model: Model, scans: Scan, sub: int = SUB_CHUNK):
     return jax.tree.map(lambda a: a.reshape((size,) + a.shape[2:]), out)
 
 
-@jax.jit(static_argnames=("vectorise", "sub"))
+@batch_jit(static_argnames=("vectorise", "sub"))
 def process_chunk(model: Model, state: PipelineState, scans: Scan, n_real: Int[Array, ""], vectorise: bool = False,
                   sub: int = SUB_CHUNK) -> tuple[PipelineState, Output]:
     """A chunk of scans (leading axis). Scans at index ``>= n_real`` (padding of the last chunk) leave
@@ -109,7 +110,7 @@ def process_chunk(model: Model, state: PipelineState, scans: Scan, n_real: Int[A
     return jax.lax.scan(body, state, (percepts, scans, idx))
 
 
-@jax.jit(static_argnames=("vectorise", "sub"))
+@batch_jit(static_argnames=("vectorise", "sub"))
 def process_chunks(model: Model, states: PipelineState, scans: Scan, n_real: Int[Array, " logs"],
                    vectorise: bool = True, sub: int = SUB_CHUNK) -> tuple[PipelineState, Output]:
     """Chunks of several logs side by side (leading axis: logs, then scans), each log with its own

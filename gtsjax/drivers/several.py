@@ -31,6 +31,7 @@ from ..io.gtd import GTDWriter, rows_from_output
 from ..io.logs import ScanLog, scan_dt, to_scans
 from ..io.site import Site
 from ..model import Model
+from .compile import batch_jit
 from .replay import SUB_CHUNK, _pad_chunk, chunk_for, perceive_batch
 
 
@@ -92,7 +93,7 @@ def merge_logs(logs: "dict[str, ScanLog]", *, mixed: bool = False) -> Merged:
     return Merged(log, laser[order], index[order], span, names, dict(logs))
 
 
-@jax.jit
+@batch_jit()
 def process_several_chunk(model: Model, state: SeveralState, scans: Scan, laser: Int[Array, " n"],
                           span_dt: Float[Array, " n"], n_real: Int[Array, ""]) -> tuple[SeveralState, Output]:
     """A chunk of merged scans: perception ``vmap``ped over groups of scans, then the updates under
@@ -140,12 +141,12 @@ def _host_rows(tree, n: int):
     return jax.tree.map(lambda a: np.asarray(a)[:n], tree)
 
 
-@jax.jit
+@batch_jit()
 def _perceive_chunk(model: Model, scans: Scan) -> Perception:
     return perceive_batch(model, scans, math.gcd(SUB_CHUNK, scans.dt.shape[0]))
 
 
-@jax.jit
+@batch_jit()
 def process_mixed_chunk(models: "tuple[Model, ...]", state: SeveralState, percepts: Perception, scans: Scan,
                         laser: Int[Array, " n"], kind: Int[Array, " n"], span_dt: Float[Array, " n"],
                         n_real: Int[Array, ""]) -> tuple[SeveralState, Output]:
