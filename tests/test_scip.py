@@ -489,6 +489,30 @@ def test_stream_bad_data_line_keeps_the_frames_other_lines(line):
     assert np.all(frame.ranges_mm[hit] == 0)
 
 
+def test_a_character_moved_by_64_fails_its_line_though_its_sum_holds():
+    """A character moved by 64 (``0``–``?`` to ``p``–DEL) leaves the 6-bit sum as it was: the strict
+    decoder refuses the frame, the lenient ones (``parse_reply(strict=False)``, the stream decoder)
+    drop that line's beams and keep every other beam as sent."""
+    parts = _stream(4)
+    clean = scip.parse_replies(parts[3])[0]
+    b = bytearray(parts[3])
+    start = 0
+    for _ in range(5):  # the third data line
+        start = b.index(b"\n", start) + 1
+    at = next(k for k in range(64) if 0x30 <= b[start + k] <= 0x3F)
+    b[start + at] += 64
+    assert scip.checksum(bytes(b[start:start + 64])) == chr(b[start + 64])  # the sum cannot see it
+    with pytest.raises(scip.ScipError) as err:
+        scip.parse_reply(bytes(b))
+    assert err.value.reason == "checksum"
+    hit = _beams_of_lines({2}, 682, 3)
+    dec = scip.StreamDecoder()
+    for frame in (scip.parse_reply(bytes(b), strict=False), dec.decode(b"".join(parts[:3]) + bytes(b))[3]):
+        assert frame.bad_lines == 1
+        np.testing.assert_array_equal(frame.valid, clean.valid & ~hit)
+        np.testing.assert_array_equal(frame.ranges_mm[~hit], clean.ranges_mm[~hit])
+
+
 @pytest.mark.parametrize("what", ["timestamp", "every data line", "a byte lost from the timestamp"])
 def test_stream_frame_beyond_salvage_is_dropped(what):
     """A bad timestamp, every data line bad, or a byte lost from the timestamp: that frame is dropped

@@ -196,16 +196,22 @@ def checked_payload(full: np.ndarray, last: np.ndarray, *, where: str, strict: b
     (characters and sum): every sum checked at once, the payload joined in one copy. A line also fails
     where a character lies outside the encoding's ``0``–``o`` (``&`` allowed: multi-echo): the 6-bit
     sum cannot see a character moved by 64, which lands there from ``0``–``?``."""
-    bad = np.empty(full.shape[0] + 1, bool)
     body = full[:, :LINE_PAYLOAD]
+    tail = last[:-1].tobytes()
+    payload = np.concatenate([body.reshape(-1), last[:-1]])
+    bad = np.empty(full.shape[0] + 1, bool)
     bad[:-1] = ((body.sum(axis=1, dtype=np.int32) & 0x3F) + 0x30) != full[:, LINE_PAYLOAD]
-    bad[-1] = last[-1] != (int(last[:-1].sum(dtype=np.int32)) & 0x3F) + 0x30
-    bad[:-1] |= ((body > 0x6F) | ((body < 0x30) & (body != 0x26))).any(axis=1)
-    tail = last[:-1]
-    bad[-1] |= bool(((tail > 0x6F) | ((tail < 0x30) & (tail != 0x26))).any())
+    bad[-1] = int(last[-1]) != (sum(tail) & 0x3F) + 0x30
+    if payload.tobytes().translate(None, _ENCODING_CHARS):  # some character outside them: find its lines
+        bad[:-1] |= ((body > 0x6F) | ((body < 0x30) & (body != 0x26))).any(axis=1)
+        bad[-1] |= bool(tail.translate(None, _ENCODING_CHARS))
     if strict and bad.any():
         raise ScipError(where, f"{int(bad.sum())} of {bad.size} data line(s) fail their sum", "checksum")
-    return np.concatenate([full[:, :LINE_PAYLOAD].reshape(-1), last[:-1]]), bad
+    return payload, bad
+
+
+#: The characters a data line may carry: the encoding's ``0``–``o`` and multi-echo's ``&``.
+_ENCODING_CHARS = bytes(range(0x30, 0x70)) + b"&"
 
 
 # --------------------------------------------------------------------------- timestamps

@@ -249,6 +249,8 @@ def _scan_frame(cmd: Command, echo: bytes, status: str, stamp: int, data: np.nda
     if len(data) != expected:
         reason = "truncated" if len(data) < expected else "malformed"
         raise ScipError(where, f"{cmd.text}: {len(data)} data characters, expected {expected}", reason)
+    if bad_lines.any():  # a failing line may hold characters outside the encoding: its values are dropped below
+        data = np.where((data >= 0x30) & (data <= 0x6F), data, np.uint8(0x30))
     values = decode_values(data, chars)
     if per_step == 2:
         pairs = values.reshape(n, 2)
