@@ -111,3 +111,40 @@ def test_shared_kernel_rows_pose_as_the_separate_gps_do(groups):
     rb = regress((None, apart), xs, cls, ok, scores, 4, 4)
     np.testing.assert_array_equal(np.asarray(ra[2]), np.asarray(rb[2]))
     np.testing.assert_allclose(np.asarray(ra[0]), np.asarray(rb[0]), atol=6e-4)
+
+
+def test_pose_gps_over_one_training_set_read_their_inputs_once():
+    """Separate pose GPs each over all of one training set (their inducing rows the same, in each
+    GP's own pivot order) as one ``CommonInputsGP``: every output's mean as close to a float64 NumPy
+    sum over the GP's own rows as the GP's own float32 prediction is, and its variance that of its own
+    ``SparseGP``; and GPs whose inducing rows differ are left apart."""
+    from gtsjax.gp.sparse import CommonInputsGP, predict_many
+
+    rng = np.random.default_rng(3)
+    reg, x = _regressor(rng)
+    gps = reg.outputs()
+    assert not all(np.array_equal(np.asarray(g.z), np.asarray(gps[0].z)) for g in gps)  # orders differ
+    common = CommonInputsGP.of(gps)
+    assert common is not None and common.z.shape == gps[0].z.shape
+    xs = jnp.asarray(rng.uniform(-2.5, 2.5, (7, 2)), jnp.float32)
+    want_m, want_v = predict_many(gps, xs, include_noise=True)
+    got_m, got_v = common.predict(xs, include_noise=True)
+    assert_allclose(got_v, want_v, rtol=1e-3, atol=1e-5)  # s − ‖t₁‖² + ‖t₂‖²: float32 cancellation
+    assert_allclose(common.predict_mean(xs), got_m, rtol=1e-6, atol=1e-7)
+    for j, g in enumerate(gps):  # the mean in float64, over the GP's own rows in its own order
+        z = np.asarray(g.z, np.float64)
+        xst = (np.asarray(xs, np.float64) - np.asarray(g.x_mean, np.float64)) / np.asarray(g.x_scale, np.float64)
+        ell = np.exp(np.asarray(g.params.log_lengthscale, np.float64))
+        k = np.exp(float(g.params.log_signal_var)) * np.exp(-0.5 * (((xst[:, None] - z[None]) / ell) ** 2).sum(-1))
+        ref = k @ np.asarray(g.weights, np.float64) + float(g.y_mean)
+        own = np.abs(np.asarray(want_m[j], np.float64) - ref).max()  # the GP's own float32 rounding
+        assert np.abs(np.asarray(got_m[j], np.float64) - ref).max() <= 2 * own + 1e-6
+    # The regressor uses it once made, with the same poses and variances to that rounding.
+    both = reg.with_common_inputs()
+    assert both.common is not None and reg.common is None
+    for a, b in zip(regress_one_class(both, xs), regress_one_class(reg, xs), strict=True):
+        assert_allclose(a, b, rtol=1e-3, atol=5e-4)
+    # Inducing rows that are not one set: left apart.
+    fit = gp.fit(x, 0.1 * x[:, 0], key=jax.random.key(9), restarts=1)
+    assert CommonInputsGP.of((gps[0], fit.sparse(40, 20).astype(jnp.float32))) is None
+    assert PoseRegressor(gps[0], fit.sparse(40, 20).astype(jnp.float32)).with_common_inputs().common is None

@@ -15,7 +15,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from ..gp import GP, SharedSparseGP, SparseGP
-from ..gp.sparse import predict_many
+from ..gp.sparse import CommonInputsGP, predict_many
 from .buckets import bucketed, slots_of
 from .geometry import compose
 
@@ -34,7 +34,12 @@ class PoseRegressor(eqx.Module):
     ``var_scale`` multiplies the predictive variances of ``(x̃, ỹ, θ̃)``, set at training
     (:func:`gtsjax.train.calibrate.calibrate`). ``heading_var_max``: the largest (calibrated) heading
     variance of a read the tracker trusts for the heading; a candidate above it is *vague* and updates
-    a track's position only (set by the same calibration; ``None``: every heading is used)."""
+    a track's position only (set by the same calibration; ``None``: every heading is used).
+
+    ``common``: the separate GPs again, as one :class:`~gtsjax.gp.sparse.CommonInputsGP` whose
+    inducing inputs are stored and read once (:meth:`with_common_inputs`; a model file's loader makes
+    it, its writer leaves it out). Where it is set, :meth:`predict` uses it and the separate GPs
+    are not read."""
 
     x: SparseGP | GP | None = None
     y: SparseGP | GP | None = None
@@ -43,6 +48,7 @@ class PoseRegressor(eqx.Module):
     var_scale: Float[Array, "3"] | None = None
     heading_var_max: Float[Array, ""] | None = None
     shared: tuple[SharedSparseGP, ...] | None = None
+    common: CommonInputsGP | None = None
 
     @property
     def has_heading(self) -> bool:
@@ -68,8 +74,20 @@ class PoseRegressor(eqx.Module):
         """Means ``[outputs, cands]`` of ``x``, ``y`` (, ``sin``, ``cos``) and, unless ``mean_only``,
         their variances: one kernel row per shared group (groups of one shape batched), or the
         separate GPs batched (:func:`~gtsjax.gp.sparse.predict_many`)."""
+        if self.common is not None:
+            return (self.common.predict_mean(vectors),) if mean_only else self.common.predict(
+                vectors, include_noise=include_noise)
         gps = self.shared if self.shared is not None else self.outputs()
         return predict_many(gps, vectors, include_noise=include_noise, mean_only=mean_only)
+
+    def with_common_inputs(self) -> "PoseRegressor":
+        """This regressor with :attr:`common` made from its separate GPs where they share their inducing
+        inputs (a class's pose GPs each over all its training examples); else unchanged. Host-side:
+        call it on a loaded model, outside any jit."""
+        if self.shared is not None or self.common is not None:
+            return self
+        common = CommonInputsGP.of(self.outputs())
+        return self if common is None else eqx.tree_at(lambda r: r.common, self, common, is_leaf=lambda x: x is None)
 
 
 def regress_one_class(

@@ -12,7 +12,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import jax.scipy.linalg as jsl
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, Bool, Float, Int
 
 from ..core.precision import exact_products
 from .kernel import Hyperparameters, _cast, _effective_noise, _masked_gram, _standardise, gram, gram_matmul, kernel
@@ -250,6 +250,110 @@ def _build_shared(gps, m: int, mv: int) -> SharedSparseGP:
         outs[0].proj_m * root[0],
         jnp.stack([o.proj_b for o in outs]) * root[:, None, None],
         jnp.stack([o.y_mean for o in outs]), g0.x_mean, g0.x_scale, jnp.stack([o.noise for o in outs]))
+
+
+class CommonInputsGP(eqx.Module):
+    """Separate GPs (each its own kernel) whose mean runs over one set of inducing inputs: a class's
+    pose GPs trained on the same examples, each predicting its exact mean over all of them
+    (:meth:`gtsjax.gp.GP.sparse` with M = N puts each GP's own variance pivots first, so their ``z``
+    hold the same rows in different orders). Made by :meth:`of` from such :class:`SparseGP` s, it
+    predicts what they predict, with ``z`` stored and read once instead of once per GP: output ``j``'s
+    kernel row is ``s_j exp(−½(‖x‖²_j + ‖z‖²_j − 2 (W_j x)·z))`` with ``W_j = diag(ℓ_j⁻²)``, so every
+    output's products with ``z`` are one matrix product ``[outputs · tests, features] × zᵀ``. Each
+    output's variance reads its own ``Mv`` pivots out of its row (``var_index``)."""
+
+    z: Float[Array, "inducing features"]
+    z_mask: Bool[Array, " inducing"]
+    log_lengthscale: Float[Array, "outputs features"]
+    log_signal_var: Float[Array, " outputs"]
+    log_noise_var: Float[Array, " outputs"]
+    weights: Float[Array, "outputs inducing"]
+    var_index: Int[Array, "outputs var_inducing"]  # where output j's variance points lie in z
+    proj_m: Float[Array, "outputs var_inducing var_inducing"]
+    proj_b: Float[Array, "outputs var_inducing var_inducing"]
+    y_mean: Float[Array, " outputs"]
+    x_mean: Float[Array, " features"]
+    x_scale: Float[Array, " features"]
+    noise: Float[Array, " outputs"]
+
+    @property
+    def n_outputs(self) -> int:
+        return self.weights.shape[0]
+
+    def _rows(self, xs):
+        """Every output's kernel rows ``[outputs, tests, inducing]`` of raw inputs ``xs``."""
+        dt = self.z.dtype
+        xs = _standardise(xs.astype(dt), self.x_mean, self.x_scale)
+        w = jnp.exp(-2.0 * self.log_lengthscale)  # [outputs, features]
+        wx = w[:, None, :] * xs[None]  # [outputs, tests, features]
+        nx = jnp.sum(wx * xs[None], -1)  # [outputs, tests]
+        nz = (self.z * self.z) @ w.T  # [inducing, outputs]
+        cross = (wx.reshape(-1, wx.shape[-1]) @ self.z.T).reshape(wx.shape[:2] + self.z.shape[:1])
+        d2 = nx[:, :, None] + nz.T[:, None, :] - 2.0 * cross
+        k = jnp.exp(self.log_signal_var)[:, None, None] * jnp.exp(-0.5 * jnp.maximum(d2, jnp.zeros((), dt)))
+        return jnp.where(self.z_mask[None, None, :], k, jnp.zeros((), dt))
+
+    @exact_products
+    def predict(self, xs: Float[Array, "tests features"], *, include_noise: bool = False
+                ) -> tuple[Float[Array, "outputs tests"], Float[Array, "outputs tests"]]:
+        """Every output's DTC predictive mean and variance, as its :class:`SparseGP`'s."""
+        k = self._rows(xs)
+        mean = jnp.einsum("otm,om->ot", k, self.weights) + self.y_mean[:, None]
+        kv = jnp.take_along_axis(k, self.var_index[:, None, :], axis=2)  # [outputs, tests, var_inducing]
+        t1 = jnp.einsum("oab,otb->ota", self.proj_m, kv)
+        t2 = jnp.einsum("oab,otb->ota", self.proj_b, kv)
+        var = jnp.exp(self.log_signal_var)[:, None] - jnp.sum(t1 * t1, -1) + jnp.sum(t2 * t2, -1)
+        var = jnp.maximum(var, jnp.zeros((), var.dtype))
+        if include_noise:
+            var = var + jnp.exp(self.log_noise_var)[:, None]
+        return mean, var
+
+    @exact_products
+    def predict_mean(self, xs: Float[Array, "tests features"]) -> Float[Array, "outputs tests"]:
+        return jnp.einsum("otm,om->ot", self._rows(xs), self.weights) + self.y_mean[:, None]
+
+    def astype(self, dtype) -> "CommonInputsGP":
+        return _cast(self, dtype)
+
+    @staticmethod
+    def of(gps: "tuple[SparseGP, ...]") -> "CommonInputsGP | None":
+        """The GPs as one :class:`CommonInputsGP`, or ``None`` unless they are :class:`SparseGP` s of
+        concrete arrays with the same input statistics, every inducing slot used and the same inducing
+        rows (in any order). Host-side (NumPy): a model is converted once, when it is loaded."""
+        import numpy as np
+
+        if len(gps) < 2 or any(type(g) is not SparseGP for g in gps):
+            return None
+        leaves = [a for g in gps for a in jax.tree.leaves(g)]
+        if any(isinstance(a, jax.core.Tracer) for a in leaves):
+            return None
+        g0 = gps[0]
+        z0 = np.asarray(g0.z)
+        mv = gps[0].n_variance
+        for g in gps:
+            if (g.z.shape != z0.shape or g.n_variance != mv or not np.all(np.asarray(g.z_mask))
+                    or not np.array_equal(np.asarray(g.x_mean), np.asarray(g0.x_mean))
+                    or not np.array_equal(np.asarray(g.x_scale), np.asarray(g0.x_scale))):
+                return None
+        order0 = np.lexsort(z0.T[::-1])
+        weights, var_index = [], []
+        for g in gps:
+            z = np.asarray(g.z)
+            order = np.lexsort(z.T[::-1])
+            if not np.array_equal(z[order], z0[order0]):
+                return None
+            pos = np.empty(len(z), np.int64)  # pos[i]: where row i of this GP's z lies in z0
+            pos[order] = order0
+            w = np.empty_like(np.asarray(g.weights))
+            w[pos] = np.asarray(g.weights)  # a permutation: rows that are equal may swap, to the same effect
+            weights.append(w)
+            var_index.append(pos[:mv])
+        stack = lambda f: jnp.asarray(np.stack([np.asarray(f(g)) for g in gps]))  # noqa: E731
+        return CommonInputsGP(
+            g0.z, g0.z_mask, stack(lambda g: g.params.log_lengthscale), stack(lambda g: g.params.log_signal_var),
+            stack(lambda g: g.params.log_noise_var), jnp.asarray(np.stack(weights)),
+            jnp.asarray(np.stack(var_index).astype(np.int32)), stack(lambda g: g.proj_m), stack(lambda g: g.proj_b),
+            stack(lambda g: g.y_mean), g0.x_mean, g0.x_scale, stack(lambda g: g.noise))
 
 
 # ------------------------------------------------------------------------------------------ building

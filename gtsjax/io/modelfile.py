@@ -66,6 +66,8 @@ _TYPES = {
 }
 # Header keys and their JSON types (``summary`` may be absent).
 _HEADER = {"format": str, "version": int, "sensor_model": str, "n_beams": int, "classes": list, "schema": dict}
+# Fields made from the others when a model is loaded (``PoseRegressor.with_common_inputs``), never written.
+_DERIVED = {(PoseRegressor, "common")}
 # Tuples with one entry per class.
 _PER_CLASS = {(Classifier, "gps"), (Model, "pose")}
 # The dtype the float32 step expects of each jaxtyping kind.
@@ -81,7 +83,8 @@ def _encode(node, leaves: dict[str, np.ndarray]):
             raise TypeError(f"cannot save a {type(node)!r} in a model file")
         return {
             "type": name,
-            "fields": {f.name: _encode(getattr(node, f.name), leaves) for f in dataclasses.fields(node)},
+            "fields": {f.name: _encode(getattr(node, f.name), leaves) for f in dataclasses.fields(node)
+                       if (type(node), f.name) not in _DERIVED},
         }
     if isinstance(node, tuple):
         return {"tuple": [_encode(v, leaves) for v in node]}
@@ -362,4 +365,6 @@ def load_model(path: str | os.PathLike) -> Model:
     finally:
         npz.close()
     _check(top, _config_sizes(top, header, path), path)
-    return _build(top)
+    model = _build(top)
+    pose = tuple(None if r is None else r.with_common_inputs() for r in model.pose)
+    return eqx.tree_at(lambda m: m.pose, model, pose, is_leaf=lambda x: x is None)
