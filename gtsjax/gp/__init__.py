@@ -6,8 +6,9 @@ One concept per module, in the order of use:
 - :mod:`gtsjax.gp.kernel`: log-space :class:`Hyperparameters`, the kernel (eq 3) and the log marginal
   likelihood (eq 5) with its closed-form gradient; the padding conventions.
 - :mod:`gtsjax.gp.exact`: the exact :class:`GP` (conditioning, eqs 6-7).
-- :mod:`gtsjax.gp.sparse`: the DTC :class:`SparseGP` the shipped models hold, and
-  :class:`SharedSparseGP`, several outputs of one kernel predicted from one kernel row.
+- :mod:`gtsjax.gp.sparse`: the DTC :class:`SparseGP` the shipped models hold;
+  :class:`SharedSparseGP`, several outputs of one kernel predicted from one kernel row; and
+  ``CommonInputsGP``, separate GPs over one set of inducing inputs, held and read once.
 - :mod:`gtsjax.gp.fit`: :func:`fit`, maximising eq 5 (eq 4) over the hyperparameters; :func:`fit_shared`,
   several outputs with shared length scales on the sum of their LMLs.
 """
