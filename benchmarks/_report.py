@@ -107,7 +107,8 @@ def evaluate_targets(res) -> None:
                f"{total:.1f} MFLOP XLA counts per scan, {heavy[1].get('mflop', 0):.1f} are {heavy[0]} "
                f"({fmt(stages.get(heavy[0], {}).get('median_us', float('nan')), 'us')} median on its own). The pose "
                "GPs' exact means run over all their training examples (5 905 in the shipped model), four GPs "
-               "with four kernel rows per robot candidate; `train --pose-kernels 2` halves the rows (the step "
+               "with four kernel rows per robot candidate, from one product with their inputs (held once: "
+               "`gp.sparse.CommonInputsGP`); `train --pose-kernels 2` halves the rows (the step "
                "1.57 against 1.78 ms) but cost tracked heading accuracy on the README's scenarios, so it is "
                "not the default (README, Speed).")
         targets.append({"name": "batch_replay_throughput", "target": f"≥ {TARGET_BATCH:.0f} scans/s",
