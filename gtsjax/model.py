@@ -132,6 +132,14 @@ class Model(eqx.Module):
         (``e_refine.DEFAULT_SIDES``). For comparison (``gtsjax evaluate --without-outline``)."""
         return eqx.tree_at(lambda m: m.outline, self, None, is_leaf=lambda x: x is None)
 
+    def with_common_pose_inputs(self) -> "Model":
+        """This model with each class's separate pose GPs also held as one
+        :class:`~gtsjax.gp.sparse.CommonInputsGP` where they share their inputs
+        (:meth:`~gtsjax.core.e_pose.PoseRegressor.with_common_inputs`): how a model file loads and
+        training hands a model over. Host-side, outside any jit."""
+        pose = tuple(None if r is None else r.with_common_inputs() for r in self.pose)
+        return eqx.tree_at(lambda m: m.pose, self, pose, is_leaf=lambda x: x is None)
+
     def with_site(self, site, *, where: str = "site") -> "Model":
         """Attach a :class:`~gtsjax.io.site.Site`. Every landmark class must be one the model knows
         as a landmark class; otherwise it could never be detected."""

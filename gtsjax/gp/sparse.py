@@ -348,12 +348,11 @@ class CommonInputsGP(eqx.Module):
             w[pos] = np.asarray(g.weights)  # a permutation: rows that are equal may swap, to the same effect
             weights.append(w)
             var_index.append(pos[:mv])
-        stack = lambda f: jnp.asarray(np.stack([np.asarray(f(g)) for g in gps]))  # noqa: E731
+        st = _stacked(gps)  # every GP's own leaves on a leading axis (the same shapes, checked above)
         return CommonInputsGP(
-            g0.z, g0.z_mask, stack(lambda g: g.params.log_lengthscale), stack(lambda g: g.params.log_signal_var),
-            stack(lambda g: g.params.log_noise_var), jnp.asarray(np.stack(weights)),
-            jnp.asarray(np.stack(var_index).astype(np.int32)), stack(lambda g: g.proj_m), stack(lambda g: g.proj_b),
-            stack(lambda g: g.y_mean), g0.x_mean, g0.x_scale, stack(lambda g: g.noise))
+            g0.z, g0.z_mask, st.params.log_lengthscale, st.params.log_signal_var, st.params.log_noise_var,
+            jnp.asarray(np.stack(weights)), jnp.asarray(np.stack(var_index).astype(np.int32)), st.proj_m,
+            st.proj_b, st.y_mean, g0.x_mean, g0.x_scale, st.noise)
 
 
 # ------------------------------------------------------------------------------------------ building

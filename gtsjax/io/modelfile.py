@@ -365,6 +365,4 @@ def load_model(path: str | os.PathLike) -> Model:
     finally:
         npz.close()
     _check(top, _config_sizes(top, header, path), path)
-    model = _build(top)
-    pose = tuple(None if r is None else r.with_common_inputs() for r in model.pose)
-    return eqx.tree_at(lambda m: m.pose, model, pose, is_leaf=lambda x: x is None)
+    return _build(top).with_common_pose_inputs()

@@ -124,7 +124,7 @@ def train(logs: Sequence[ScanLog], site: "Site | Sequence[Site]", cfg: TrainConf
         frontend=cfg.frontend,
         classifier=classifier,
         envelope=envelope,
-        pose=tuple(None if r is None else r.with_common_inputs() for r in pose),  # as a model file loads
+        pose=tuple(pose),
         tracker=TrackerParams.default([c in mobiles for c in classes], rate_hz=scan_rate(logs), max_speed=speed,
                                       max_turn_rate=turn),
         landmark_mask=jnp.asarray([c in landmarks for c in classes]),
@@ -143,7 +143,7 @@ def train(logs: Sequence[ScanLog], site: "Site | Sequence[Site]", cfg: TrainConf
         range_min=float(first.range_min),
         range_max=float(first.range_max),
         outline=outline,
-    )
+    ).with_common_pose_inputs()  # as a model file loads
     report = {
         "classes": list(classes),
         "examples": {c: int(np.sum(ex.cls == k)) for k, c in enumerate(classes)},
