@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gtsjax.drivers.live import frame_arrays, run_live, warm_up
+from gtsjax.drivers.live import run_live, warm_up
 from gtsjax.io.serial import Link
 from gtsjax.sensors import URG_04LX, UTM_30LX
 from gtsjax.sim.emulator import SensorEmulator
@@ -67,9 +67,9 @@ def step_alone(ctx, key: str, sensor, log, model, n: int) -> None:
     """The live step on ``n`` frames of ``log``: back to back, and once per ``sensor.period`` with
     the period spent each way of :data:`PAUSES`."""
     step, state0 = warm_up(model, sensor)
-    frames = [frame_arrays(log.ranges[i % log.n_scans].astype(np.float64),
-                           None if log.intensities is None or not sensor.has_intensity else log.intensities[i % log.n_scans],
-                           sensor, model.n_beams) for i in range(n)]
+    frames = [(log.ranges[i % log.n_scans].astype(np.float64),
+               None if log.intensities is None or not sensor.has_intensity else log.intensities[i % log.n_scans])
+              for i in range(n)]
     dt = np.float32(sensor.period)
     big = np.zeros(64 * 2**20 // 8)
     cases = [("back_to_back", None, "back to back")] + [
@@ -78,9 +78,9 @@ def step_alone(ctx, key: str, sensor, log, model, n: int) -> None:
     for tag, pause, what in cases:
         state = state0
         out = np.empty(n)
-        for i, (r, inten, valid) in enumerate(frames):
+        for i, (r, inten) in enumerate(frames):
             t0 = time.perf_counter()
-            state, _, packed = step(state, r, inten, valid, dt)
+            state, _, packed = step(state, r, inten, dt)
             np.asarray(packed)
             out[i] = time.perf_counter() - t0
             t = time.perf_counter()
@@ -92,7 +92,7 @@ def step_alone(ctx, key: str, sensor, log, model, n: int) -> None:
             elif pause in ("spin", "rewarm"):
                 while time.perf_counter() - t < sensor.period:
                     if pause == "rewarm":
-                        np.asarray(step(state, r, inten, valid, dt)[2])
+                        np.asarray(step(state, r, inten, dt)[2])
         ctx.results.add(f"live.{key}.step_{tag}", "ms", out[10:], section=SECTION,
                         label=f"live step alone, {sensor.name}, called {what}", sensor=sensor.name)
 

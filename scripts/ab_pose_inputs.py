@@ -21,7 +21,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks import _data  # noqa: E402
 from benchmarks._harness import _cpu_model  # noqa: E402
-from gtsjax.drivers.live import frame_arrays, warm_up  # noqa: E402
+from gtsjax.drivers.live import warm_up  # noqa: E402
 from gtsjax.drivers.replay import process_log  # noqa: E402
 from gtsjax.io import to_scans  # noqa: E402
 from gtsjax.sensors import URG_04LX  # noqa: E402
@@ -49,8 +49,7 @@ def main() -> None:
     variants = {"apart": apart(held_once), "once": held_once}
     scans = to_scans(log, held_once.n_beams)
     live_log, live_site = _data.scenario("spl-trajectory", 7, 300)
-    frames = [frame_arrays(live_log.ranges[i % live_log.n_scans].astype(np.float64), None, URG_04LX,
-                           held_once.n_beams) for i in range(args.frames)]
+    frames = [live_log.ranges[i % live_log.n_scans].astype(np.float64) for i in range(args.frames)]
     steps = {k: warm_up(m.with_site(live_site), URG_04LX) for k, m in variants.items()}
     for m in variants.values():
         process_log(m, scans, chunk=256, vectorise=True)  # compile
@@ -65,9 +64,9 @@ def main() -> None:
             step, state0 = steps[k]
             for way in ("back to back", "every 25 ms"):
                 state = state0
-                for i, (r, inten, valid) in enumerate(frames):
+                for i, r in enumerate(frames):
                     t0 = time.perf_counter()
-                    state, _, packed = step(state, r, inten, valid, dt)
+                    state, _, packed = step(state, r, None, dt)
                     np.asarray(packed)
                     if i >= 5:
                         live[(k, way)].append(time.perf_counter() - t0)

@@ -312,7 +312,7 @@ def test_train_cli_bad_input(tmp_path):
 def test_live_step_rows_equal_the_replay_rows(tiny):
     """The live driver (frame arrays in, the GTD fields packed into one array out, one compiled call
     per frame) gives the rows the replay driver writes for the same scans."""
-    from gtsjax.drivers.live import frame_arrays, make_live_step, rows_from_packed
+    from gtsjax.drivers.live import make_live_step, rows_from_packed
     from gtsjax.io.gtd import rows_from_output
     from gtsjax.io.logs import scan_dt
     from gtsjax.sensors import URG_04LX
@@ -321,12 +321,11 @@ def test_live_step_rows_equal_the_replay_rows(tiny):
     model = tiny["model"].with_site(site)
     live = make_live_step(model, URG_04LX)
     _, batch = process_log(model, to_scans(log, model.n_beams), chunk=32)
-    s_live = init_state(model)
+    s_live = live.initial_state()
     dts = scan_dt(log.stamps)
     n_rows = 0
     for t in range(log.n_scans):
-        r, inten, valid = frame_arrays(log.ranges[t], None, URG_04LX, model.n_beams)
-        s_live, _, packed = live(s_live, r, inten, valid, dts[t])
+        s_live, _, packed = live(s_live, log.ranges[t], None, dts[t])
         got = rows_from_packed(log.stamps[t], np.asarray(packed), model.classes)
         want = rows_from_output(log.stamps[t], batch.track_id[t], batch.track_class[t], batch.track_pose[t],
                                 batch.track_var[t], batch.track_mask[t], model.classes)
@@ -443,3 +442,66 @@ def test_every_candidate_slot_says_what_became_of_it():
                                    atol=1e-5)
         seen |= set(reason.tolist())
     assert {code["none"], code["object"]} <= seen and len(seen) >= 3
+
+
+def test_packing_round_trips_a_tree_of_mixed_dtypes_inside_jit_and_on_the_host():
+    """A tree of float32, int32 and bool arrays (scalars among them) packed into one buffer per dtype
+    and unpacked, inside ``jit`` and with NumPy on the host: every leaf comes back as it was."""
+    import jax.numpy as jnp
+
+    from gtsjax.drivers.packing import Packing
+
+    rng = np.random.default_rng(0)
+    tree = {"a": jnp.asarray(rng.normal(size=(3, 4)), jnp.float32), "b": (jnp.asarray(7, jnp.int32),
+            jnp.asarray(rng.random(5) > 0.5)), "c": jnp.asarray(rng.integers(-9, 9, (2, 2, 2)), jnp.int32),
+            "d": jnp.asarray(2.5, jnp.float32), "e": jnp.zeros((0, 3), jnp.float32)}
+    layout = Packing.of(tree)
+    assert [np.dtype(d) for d in layout.dtypes] == [np.float32, np.int32, np.bool_]
+    bufs = jax.jit(layout.pack)(tree)
+    assert [b.shape for b in bufs] == [(13,), (9,), (5,)]
+    twice = jax.jit(lambda b: layout.unpack(b))(bufs)
+    for got in (twice, layout.unpack_host(bufs)):
+        for x, y in zip(jax.tree.leaves(got), jax.tree.leaves(tree), strict=True):
+            assert x.shape == y.shape and x.dtype == y.dtype
+            np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    with pytest.raises(ValueError, match="expected 3 buffers"):
+        layout.unpack(bufs[:2])
+
+
+def test_live_step_state_and_output_equal_the_plain_steps(tiny):
+    """The live step (a frame copied as it came into one buffer; state and output packed), unpacked,
+    equals ``jit(step)`` on the same frames made on the host (``frame_arrays``: valid beams, padding)
+    with the pipeline's state passed from call to call, leaf by leaf; frames with beams out of range,
+    non-finite and fewer than the model's (a narrower scanner) among them."""
+    from gtsjax.core.scan import Scan
+    from gtsjax.drivers.live import frame_arrays, make_live_step
+    from gtsjax.io.logs import scan_dt
+    from gtsjax.sensors import URG_04LX
+
+    log, site = simulate("spl-crossing", seed=23, n_scans=25)
+    model = tiny["model"].with_site(site)
+    live = make_live_step(model, URG_04LX)
+    am, ai = (jax.numpy.asarray(a, jax.numpy.float32) for a in (URG_04LX.angle_min, URG_04LX.angle_increment))
+    plain = jax.jit(lambda s, r, i, v, dt: step(model, s, Scan(r, i, v, am, ai, dt)))
+    s_live, s_plain = live.initial_state(), init_state(model)
+    dts = scan_dt(log.stamps)
+    rng = np.random.default_rng(5)
+    reported = 0
+    for t in range(log.n_scans):
+        ranges = log.ranges[t].astype(np.float64)
+        bad = rng.choice(ranges.size, 12, replace=False)
+        ranges[bad] = [np.nan, np.inf, -np.inf, -1.0, 0.0, 1e-3, URG_04LX.range_max + 0.5, 1e6,
+                       URG_04LX.range_min, URG_04LX.range_max, np.nan, 0.0]
+        if t % 5 == 4:
+            ranges = ranges[:-40]  # a frame narrower than the model's (its last beams are padding)
+        inten = rng.uniform(0, 3000, ranges.size)
+        s_live, o_live, _ = live(s_live, ranges, inten, dts[t])
+        s_plain, o_plain = plain(s_plain, *frame_arrays(ranges, inten, URG_04LX, model.n_beams), np.float32(dts[t]))
+        for got, want in ((live.pipeline_state(s_live), s_plain), (live.output(o_live), o_plain)):
+            for x, y in zip(jax.tree.leaves(got), jax.tree.leaves(want), strict=True):
+                assert x.shape == y.shape and x.dtype == y.dtype
+                np.testing.assert_allclose(np.asarray(x), np.asarray(y), rtol=1e-5, atol=1e-6)
+        reported += int(np.sum(np.asarray(o_plain.track_mask)))
+    assert reported > 10  # the robots were tracked, so tracks were compared
+    with pytest.raises(ValueError, match="more than the model's"):
+        live(s_live, np.ones(model.n_beams + 1), None, 0.1)

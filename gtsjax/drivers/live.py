@@ -1,15 +1,16 @@
 """The live loop, a driver: frames from the sensor link through the pipeline's ``step``, into the
 GTD CSV (flushed per scan), optionally JSON lines on stdout or UDP, a raw recording, and a live view.
 
-The loop owns nothing numeric: it pads each :class:`~gtsjax.io.serial.LinkFrame`'s ranges, calls
-the step, writes rows, and measures latency from the moment the frame's last byte was read
+The loop owns nothing numeric: it hands each :class:`~gtsjax.io.serial.LinkFrame`'s ranges to the
+step, writes rows, and measures latency from the moment the frame's last byte was read
 (``LinkFrame.recv_perf``) to the moment its rows are flushed.
 
 What crosses between host and device per scan is kept small, since at 40 Hz the host's share of the
-latency matters as much as the step's: the frame goes in as three NumPy arrays (the :class:`Scan` is
-assembled inside the compiled function), and what comes back is one array with the GTD rows' fields
-(:func:`pack_tracks`); the full :class:`~gtsjax.Output` stays on the device, where the live view
-reads it when it redraws.
+latency matters as much as the step's (:class:`LiveStep`): the frame goes in as one buffer, copied
+as it came (the valid beams, the padding and the :class:`Scan` are worked out inside the compiled
+function), and what comes back is one array with the GTD rows' fields (:func:`pack_tracks`); the
+state and the full :class:`~gtsjax.Output` cross as one buffer per dtype, the output left on the
+device until a view or a bag unpacks it.
 """
 
 import dataclasses
@@ -25,13 +26,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..core.pipeline import Output, init_state, step
+from ..core.pipeline import Output, PipelineState, init_state, step
 from ..core.scan import Scan
 from ..errors import InputError
 from ..io.gtd import GTDWriter, json_line, rows_from_output
 from ..io.logs import ScanLog, fit_to_model, scan_dt, valid_beams
 from ..model import Model
 from ..sensors import SensorModel
+from .packing import Packing
 
 #: Bin edges (ms) of the whole-run latency histogram: 40 bins a decade from 10 µs to 100 s.
 LATENCY_EDGES_MS = np.geomspace(1e-2, 1e5, 281)
@@ -116,22 +118,81 @@ def pack_tracks(o: Output):
     return jnp.concatenate([tracks, status], axis=0)
 
 
-def make_live_step(model: Model, sensor: SensorModel):
-    """``f(state, ranges, intensities, valid, dt) -> (state, output, packed)``, jitted once with the
-    model closed over (a constant of the compiled program: a call does not flatten the model's
-    hundred-odd arrays on the host, a third of a step's time on a 2-core laptop): the pipeline's
-    ``step`` on a frame's padded arrays
-    (:func:`frame_arrays`), with :func:`pack_tracks` of its output."""
-    angle_min = jnp.asarray(sensor.angle_min, jnp.float32)
-    angle_increment = jnp.asarray(sensor.angle_increment, jnp.float32)
+class LiveStep:
+    """The live step for one model and scanner, jitted once with the model closed over (a constant of
+    the compiled program: a call does not flatten the model's hundred-odd arrays on the host, a third
+    of a step's time on a 2-core laptop): the pipeline's ``step`` on one frame.
 
-    @jax.jit
-    def live_step(state, ranges, intensities, valid, dt):
-        scan = Scan(ranges, intensities, valid, angle_min, angle_increment, jnp.asarray(dt, jnp.float32))
-        state, o = step(model, state, scan)
-        return state, o, pack_tracks(o)
+    ``step(state, ranges_m, intensities, dt) -> (state, output, packed)``, with the frame as the link
+    delivers it (:class:`~gtsjax.io.serial.LinkFrame`: its ranges in metres, its intensities or
+    ``None``, at most the model's ``n_beams``). What crosses the call is kept to a few buffers, each
+    costing the call some microseconds on the host whatever its size: the frame goes in as one
+    float32 buffer, copied as it came (which beams hold a return, :func:`~gtsjax.io.logs.valid_beams`,
+    and the padding are worked out inside the compiled step); the state and the output cross as one
+    buffer per dtype (:class:`~gtsjax.drivers.packing.Packing`: 3 each way instead of 21 and 28
+    arrays). The state is opaque between calls (start from :meth:`initial_state`, read it with
+    :meth:`pipeline_state`); the output stays on the device until :meth:`output` unpacks it;
+    ``packed`` is :func:`pack_tracks`'s array, what the GTD rows need."""
 
-    return live_step
+    def __init__(self, model: Model, sensor: SensorModel):
+        self.model, self.sensor = model, sensor
+        angle_min = jnp.asarray(sensor.angle_min, jnp.float32)
+        angle_increment = jnp.asarray(sensor.angle_increment, jnp.float32)
+        state0 = init_state(model)
+        self.state_layout = Packing.of(state0)
+        n = model.n_beams
+
+        def run(state, frame):
+            raw, dt = frame[:2 * n].reshape(2, n), frame[2 * n]
+            valid = valid_beams(raw[0], sensor.range_min, sensor.range_max)
+            ranges, intensities = jnp.where(valid[None], raw, 0.0)
+            return step(model, state, Scan(ranges, intensities, valid, angle_min, angle_increment, dt))
+
+        frame = jax.ShapeDtypeStruct((2 * n + 1,), jnp.float32)
+        self.output_layout = Packing.of(jax.eval_shape(run, state0, frame)[1])
+
+        @jax.jit
+        def live_step(state, frame):
+            new, o = run(self.state_layout.unpack(state), frame)
+            return self.state_layout.pack(new), self.output_layout.pack(o), pack_tracks(o)
+
+        self.jitted = live_step
+        self._state0 = self.state_layout.pack(state0)
+
+    def initial_state(self):
+        """The state before the first frame (:func:`~gtsjax.core.pipeline.init_state`), packed."""
+        return self._state0
+
+    def frame(self, ranges_m: np.ndarray, intensities: np.ndarray | None, dt: float) -> np.ndarray:
+        """The step's frame buffer: ranges (m) then intensities, each padded with zeros to the model's
+        ``n_beams``, then ``dt``. A new array each call: on a CPU the device may read it in place
+        while the call is in flight."""
+        n = self.model.n_beams
+        k = ranges_m.shape[0]
+        if k > n:
+            raise ValueError(f"a frame of {k} beams, more than the model's {n}")
+        buf = np.zeros(2 * n + 1, np.float32)
+        buf[:k] = ranges_m
+        if intensities is not None:
+            buf[n:n + k] = intensities
+        buf[2 * n] = dt
+        return buf
+
+    def __call__(self, state, ranges_m, intensities, dt):
+        return self.jitted(state, self.frame(ranges_m, intensities, dt))
+
+    def pipeline_state(self, state) -> PipelineState:
+        """A packed state as the pipeline's :class:`~gtsjax.core.pipeline.PipelineState` (NumPy arrays)."""
+        return self.state_layout.unpack_host(state)
+
+    def output(self, packed_output) -> Output:
+        """A step's packed output as the pipeline's :class:`~gtsjax.Output` (NumPy arrays)."""
+        return self.output_layout.unpack_host(packed_output)
+
+
+def make_live_step(model: Model, sensor: SensorModel) -> LiveStep:
+    """The live step for ``model`` on ``sensor``'s frames (:class:`LiveStep`)."""
+    return LiveStep(model, sensor)
 
 
 def rows_from_packed(stamp: float, packed: np.ndarray, class_names) -> list:
@@ -191,10 +252,9 @@ class Outputs:
 def warm_up(model: Model, sensor: SensorModel):
     """The live step for ``model`` on ``sensor``'s frames, compiled before the first real frame so
     that the first latency is not a compile; and the initial state."""
-    state = init_state(model)
-    live_step = make_live_step(model, sensor)
-    r, inten, valid = frame_arrays(np.zeros(sensor.n_beams, np.float32), None, sensor, model.n_beams)
-    jax.block_until_ready(live_step(state, r, inten, valid, np.float32(0.0)))
+    live_step = LiveStep(model, sensor)
+    state = live_step.initial_state()
+    jax.block_until_ready(live_step(state, np.zeros(sensor.n_beams, np.float32), None, 0.0))
     return live_step, state
 
 
@@ -205,7 +265,7 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
     """Track from a started :class:`~gtsjax.io.serial.Link` until ``duration`` seconds, ``max_frames``
     frames processed, ``stop`` set, or Ctrl-C; then stop the link (QT) and finalise the recording.
     ``on_scan(stats, output, stamp)`` is called after each scan (the live view; ``output`` is the
-    step's full output, still on the device).
+    step's full output, unpacked on the host only when a consumer asks for it).
     ``compiled``: ``(step, state)`` from :func:`warm_up`, done before the link started streaming.
     ``out_bag``: also a ROS 2 bag of the frames, laser poses and tracks (:mod:`gtsjax.io.bag_out`),
     written after each frame's latency is taken; ``view``: a :class:`~gtsjax.viewer.View` shown each
@@ -237,8 +297,7 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
                     continue
                 dt = scan_dt([lf.stamp], prev_stamp)[0]
                 prev_stamp = lf.stamp
-                r, inten, valid = frame_arrays(lf.ranges_m, lf.intensities, sensor, model.n_beams)
-                state, o, packed = live_step(state, r, inten, valid, dt)
+                state, o, packed = live_step(state, lf.ranges_m, lf.intensities, dt)
                 packed = np.asarray(packed)
                 rows = rows_from_packed(lf.stamp, packed, model.classes)
                 writer.write(rows)
@@ -248,6 +307,8 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
                 # Bookkeeping after the latency is taken: the recording and the view are not on the path.
                 if recorder is not None:
                     recorder.append_frame(lf)
+                if bag is not None or view is not None or on_scan is not None:
+                    o = live_step.output(o)
                 if bag is not None:
                     bag.write(lf.stamp, lf.ranges_m, lf.intensities, rows, np.asarray(o.sensor_pose, np.float64))
                 if view is not None:

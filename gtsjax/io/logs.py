@@ -24,10 +24,11 @@ DEFAULT_RANGE_MAX = 30.0
 
 def valid_beams(ranges: np.ndarray, range_min: float, range_max: float) -> np.ndarray:
     """Beams with a return: finite, positive and inside the scanner's ``[range_min, range_max]``. The
-    host's one definition, for logs and live frames alike (the step zeroes every other beam)."""
-    r = np.asarray(ranges)
+    one definition, for logs and live frames alike (the step zeroes every other beam): NumPy arrays on
+    the host, JAX arrays inside the live step (plain operators serve both)."""
+    r = ranges if hasattr(ranges, "shape") else np.asarray(ranges)
     with np.errstate(invalid="ignore"):
-        return np.isfinite(r) & (r > 0) & (r >= range_min) & (r <= range_max)
+        return ((r - r) == 0) & (r > 0) & (r >= range_min) & (r <= range_max)  # r − r: NaN unless finite
 
 
 @dataclasses.dataclass
