@@ -88,7 +88,8 @@ class LiveStats:
 
 def frame_arrays(ranges_m: np.ndarray, intensities: np.ndarray | None, sensor: SensorModel, n_beams: int):
     """One frame's ranges, intensities and validity, padded to ``n_beams`` (beams past the frame's
-    are padding), as the float32/bool NumPy arrays of a :class:`Scan`."""
+    are padding), as the float32/bool NumPy arrays of a :class:`Scan`: on the host, what
+    :class:`LiveStep` works out inside its compiled step from the frame as it came."""
     n = ranges_m.shape[0]
     valid = np.zeros(n_beams, bool)
     valid[:n] = valid_beams(ranges_m, sensor.range_min, sensor.range_max)
@@ -134,11 +135,16 @@ class LiveStep:
     :meth:`pipeline_state`); the output stays on the device until :meth:`output` unpacks it;
     ``packed`` is :func:`pack_tracks`'s array, what the GTD rows need."""
 
-    def __init__(self, model: Model, sensor: SensorModel):
-        self.model, self.sensor = model, sensor
+    def __init__(self, model: Model, sensor: SensorModel, *, state0=None, core=None, extras: int = 0):
+        """``core(state, scan, extra) -> (state, output)``: the pipeline's step (by default ``step``
+        from :func:`~gtsjax.core.pipeline.init_state`'s state, or ``state0``), ``extra`` the
+        ``extras`` float32 values a call passes after ``dt`` (the several-laser step's laser index and
+        time span, :mod:`gtsjax.drivers.live_several`)."""
+        self.model, self.sensor, self.extras = model, sensor, extras
         angle_min = jnp.asarray(sensor.angle_min, jnp.float32)
         angle_increment = jnp.asarray(sensor.angle_increment, jnp.float32)
-        state0 = init_state(model)
+        state0 = init_state(model) if state0 is None else state0
+        core = core or (lambda state, scan, extra: step(model, state, scan))
         self.state_layout = Packing.of(state0)
         n = model.n_beams
 
@@ -146,9 +152,10 @@ class LiveStep:
             raw, dt = frame[:2 * n].reshape(2, n), frame[2 * n]
             valid = valid_beams(raw[0], sensor.range_min, sensor.range_max)
             ranges, intensities = jnp.where(valid[None], raw, 0.0)
-            return step(model, state, Scan(ranges, intensities, valid, angle_min, angle_increment, dt))
+            scan = Scan(ranges, intensities, valid, angle_min, angle_increment, dt)
+            return core(state, scan, frame[2 * n + 1:])
 
-        frame = jax.ShapeDtypeStruct((2 * n + 1,), jnp.float32)
+        frame = jax.ShapeDtypeStruct((2 * n + 1 + extras,), jnp.float32)
         self.output_layout = Packing.of(jax.eval_shape(run, state0, frame)[1])
 
         @jax.jit
@@ -163,23 +170,25 @@ class LiveStep:
         """The state before the first frame (:func:`~gtsjax.core.pipeline.init_state`), packed."""
         return self._state0
 
-    def frame(self, ranges_m: np.ndarray, intensities: np.ndarray | None, dt: float) -> np.ndarray:
+    def frame(self, ranges_m: np.ndarray, intensities: np.ndarray | None, dt: float, *extra: float) -> np.ndarray:
         """The step's frame buffer: ranges (m) then intensities, each padded with zeros to the model's
-        ``n_beams``, then ``dt``. A new array each call: on a CPU the device may read it in place
-        while the call is in flight."""
+        ``n_beams``, then ``dt`` and the ``extra`` values. A new array each call: on a CPU the
+        device may read it in place while the call is in flight."""
         n = self.model.n_beams
         k = ranges_m.shape[0]
         if k > n:
             raise ValueError(f"a frame of {k} beams, more than the model's {n}")
-        buf = np.zeros(2 * n + 1, np.float32)
+        if len(extra) != self.extras:
+            raise ValueError(f"{len(extra)} extra values after dt, the step takes {self.extras}")
+        buf = np.zeros(2 * n + 1 + self.extras, np.float32)
         buf[:k] = ranges_m
         if intensities is not None:
             buf[n:n + k] = intensities
-        buf[2 * n] = dt
+        buf[2 * n:] = (dt, *extra)
         return buf
 
-    def __call__(self, state, ranges_m, intensities, dt):
-        return self.jitted(state, self.frame(ranges_m, intensities, dt))
+    def __call__(self, state, ranges_m, intensities, dt, *extra):
+        return self.jitted(state, self.frame(ranges_m, intensities, dt, *extra))
 
     def pipeline_state(self, state) -> PipelineState:
         """A packed state as the pipeline's :class:`~gtsjax.core.pipeline.PipelineState` (NumPy arrays)."""

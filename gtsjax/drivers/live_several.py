@@ -21,12 +21,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..core.multi import init_several, miss_period, step_several
-from ..core.scan import Scan
 from ..errors import InputError
 from ..io.gtd import GTDWriter
 from ..model import Model
 from ..sensors import SensorModel
-from .live import LiveStats, Outputs, check_sensor, frame_arrays, pack_tracks, rows_from_packed
+from .live import LiveStats, LiveStep, Outputs, check_sensor, rows_from_packed
 from .several import Disagreement
 
 
@@ -74,38 +73,33 @@ CALIBRATION_WARN_M = 0.05
 CALIBRATION_WARN_S = 1.0
 
 
-def make_several_step(model: Model, sensor: SensorModel, period: float | None = None):
-    """``f(state, ranges, intensities, valid, dt, k, span_dt) -> (state, output, packed)``, jitted once
-    with the model closed over (see :func:`~gtsjax.drivers.live.make_live_step`); ``k`` is the laser.
-    ``period``: the clock misses are counted on, with lasers of different rates
+def make_several_step(model: Model, sensor: SensorModel, state0, period: float | None = None) -> LiveStep:
+    """``f(state, ranges_m, intensities, dt, k, span_dt) -> (state, output, packed)``: the live step
+    (:class:`~gtsjax.drivers.live.LiveStep`: model closed over, frame, state and output as a few
+    buffers) of :func:`~gtsjax.core.multi.step_several` from ``state0``'s layout; ``k`` is the
+    laser. ``period``: the clock misses are counted on, with lasers of different rates
     (:func:`~gtsjax.core.multi.miss_period`)."""
-    angle_min = jnp.asarray(sensor.angle_min, jnp.float32)
-    angle_increment = jnp.asarray(sensor.angle_increment, jnp.float32)
+    def core(state, scan, extra):
+        return step_several(model, state, scan, extra[0].astype(jnp.int32), extra[1], period)
 
-    @jax.jit
-    def several_step(state, ranges, intensities, valid, dt, k, span_dt):
-        scan = Scan(ranges, intensities, valid, angle_min, angle_increment, jnp.asarray(dt, jnp.float32))
-        state, o = step_several(model, state, scan, k, jnp.asarray(span_dt, jnp.float32), period)
-        return state, o, pack_tracks(o)
-
-    return several_step
+    return LiveStep(model, sensor, state0=state0, core=core, extras=2)
 
 
 def warm_up_several(model: "Model | tuple[Model, ...]", sensor: "SensorModel | tuple[SensorModel, ...]",
                     poses: np.ndarray, kinds: "tuple[int, ...] | None" = None):
     """The steps, compiled before the lasers stream, and the initial state (each laser at its rough
-    pose guess ``poses``, ``[lasers, 3]``): one step per model of ``model`` (every laser's, or one
-    per scanner model, ``kinds`` each laser's index into them), for ``sensor``'s frames (one per model)."""
+    pose guess ``poses``, ``[lasers, 3]``; packed, one layout for every step): one step per model of
+    ``model`` (every laser's, or one per scanner model, ``kinds`` each laser's index into them), for
+    ``sensor``'s frames (one per model)."""
     models = model if isinstance(model, tuple) else (model,)
     sensors = sensor if isinstance(sensor, tuple) else (sensor,)
-    state = init_several(models, jnp.asarray(poses, jnp.float32), kinds)
+    state0 = init_several(models, jnp.asarray(poses, jnp.float32), kinds)
     steps = []
     for m, sen in zip(models, sensors, strict=True):
-        f = make_several_step(m, sen, miss_period(models))
-        r, inten, valid = frame_arrays(np.zeros(sen.n_beams, np.float32), None, sen, m.n_beams)
-        jax.block_until_ready(f(state, r, inten, valid, np.float32(0.0), np.int32(0), np.float32(0.0)))
+        f = make_several_step(m, sen, state0, miss_period(models))
+        jax.block_until_ready(f(f.initial_state(), np.zeros(sen.n_beams, np.float32), None, 0.0, 0, 0.0))
         steps.append(f)
-    return tuple(steps), state
+    return tuple(steps), steps[0].initial_state()
 
 
 def run_live_several(links: "dict[str, object]", model: "Model | tuple[Model, ...]", poses: np.ndarray, out: Path, *,
@@ -182,10 +176,7 @@ def run_live_several(links: "dict[str, object]", model: "Model | tuple[Model, ..
                 last_stamp = lf.stamp if last_stamp is None else max(last_stamp, lf.stamp)
                 span = 0.0 if last_own[n] is None else max(lf.stamp - last_own[n], 0.0)
                 last_own[n] = lf.stamp
-                mine = models[kinds[k]]
-                r, inten, valid = frame_arrays(lf.ranges_m, lf.intensities, sensors[k], mine.n_beams)
-                state, o, packed = steps[kinds[k]](state, r, inten, valid, np.float32(dt), np.int32(k),
-                                                   np.float32(span))
+                state, o, packed = steps[kinds[k]](state, lf.ranges_m, lf.intensities, dt, k, span)
                 packed = np.asarray(packed)
                 rows = rows_from_packed(lf.stamp, packed, model.classes)
                 writer.write(rows)
@@ -194,6 +185,7 @@ def run_live_several(links: "dict[str, object]", model: "Model | tuple[Model, ..
                 lat = (time.perf_counter() - lf.recv_perf) * 1000.0
                 if n in recorders:
                     recorders[n].append_frame(lf)
+                o = steps[kinds[k]].output(o)
                 stats.count(rows, lat, degraded, period_ms[n])
                 late = lat > period_ms[n]
                 p = per[n]
