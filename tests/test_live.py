@@ -134,3 +134,62 @@ def test_whole_run_latency_quantiles_follow_numpy():
     assert stats.latency_max_ms == lat.max() and stats.latency_quantile(1.0) == lat.max()
     assert len(stats.latencies_ms) == 2000 and stats.latency()[0] == np.median(lat[-2000:])
     assert np.isnan(LiveStats().latency_quantile(0.5))
+
+
+def test_keep_warm_runs_throwaway_steps_and_changes_no_row(tiny, tmp_path):
+    """``run_live`` on a link that delivers a simulated log's frames once per period: with
+    ``keep_warm`` a throwaway step runs before most frames are due (counted), and the GTD rows are
+    those of the run without it, row for row (the warm-ups are pure: nothing they compute is kept)."""
+    import dataclasses
+
+    from gtsjax.drivers.live import run_live, warm_up
+
+    log, site = simulate("spl-crossing", seed=31, n_scans=25)
+    model = tiny["model"].with_site(site)
+    period = URG_04LX.period  # as the loop expects the frames
+
+    @dataclasses.dataclass
+    class Frame:
+        stamp: float
+        recv_perf: float
+        ranges_m: np.ndarray
+        intensities: None = None
+
+    class TimedLink:
+        """A link whose frame ``i`` arrives ``i`` periods after the first ``get`` that waits (the loop's
+        first, which takes the frames queued before it began, finds none)."""
+
+        model = URG_04LX
+
+        def __init__(self):
+            self.i, self.t0 = 0, None
+
+        def get(self, timeout=None):
+            now = time.perf_counter()
+            if self.t0 is None and not timeout:
+                return None
+            self.t0 = now if self.t0 is None else self.t0
+            if self.i >= log.n_scans:
+                time.sleep(timeout or 0)
+                return None
+            due = self.t0 + self.i * period
+            if due - now > (timeout or 0):
+                time.sleep(timeout or 0)
+                return None
+            time.sleep(max(due - now, 0.0))
+            f = Frame(float(log.stamps[self.i]), time.perf_counter(), log.ranges[self.i])
+            self.i += 1
+            return f
+
+    compiled = warm_up(model, URG_04LX)
+    got = {}
+    for keep in (False, True):
+        out = tmp_path / f"gtd-{keep}.csv"
+        stats = run_live(TimedLink(), model, out, compiled=compiled, max_frames=log.n_scans, keep_warm=keep)
+        got[keep] = (read_gtd(out), stats)
+    assert got[False][1].warm_ups == 0
+    assert got[True][1].warm_ups >= log.n_scans // 2  # most frames found the step warmed just before
+    assert got[True][1].frames == got[False][1].frames == log.n_scans
+    rows_off, rows_on = got[False][0], got[True][0]
+    assert len(rows_off) > 10  # the robots were tracked, so rows were compared
+    assert rows_on == rows_off

@@ -39,6 +39,10 @@ def run_cmd(
     view_save: Path | None = typer.Option(None, "--view-save", help=VIEW_SAVE_HELP),
     summary: Path | None = typer.Option(None, "--summary", help="Write the run's counters (frames, rows, latency, "
                                         "link faults by cause) as JSON here when it stops."),
+    keep_warm: bool = typer.Option(True, "--keep-warm/--no-keep-warm",
+                                   help="Shortly before each frame is due, run the step once on the last frame and "
+                                        "throw the result away, so the frame finds it in the caches (lower latency "
+                                        "for one more step per frame)."),
 ):
     """Track robots live from a sensor: GTD CSV, optional JSON lines / UDP, optional raw recording."""
     for path, option in ((out, "--out"), (record, "--record"), (summary, "--summary")):
@@ -63,7 +67,7 @@ def run_cmd(
     stats, link_stats = track_live(port, model, site, out, record=record, json_lines=json_lines, udp=udp,
                                    duration=duration, frames=frames, intensity=intensity, view=not quiet,
                                    confirm_scans=confirm_scans, sensor=sensor, max_tracks=max_tracks,
-                                   out_bag=out_bag, rerun_view=view, view_save=view_save)
+                                   out_bag=out_bag, rerun_view=view, view_save=view_save, keep_warm=keep_warm)
     med, p99 = stats.latency()
     Console(stderr=True).print(
         f"{stats.frames} frames, {stats.rows} rows -> {out}; latency median {med:.2f} ms, p99 {p99:.2f} ms; "
