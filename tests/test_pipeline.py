@@ -312,14 +312,14 @@ def test_train_cli_bad_input(tmp_path):
 def test_live_step_rows_equal_the_replay_rows(tiny):
     """The live driver (frame arrays in, the GTD fields packed into one array out, one compiled call
     per frame) gives the rows the replay driver writes for the same scans."""
-    from gtsjax.drivers.live import make_live_step, rows_from_packed
+    from gtsjax.drivers.live import LiveStep, rows_from_packed
     from gtsjax.io.gtd import rows_from_output
     from gtsjax.io.logs import scan_dt
     from gtsjax.sensors import URG_04LX
 
     log, site = simulate("spl-crossing", seed=21, n_scans=60)
     model = tiny["model"].with_site(site)
-    live = make_live_step(model, URG_04LX)
+    live = LiveStep(model, URG_04LX)
     _, batch = process_log(model, to_scans(log, model.n_beams), chunk=32)
     s_live = live.initial_state()
     dts = scan_dt(log.stamps)
@@ -474,13 +474,13 @@ def test_live_step_state_and_output_equal_the_plain_steps(tiny):
     with the pipeline's state passed from call to call, leaf by leaf; frames with beams out of range,
     non-finite and fewer than the model's (a narrower scanner) among them."""
     from gtsjax.core.scan import Scan
-    from gtsjax.drivers.live import frame_arrays, make_live_step
+    from gtsjax.drivers.live import LiveStep, frame_arrays
     from gtsjax.io.logs import scan_dt
     from gtsjax.sensors import URG_04LX
 
     log, site = simulate("spl-crossing", seed=23, n_scans=25)
     model = tiny["model"].with_site(site)
-    live = make_live_step(model, URG_04LX)
+    live = LiveStep(model, URG_04LX)
     am, ai = (jax.numpy.asarray(a, jax.numpy.float32) for a in (URG_04LX.angle_min, URG_04LX.angle_increment))
     plain = jax.jit(lambda s, r, i, v, dt: step(model, s, Scan(r, i, v, am, ai, dt)))
     s_live, s_plain = live.initial_state(), init_state(model)

@@ -209,11 +209,6 @@ class LiveStep:
         return self.output_layout.unpack_host(packed_output)
 
 
-def make_live_step(model: Model, sensor: SensorModel) -> LiveStep:
-    """The live step for ``model`` on ``sensor``'s frames (:class:`LiveStep`)."""
-    return LiveStep(model, sensor)
-
-
 def rows_from_packed(stamp: float, packed: np.ndarray, class_names) -> list:
     """GTD rows from :func:`pack_tracks`'s array (reported tracks, in id order)."""
     t = packed[:-1]
