@@ -290,7 +290,7 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
     thrown away (:meth:`LiveStep.warm`), so that the frame finds the step's code and constants in the
     caches and the core awake. On a 2-core Xeon virtual machine it leaves the median latency of a
     UTM-30LX frame at 40 Hz as it was (1.4 ms, last byte to GTD row) and lowers its p99 by 7–20 %
-    (2.0–2.5 ms to 1.8–2.0 in three interleaved runs, ``scripts/ab_keep_warm.py``); the cost is one
+    (1.95–2.45 ms to 1.82–1.96 in three interleaved runs, ``scripts/ab_keep_warm.py``); the cost is one
     more step per frame, a few per cent of a core."""
     from ..io.bag_out import BagOut
     from ..io.record import Recorder
