@@ -174,7 +174,8 @@ def evaluate_targets(res) -> None:
                         "why": "Frame read to GTD row flushed, the emulator over a pty: "
                                f"median {fmt(lv['median'], lv['unit'])}, p99 {fmt(lv['p99'], lv['unit'])}"
                                + (f"; the step alone, called every 25 ms, {fmt(alone['median'], alone['unit'])} median "
-                                  f"(its code and constants leave the caches between frames, README, Speed)" if alone else "")
+                                  f"(its code and constants leave the caches between frames; the loop's warm-up step before each "
+                                  f"frame, on here, takes part of that off: README, Speed)" if alone else "")
                                + ".", "profile": "live"})
     if res.has("scip.decode_me_1081"):
         sd = res.get("scip.decode_me_1081")
