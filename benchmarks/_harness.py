@@ -118,6 +118,21 @@ class Results:
                 "profiles": self.profiles, "sections": self.sections}
 
 
+def ab_machine() -> str:
+    """The machine line of an interleaved A/B script's report (``scripts/ab_*.py``): the CPU, its
+    cores, the time, and the load average as the comparison ends."""
+    return (f"{_cpu_model()}, {os.cpu_count()} cores; {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}; "
+            f"load average at the end {os.getloadavg()[0]:.2f}")
+
+
+def emit_report(lines: list[str], out) -> None:
+    """Print a Markdown report's ``lines``, and write them to ``out`` where given."""
+    text = "\n".join(lines) + "\n"
+    print(text)
+    if out:
+        out.write_text(text)
+
+
 def _cpu_model() -> str:
     try:
         with open("/proc/cpuinfo") as f:

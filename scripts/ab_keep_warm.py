@@ -8,8 +8,6 @@ flushed; rounds alternate so that the machine's drift falls on both.
 """
 
 import argparse
-import datetime
-import os
 import sys
 import tempfile
 from pathlib import Path
@@ -19,7 +17,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks import _data  # noqa: E402
-from benchmarks._harness import _cpu_model  # noqa: E402
+from benchmarks._harness import ab_machine, emit_report  # noqa: E402
 from gtsjax.drivers.live import run_live, warm_up  # noqa: E402
 from gtsjax.io.serial import Link  # noqa: E402
 from gtsjax.sensors import URG_04LX, UTM_30LX  # noqa: E402
@@ -67,9 +65,8 @@ def main() -> None:
     lines = [
         "# The live loop with and without keep_warm (interleaved A/B)",
         "",
-        f"`python scripts/ab_keep_warm.py --rounds {args.rounds} --seconds {args.seconds:g}`; {_cpu_model()}, "
-        f"{os.cpu_count()} cores; {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}; load average "
-        f"at the end {os.getloadavg()[0]:.2f}. Frame's last byte read → GTD row flushed, median (p99), the emulator "
+        f"`python scripts/ab_keep_warm.py --rounds {args.rounds} --seconds {args.seconds:g}`; {ab_machine()}. "
+        "Frame's last byte read → GTD row flushed, median (p99), the emulator "
         "over a pty in the same process (as `python -m benchmarks`' live section); the first 10 frames of each run "
         "left out.",
         "",
@@ -79,10 +76,7 @@ def main() -> None:
     for sensor, _, _ in cases:
         lines.append(f"| {sensor.name} at {sensor.rate_hz:g} Hz | {cell((sensor.name, False))} | "
                      f"{cell((sensor.name, True))} |")
-    text = "\n".join(lines) + "\n"
-    print(text)
-    if args.out:
-        args.out.write_text(text)
+    emit_report(lines, args.out)
 
 
 if __name__ == "__main__":

@@ -11,8 +11,6 @@ bare cost of a call that passes the state through, both ways.
 """
 
 import argparse
-import datetime
-import os
 import sys
 import time
 from pathlib import Path
@@ -24,7 +22,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks import _data  # noqa: E402
-from benchmarks._harness import _cpu_model  # noqa: E402
+from benchmarks._harness import ab_machine, emit_report  # noqa: E402
 from gtsjax.core.pipeline import init_state, step  # noqa: E402
 from gtsjax.core.scan import Scan  # noqa: E402
 from gtsjax.drivers.live import LiveStep, frame_arrays, pack_tracks  # noqa: E402
@@ -93,9 +91,7 @@ def main() -> None:
     lines = [
         "# The live step's frame, state and output: as arrays, or a few buffers (interleaved A/B)",
         "",
-        f"`python scripts/ab_live_packing.py --rounds {args.rounds}`; {_cpu_model()}, {os.cpu_count()} cores; "
-        f"{datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}; load average at the end "
-        f"{os.getloadavg()[0]:.2f}. Median (p99) of {args.rounds} × {args.frames - 5} calls each; the call "
+        f"`python scripts/ab_live_packing.py --rounds {args.rounds}`; {ab_machine()}. Median (p99) of {args.rounds} × {args.frames - 5} calls each; the call "
         "ends when the GTD rows' array is on the host.",
         "",
         "| what | as before: frame arrays on the host, 21 + 4 arrays in, 21 + 28 + 1 out | LiveStep: 3 + 1 in, 3 + 3 + 1 out |",
@@ -107,10 +103,7 @@ def main() -> None:
                          + " | ".join(cell(times[(sensor.name, how, k)]) for k in ("arrays", "packed")) + " |")
         lines.append(f"| a call that passes the state through, {sensor.name} | "
                      + " | ".join(cell(bare[(sensor.name, k)]) for k in ("arrays", "packed")) + " |")
-    text = "\n".join(lines) + "\n"
-    print(text)
-    if args.out:
-        args.out.write_text(text)
+    emit_report(lines, args.out)
 
 
 if __name__ == "__main__":

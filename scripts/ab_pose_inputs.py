@@ -8,8 +8,6 @@ alternate between the two so that the machine's drift falls on both.
 """
 
 import argparse
-import datetime
-import os
 import sys
 import time
 from pathlib import Path
@@ -20,7 +18,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks import _data  # noqa: E402
-from benchmarks._harness import _cpu_model  # noqa: E402
+from benchmarks._harness import ab_machine, emit_report  # noqa: E402
 from gtsjax.drivers.live import warm_up  # noqa: E402
 from gtsjax.drivers.replay import process_log  # noqa: E402
 from gtsjax.io import to_scans  # noqa: E402
@@ -75,9 +73,7 @@ def main() -> None:
     lines = [
         "# Pose GPs' inputs held apart or once: interleaved A/B",
         "",
-        f"`python scripts/ab_pose_inputs.py --rounds {args.rounds}`; {_cpu_model()}, "
-        f"{os.cpu_count()} cores; {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}; "
-        f"load average at the end {os.getloadavg()[0]:.2f}.",
+        f"`python scripts/ab_pose_inputs.py --rounds {args.rounds}`; {ab_machine()}.",
         "",
         "| what | inputs apart | inputs once |",
         "|---|---|---|",
@@ -88,10 +84,7 @@ def main() -> None:
         cells = [f"{np.median(live[(k, way)]) * 1e3:.2f} ms (p99 {np.percentile(live[(k, way)], 99) * 1e3:.2f})"
                  for k in variants]
         lines.append(f"| live step, URG-04LX frames, called {way} | " + " | ".join(cells) + " |")
-    text = "\n".join(lines) + "\n"
-    print(text)
-    if args.out:
-        args.out.write_text(text)
+    emit_report(lines, args.out)
 
 
 if __name__ == "__main__":
