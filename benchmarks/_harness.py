@@ -232,10 +232,32 @@ def jsonable(obj):
 
 
 def closed_step(model):
-    """The pipeline's step as the live loop compiles it: the model closed over (a constant of the
-    program), jitted once; ``f(state, scan) -> (state, output)``."""
+    """The pipeline's step jitted once with the model closed over (a constant of the program), on
+    the pipeline's own pytrees: ``f(state, scan) -> (state, output)``. What the stage breakdown and
+    the output comparisons read; the live loop calls the same step through :class:`LiveCall`."""
     import jax
 
     from gtsjax.core.pipeline import step
 
     return jax.jit(lambda state, scan: step(model, state, scan))
+
+
+class LiveCall:
+    """The pipeline's step as the live loop calls it (:class:`gtsjax.drivers.live.LiveStep`: the
+    model closed over, the frame passed as the link delivers it, the state and output packed into a
+    few buffers). ``call(i)`` steps the ``i``-th of ``scans`` (cycled; a stacked
+    :class:`~gtsjax.core.scan.Scan`, turned into frames before any timing) from the state the last
+    call left, and returns the GTD rows' array, what the live loop waits for."""
+
+    def __init__(self, model, scans):
+        from gtsjax.drivers.live import LiveStep
+        from gtsjax.sensors import get_model
+
+        self.step = LiveStep(model, get_model(model.sensor_model))
+        self.state = self.step.initial_state()
+        ranges, intensities, dts = (np.asarray(a) for a in (scans.ranges, scans.intensities, scans.dt))
+        self.frames = [(ranges[i], intensities[i], float(dts[i])) for i in range(ranges.shape[0])]
+
+    def __call__(self, i: int):
+        self.state, _, packed = self.step(self.state, *self.frames[i % len(self.frames)])
+        return packed

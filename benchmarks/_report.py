@@ -236,7 +236,7 @@ def _row_value(m):
 
 
 SUMMARY = [
-    ("step.urg-04lx.end_to_end", "whole step, URG-04LX scan (682 beams), 8 track slots (the model closed over, as the live driver compiles it)"),
+    ("step.urg-04lx.end_to_end", "whole step, URG-04LX scan (682 beams), 8 track slots (as the live loop calls it: `LiveStep`, the model closed over)"),
     ("step.utm-30lx.end_to_end", "whole step, UTM-30LX scan (1081 beams + intensity), 8 track slots"),
     ("step.urg-04lx.stage.frontend_a_to_c", "front end only (stages a–c), URG-04LX"),
     ("step.utm-30lx.stage.frontend_a_to_c", "front end only (stages a–c), UTM-30LX"),

@@ -1,6 +1,7 @@
 """Per-stage and end-to-end step latency for URG-04LX and UTM-30LX scans, and batch replay throughput.
 
-* **End to end**: ``closed_step(model)`` (the live loop's call: the model closed over, jitted once),
+* **End to end**: the step as the live loop calls it (``LiveCall``: ``drivers.live.LiveStep``, the
+  model closed over and jitted once, the frame as the link delivers it, the state and output packed),
   one call per scan with the state carried over, scans cycled from a simulated log with robots in
   view (URG-04LX: ``spl-crossing``, three robots, M = 8 track slots; UTM-30LX: ``lab-trajectory``).
 * **Per stage**: each stage of Fig. 1 jitted on its own with the model closed over, fed the inputs
@@ -38,7 +39,7 @@ from gtsjax.drivers.several import merge_logs, process_several, site_poses
 from gtsjax.io import to_scans
 
 from . import _data
-from ._harness import closed_step
+from ._harness import LiveCall, closed_step
 
 SECTION = "pipeline"
 
@@ -137,19 +138,10 @@ def bench_sensor(ctx, key: str, model, scans, n_pool: int, repeats: int, stage_r
     """End-to-end and (with ``stages``) per-stage latency of one sensor's scans."""
     res = ctx.results
     if stages:
-        rec, st, step = record_inputs(model, scans, n_pool)
-        one = [r["scan"] for r in rec]
-    else:
-        step = closed_step(model)
-        one = jax.block_until_ready([take(scans, i) for i in range(n_pool)])
+        rec, st, _ = record_inputs(model, scans, n_pool)
     beams = int(scans.ranges.shape[-1])
     params = {"beams": beams, "K": model.frontend.max_candidates, "M": model.max_tracks, "sensor": model.sensor_model}
-    state = {"s": init_state(model)}
-
-    def run(i):
-        state["s"], out = step(state["s"], one[i % n_pool])
-        return out
-
+    run = LiveCall(model, jax.tree.map(lambda a: a[:n_pool], scans))
     res.add(f"step.{key}.end_to_end", "us", ctx.time_calls(run, repeats, warmup=20), section=SECTION,
             label=f"step, {model.sensor_model} ({beams} beams), whole pipeline a–g", **params)
     if not stages:
