@@ -193,3 +193,32 @@ def test_keep_warm_runs_throwaway_steps_and_changes_no_row(tiny, tmp_path):
     rows_off, rows_on = got[False][0], got[True][0]
     assert len(rows_off) > 10  # the robots were tracked, so rows were compared
     assert rows_on == rows_off
+
+
+def test_rows_from_packed_equal_rows_from_output():
+    """The live loop's plain-Python rows (one ``tolist()``) equal ``rows_from_output``'s NumPy rows
+    exactly, field by field: ids, classes, order, and the headings wrapped the same way."""
+    from gtsjax.drivers.live import rows_from_packed
+    from gtsjax.io.gtd import rows_from_output, wrap_angle
+
+    rng = np.random.default_rng(5)
+    classes = ("robot", "post", "ball")
+    for trial in range(200):
+        m = int(rng.integers(1, 12))
+        packed = np.zeros((m + 1, 9), np.float32)
+        packed[:m, 0] = rng.permutation(np.arange(1, 3 * m + 1))[:m]
+        packed[:m, 1] = rng.integers(0, len(classes), m)
+        packed[:m, 2:5] = rng.normal(0.0, 3.0, (m, 3))
+        packed[:m, 4] = np.where(rng.random(m) < 0.2, rng.choice([np.pi, -np.pi, 3 * np.pi, 0.0], m), packed[:m, 4])
+        packed[:m, 5:8] = rng.random((m, 3)) * 1e-3
+        packed[:m, 8] = rng.random(m) < 0.6
+        packed[m, :4] = rng.random(4)
+        got = rows_from_packed(12.5 + trial, packed, classes)
+        t = packed[:-1]
+        want = rows_from_output(12.5 + trial, t[:, 0].astype(np.int64), t[:, 1].astype(np.int64), t[:, 2:5],
+                                t[:, 5:8], t[:, 8] > 0.5, classes)
+        assert got == want
+        assert rows_from_packed(12.5 + trial, packed.tolist(), classes) == want
+    from gtsjax.core.geometry import wrap
+    a = np.concatenate([np.linspace(-20.0, 20.0, 4001), [np.pi, -np.pi, 3 * np.pi, -3 * np.pi, 0.0, -0.0, 1e-300]])
+    assert [wrap_angle(float(x)) for x in a] == wrap(a).tolist()

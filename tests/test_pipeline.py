@@ -505,3 +505,24 @@ def test_live_step_state_and_output_equal_the_plain_steps(tiny):
     assert reported > 10  # the robots were tracked, so tracks were compared
     with pytest.raises(ValueError, match="more than the model's"):
         live(s_live, np.ones(model.n_beams + 1), None, 0.1)
+
+
+def test_frame_dt_and_link_frame_ranges_equal_the_obvious_forms():
+    """The live loop's ``frame_dt`` equals ``scan_dt`` of the same stamps once in float32, and a link
+    frame's ``ranges_m`` (one NumPy call) the millimetres converted to float32 and then divided by
+    1000 in float32, bit for bit."""
+    from gtsjax.io.logs import frame_dt, scan_dt
+    from gtsjax.io.scip import ScanFrame
+    from gtsjax.io.serial import LinkFrame
+
+    rng = np.random.default_rng(8)
+    stamps = np.cumsum(rng.uniform(-0.01, 0.1, 200)) + 1.7e9
+    want = scan_dt(stamps[1:], float(stamps[0]))
+    got = np.asarray([frame_dt(s, p) for s, p in zip(stamps[1:], stamps[:-1], strict=True)], np.float32)
+    np.testing.assert_array_equal(got, want)
+    assert frame_dt(5.0, None) == scan_dt(np.asarray([5.0]))[0] == 0.0
+    mm = rng.integers(0, 2**18, 5000).astype(np.int32)
+    lf = LinkFrame(ScanFrame("MD", "99", 1234, mm, None, 0, 0, mm, mm > 0), 10.0, 10.0, 1.0, 1234, 0)
+    want_m = mm.astype(np.float32) / np.float32(1000.0)
+    assert lf.ranges_m.dtype == np.float32
+    np.testing.assert_array_equal(lf.ranges_m.view(np.int32), want_m.view(np.int32))

@@ -177,10 +177,10 @@ def run_live_several(links: "dict[str, object]", model: "Model | tuple[Model, ..
                 span = 0.0 if last_own[n] is None else max(lf.stamp - last_own[n], 0.0)
                 last_own[n] = lf.stamp
                 state, o, packed = steps[kinds[k]](state, lf.ranges_m, lf.intensities, dt, k, span)
-                packed = np.asarray(packed)
-                rows = rows_from_packed(lf.stamp, packed, model.classes)
+                table = np.asarray(packed).tolist()
+                rows = rows_from_packed(lf.stamp, table, model.classes)
                 writer.write(rows)
-                degraded = bool(packed[-1, 0] > 0.5)
+                degraded = table[-1][0] > 0.5
                 outputs.send(rows, lf.stamp, degraded=degraded, laser=n)
                 lat = (time.perf_counter() - lf.recv_perf) * 1000.0
                 if n in recorders:

@@ -71,10 +71,31 @@ class StreamDecoder:
         self._after_drop = False
 
     def feed(self, data: bytes | bytearray | memoryview) -> "list[Reply | ScanFrame]":
-        parts = bytes(data).split(b"\n")
+        data = bytes(data)
+        parts = data.split(b"\n")
         tail = parts.pop()  # the bytes after the last LF: the start of a line still to come
         stats = self.stats
-        for part in parts:
+        plain = b"\r" not in data  # no line to strip of a CR (checked once for the chunk)
+        i, n = 0, len(parts)
+        while i < n:
+            lines = self._lines
+            if len(lines) >= 2 and plain and not self._partial and not self._skipping:
+                # Inside a confirmed reply (echo and status seen) each non-empty line is appended as
+                # it is: its data lines up to the closing empty line go in at once, which is what the
+                # line-by-line path below does with them when none is over-long and they do not make
+                # the reply over-long (else they take that path). A frame's hundred-odd lines cost
+                # the link's reader thread microseconds each one by one.
+                try:
+                    j = parts.index(b"", i)
+                except ValueError:
+                    j = n
+                if j > i and len(lines) + (j - i) <= self.max_lines and max(map(len, parts[i:j])) <= self.max_line:
+                    lines.extend(parts[i:j])
+                    i = j
+                    if i == n:
+                        break
+            part = parts[i]
+            i += 1
             if self._skipping:  # the rest of an over-long line
                 stats.garbage_bytes += len(part) + 1
                 self._skipping = False

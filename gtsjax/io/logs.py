@@ -354,6 +354,12 @@ def scan_dt(stamps: np.ndarray, prev_stamp: float | None = None) -> np.ndarray:
     return np.maximum(np.diff(stamps, prepend=first), 0.0).astype(np.float32)
 
 
+def frame_dt(stamp: float, prev_stamp: float | None) -> float:
+    """:func:`scan_dt` of one frame, without NumPy (the live loop's path): ``stamp − prev_stamp``,
+    never negative, 0 for the first frame; float32 once the step's frame buffer holds it."""
+    return 0.0 if prev_stamp is None else max(float(stamp) - float(prev_stamp), 0.0)
+
+
 def to_scans(log: ScanLog, n_beams: int | None = None, *, prev_stamp: float | None = None):
     """The log as one stacked :class:`~gtsjax.Scan` (leading axis: scans), float32, padded to ``n_beams``.
 
