@@ -240,7 +240,7 @@ SUMMARY = [
     ("step.utm-30lx.end_to_end", "whole step, UTM-30LX scan (1081 beams + intensity), 8 track slots"),
     ("step.urg-04lx.stage.frontend_a_to_c", "front end only (stages a–c), URG-04LX"),
     ("step.utm-30lx.stage.frontend_a_to_c", "front end only (stages a–c), UTM-30LX"),
-    ("batch.urg-04lx.exact", "batch replay, step by step (`replay --step-by-step`: bit for bit the live loop's)"),
+    ("batch.urg-04lx.exact", "batch replay, step by step (`replay --step-by-step`: the live loop's computation, scan by scan)"),
     ("batch.urg-04lx.vmap", "batch replay, vectorised (`replay`'s default: perception vmapped over groups of 8 scans)"),
     ("batch.urg-04lx.logs4", "batch replay, four logs side by side (`replay A B C D`: one tracker each, one program)"),
     ("batch.urg-04lx.frontend", "front end in batch, URG-04LX"),

@@ -68,9 +68,9 @@ def replay_cmd(
     confirm_scans: int | None = typer.Option(None, "--confirm-scans", min=1, help=CONFIRM_HELP),
     max_tracks: int | None = typer.Option(None, "--max-tracks", min=1, help=MAX_TRACKS_HELP),
     step_by_step: bool = typer.Option(False, "--step-by-step",
-                                      help="Run each scan's whole step in turn, as the live loop does (bit for bit), "
-                                           "instead of perceiving groups of scans at once (faster; equal to float32 round-off, "
-                                           "which can tip a near-tie of heading hypotheses)."),
+                                      help="Run each scan's whole step in turn, as the live loop does, instead of perceiving "
+                                           "groups of scans at once (faster). Either equals the live loop's rows to float32 "
+                                           "round-off, which can tip a near-tie of heading hypotheses."),
 ):
     """Process logged scan files into ground truth (GTD CSV); with --log NAME=LOG per laser, several
     lasers of one field into one."""

@@ -268,7 +268,7 @@ def replay_log(log, model, out: Path, *, chunk: int = 256, sensor_out: Path | No
                vectorise: bool = True, out_bag: Path | None = None, view=None):
     """Run ``log`` through ``model`` (site attached) and write the GTD CSV; returns stacked outputs'
     summary counters. The log is moved to the device a block at a time, so memory stays bounded.
-    ``vectorise``: see :func:`process_chunk` (off: bit for bit what the live loop computes).
+    ``vectorise``: see :func:`process_chunk` (off: each scan's whole step in turn, what the live loop computes, to float32 round-off: the live loop's program is compiled apart, with the model closed over).
     ``out_bag``: also a ROS 2 bag of the scans, laser poses and tracks (:mod:`gtsjax.io.bag_out`);
     ``view``: a :class:`~gtsjax.viewer.View` shown each scan (closed at the end)."""
     state = init_state(model)
