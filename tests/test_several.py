@@ -185,6 +185,37 @@ def test_live_merge_takes_frames_in_stamp_order_and_survives_a_late_laser(match,
             assert stamps == sorted(stamps)
 
 
+def test_live_several_keep_warm_runs_throwaway_steps_and_changes_no_row(match, tmp_path):
+    """Two lasers' frames arriving at the sensor's own rate: with ``keep_warm`` the loop runs warm-up
+    steps between them (one per frame at most), and writes the rows it writes without."""
+    from gtsjax.drivers.live_several import run_live_several, warm_up_several
+    from gtsjax.sensors import URG_04LX
+
+    logs, site, model = match
+    poses = site_poses(site, ["north", "south"])
+    compiled = warm_up_several(model, URG_04LX, poses)
+    n = 12
+    texts, warm = {}, {}
+    for keep in (False, True):
+        t0, wall0 = time.monotonic() + 0.05, time.time() + 0.05
+        links = {}
+        for name in ("north", "south"):
+            log = logs[name]
+            since = log.stamps[:n] - logs["north"].stamps[0]  # real time: one frame per sensor period
+            frames = [_Frame(np.where(log.valid()[i], log.ranges[i], 0.0).astype(np.float32), wall0 + since[i])
+                      for i in range(n)]
+            links[name] = _Link(URG_04LX, frames, [t0 + t for t in since])
+        out = tmp_path / f"gtd-{keep}.csv"
+        stats, _, _ = run_live_several(links, model, poses, out, compiled=compiled, max_frames=2 * n, duration=30.0,
+                                       keep_warm=keep)
+        assert stats.frames == 2 * n
+        # The frames are stamped on the host clock at each run's start: the rows but their stamps.
+        texts[keep] = [line.split(",", 1)[1] for line in out.read_text().splitlines()[1:]]
+        warm[keep] = stats.warm_ups
+    assert warm[False] == 0 and 0 < warm[True] <= 2 * n
+    assert texts[True] == texts[False] and len(texts[True]) > 0
+
+
 def test_live_a_laser_unplugged_leaves_the_other_tracking(match, tmp_path):
     """Two emulated lasers over real pseudo-terminals; the south one unplugged for good half-way: the
     north laser's frames keep coming and giving rows, the south link counts its failure, and the run

@@ -95,7 +95,7 @@ def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Pa
 def track_live_several(lasers: "dict[str, str]", model_paths: "list[Path]", site: Path, out: Path, *, record: Path | None,
                        json_lines: bool, udp: str | None, duration: float | None, frames: int | None,
                        intensity: bool, view: bool, confirm_scans: int | None, summary: Path | None,
-                       console: Console | None = None, max_tracks: int | None = None):
+                       console: Console | None = None, max_tracks: int | None = None, keep_warm: bool = True):
     """``run --port NAME=PORT ...``: every laser's link, one track table (see
     :mod:`gtsjax.drivers.live_several`); per-laser status when it stops, and in ``summary``. One
     model for every laser, or one per scanner model (each laser gets the one for the scanner the
@@ -140,7 +140,7 @@ def track_live_several(lasers: "dict[str, str]", model_paths: "list[Path]", site
         stats, per, out_of_order = run_live_several(
             links, models, poses, out, record=record_paths, kinds=kinds, outputs=Outputs(json_lines, udp), duration=duration,
             on_scan=on_scan, with_intensity=intensity, compiled=compiled, max_frames=frames,
-            warn=lambda msg: console.print(f"warning: {msg}", soft_wrap=True))
+            warn=lambda msg: console.print(f"warning: {msg}", soft_wrap=True), keep_warm=keep_warm)
     finally:
         for link in links.values():
             link.stop()

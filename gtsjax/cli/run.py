@@ -61,7 +61,7 @@ def run_cmd(
 
         track_live_several(lasers, models, site, out, record=record, json_lines=json_lines, udp=udp,
                            duration=duration, frames=frames, intensity=intensity, view=not quiet,
-                           confirm_scans=confirm_scans, summary=summary, max_tracks=max_tracks)
+                           confirm_scans=confirm_scans, summary=summary, max_tracks=max_tracks, keep_warm=keep_warm)
         return
     port, model = port[0], one_model(models)
     stats, link_stats = track_live(port, model, site, out, record=record, json_lines=json_lines, udp=udp,

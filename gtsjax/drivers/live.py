@@ -239,7 +239,7 @@ def warm_host(live_step: "LiveStep", last, class_names, sample: bytes | None = N
     if last is None:
         return
     lf, table = last
-    live_step.frame(lf.ranges_m, lf.intensities, 0.0)
+    live_step.frame(lf.ranges_m, lf.intensities, 0.0, *(0.0,) * live_step.extras)
     format_rows(rows_from_packed(lf.stamp, table, class_names))
 
 

@@ -25,7 +25,7 @@ from ..errors import InputError
 from ..io.gtd import GTDWriter
 from ..model import Model
 from ..sensors import SensorModel
-from .live import LiveStats, LiveStep, Outputs, check_sensor, rows_from_packed
+from .live import LiveStats, LiveStep, Outputs, check_sensor, decoder_sample, rows_from_packed, warm_host
 from .several import Disagreement
 
 
@@ -106,7 +106,7 @@ def run_live_several(links: "dict[str, object]", model: "Model | tuple[Model, ..
                      record: "dict[str, Path] | None" = None, outputs: Outputs | None = None,
                      duration: float | None = None, stop=None, on_scan=None, with_intensity: bool = False,
                      compiled=None, max_frames: int | None = None, hold_s: float | None = None, warn=None,
-                     kinds: "tuple[int, ...] | None" = None):
+                     kinds: "tuple[int, ...] | None" = None, keep_warm: bool = True):
     """Track from started links (one per laser, ``poses`` their rough pose guesses in the same order)
     until ``duration``, ``max_frames`` frames (all lasers together), ``stop`` or Ctrl-C. ``model``:
     every laser's, or one per scanner model with ``kinds`` (each laser's index into them; see
@@ -114,7 +114,10 @@ def run_live_several(links: "dict[str, object]", model: "Model | tuple[Model, ..
     run's :class:`~gtsjax.drivers.live.LiveStats`, the lasers' :class:`LaserStats` and the count of
     frames processed out of stamp order. ``warn(message)`` is called with a line when two lasers' map
     transformations disagree about the landmarks both see (:data:`CALIBRATION_WARN_M` for
-    :data:`CALIBRATION_WARN_S`): a tripod bumped."""
+    :data:`CALIBRATION_WARN_S`): a tripod bumped. ``keep_warm``: as :func:`~gtsjax.drivers.live.run_live`'s,
+    per laser: shortly before a laser's next frame is due, while no frame waits, the step of its
+    scanner runs once on its last frame and is thrown away, and so does the host's part
+    (:func:`~gtsjax.drivers.live.warm_host`); once per frame of each laser."""
     from ..io.record import Recorder
 
     names = list(links)
@@ -140,6 +143,11 @@ def run_live_several(links: "dict[str, object]", model: "Model | tuple[Model, ..
     last_stamp, last_own = None, dict.fromkeys(names)
     out_of_order = 0
     check = Disagreement()
+    # keep_warm: each laser's next frame is due at its last one's arrival plus its period; a warm-up
+    # runs that long before it, the lead twice a recent step's time plus 2 ms (as run_live's).
+    due, last, step_ms = dict.fromkeys(names), dict.fromkeys(names), collections.deque(maxlen=50)
+    samples = {n: decoder_sample(links[n]) for n in names} if keep_warm else {}
+    lead = 0.0
     t_end = None if duration is None else time.monotonic() + duration
     failed = None
     try:
@@ -154,7 +162,16 @@ def run_live_several(links: "dict[str, object]", model: "Model | tuple[Model, ..
                 ready = [n for n in names if heads[n]]
                 if not ready:
                     if not got:
-                        time.sleep(0.001)
+                        now = time.perf_counter()
+                        soon = [m for m in names if due[m] is not None and due[m] - lead <= now < due[m]]
+                        if soon:
+                            m = soon[0]
+                            due[m] = None  # one warm-up per frame: a laser that stalls is not stepped for
+                            steps[kinds[names.index(m)]].warm(state)
+                            warm_host(steps[kinds[names.index(m)]], last[m], model.classes, samples[m])
+                            stats.warm_ups += 1
+                        else:
+                            time.sleep(0.001)
                     continue
                 n = min(ready, key=lambda x: heads[x][0].stamp)
                 lf = heads[n][0]
@@ -176,13 +193,20 @@ def run_live_several(links: "dict[str, object]", model: "Model | tuple[Model, ..
                 last_stamp = lf.stamp if last_stamp is None else max(last_stamp, lf.stamp)
                 span = 0.0 if last_own[n] is None else max(lf.stamp - last_own[n], 0.0)
                 last_own[n] = lf.stamp
+                t_step = time.perf_counter()
                 state, o, packed = steps[kinds[k]](state, lf.ranges_m, lf.intensities, dt, k, span)
                 table = np.asarray(packed).tolist()
+                last[n] = (lf, table)
                 rows = rows_from_packed(lf.stamp, table, model.classes)
                 writer.write(rows)
                 degraded = table[-1][0] > 0.5
                 outputs.send(rows, lf.stamp, degraded=degraded, laser=n)
-                lat = (time.perf_counter() - lf.recv_perf) * 1000.0
+                t_done = time.perf_counter()
+                lat = (t_done - lf.recv_perf) * 1000.0
+                if keep_warm:
+                    step_ms.append(t_done - t_step)
+                    lead = min(0.002 + 2.0 * float(np.median(step_ms)), 0.5 * min(s.period for s in sensors))
+                    due[n] = lf.recv_perf + period_ms[n] / 1000.0
                 if n in recorders:
                     recorders[n].append_frame(lf)
                 o = steps[kinds[k]].output(o)
