@@ -194,7 +194,6 @@ class LiveStep:
         self._last = self.frame(ranges_m, intensities, dt, *extra)
         return self.jitted(state, self._last)
 
-
     def warm(self, state) -> None:
         """Run the step once more on the last frame from ``state``, throwing the result away, and wait
         for it: the step's code and constants back in the caches, and the core awake, for the next
