@@ -30,7 +30,7 @@ from ..core.pipeline import Output, PipelineState, init_state, step
 from ..core.scan import Scan
 from ..errors import InputError
 from ..io import scip
-from ..io.gtd import GTDWriter, TrackRow, format_rows, json_line, wrap_angle
+from ..io.gtd import GTDWriter, format_rows, json_line, rows_from_table
 from ..io.logs import ScanLog, fit_to_model, frame_dt, valid_beams
 from ..model import Model
 from ..sensors import SensorModel
@@ -210,6 +210,12 @@ class LiveStep:
         return self.output_layout.unpack_host(packed_output)
 
 
+def warm_up_lead(step_s, period: float) -> float:
+    """How long before a frame is due its warm-up runs (``keep_warm``): twice a recent step's time
+    (``step_s``, seconds) plus 2 ms, so that it ends well before the frame; at most half the period."""
+    return min(0.002 + 2.0 * float(np.median(step_s)), 0.5 * period)
+
+
 def decoder_sample(link) -> bytes | None:
     """A data block of the kind ``link`` streams (its ``command``: ``MD`` or ``ME``, its sensor's
     beams), for :func:`warm_host` to decode; ``None`` for a link that says neither."""
@@ -244,17 +250,13 @@ def warm_host(live_step: "LiveStep", last, class_names, sample: bytes | None = N
 
 def rows_from_packed(stamp: float, packed: "np.ndarray | list", class_names) -> list:
     """GTD rows from :func:`pack_tracks`'s array, or its ``tolist()`` (reported tracks, in id order):
-    the rows :func:`~gtsjax.io.gtd.rows_from_output` gives for the same fields.
+    :func:`~gtsjax.io.gtd.rows_from_table` of its track rows.
 
-    Plain Python over one ``tolist()``, not a dozen NumPy calls: on the live loop's path right after
-    the step, when the interpreter's code has left the caches, each NumPy call costs ten times what it
-    does in a tight loop (17 µs for the whole conversion in a loop, 130–170 µs in the loop after a
-    step, with NumPy)."""
+    The live loop passes the ``tolist()``, made once: on its path right after the step, when the
+    interpreter's code has left the caches, each NumPy call costs ten times what it does in a tight
+    loop (17 µs for the whole conversion in a loop, 130–170 µs in the loop after a step, with NumPy)."""
     table = packed.tolist() if isinstance(packed, np.ndarray) else packed
-    rows = [TrackRow(float(stamp), int(r[0]), class_names[int(r[1])], r[2], r[3], wrap_angle(r[4]), r[5], r[6], r[7])
-            for r in table[:-1] if r[8] > 0.5]
-    rows.sort(key=lambda row: row.track_id)
-    return rows
+    return rows_from_table(stamp, table[:-1], class_names)
 
 
 def check_sensor(model: Model, sensor: SensorModel, where: str, *, intensity: bool = True) -> None:
@@ -388,8 +390,7 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
                 lat = (t_done - lf.recv_perf) * 1000.0
                 if keep_warm:
                     step_ms.append(t_done - t_step)
-                    # Lead: twice a recent step's time plus 2 ms, so the warm-up ends well before the frame.
-                    warm_lead = min(0.002 + 2.0 * float(np.median(step_ms)), 0.5 * sensor.period)
+                    warm_lead = warm_up_lead(step_ms, sensor.period)
                     due = lf.recv_perf + sensor.period
                 # Bookkeeping after the latency is taken: the recording and the view are not on the path.
                 if recorder is not None:

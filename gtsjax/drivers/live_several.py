@@ -25,7 +25,7 @@ from ..errors import InputError
 from ..io.gtd import GTDWriter
 from ..model import Model
 from ..sensors import SensorModel
-from .live import LiveStats, LiveStep, Outputs, check_sensor, decoder_sample, rows_from_packed, warm_host
+from .live import LiveStats, LiveStep, Outputs, check_sensor, decoder_sample, rows_from_packed, warm_host, warm_up_lead
 from .several import Disagreement
 
 
@@ -144,8 +144,9 @@ def run_live_several(links: "dict[str, object]", model: "Model | tuple[Model, ..
     out_of_order = 0
     check = Disagreement()
     # keep_warm: each laser's next frame is due at its last one's arrival plus its period; a warm-up
-    # runs that long before it, the lead twice a recent step's time plus 2 ms (as run_live's).
+    # runs ``lead`` before it (run_live's, for the shortest period).
     due, last, step_ms = dict.fromkeys(names), dict.fromkeys(names), collections.deque(maxlen=50)
+    min_period = min(s.period for s in sensors)
     samples = {n: decoder_sample(links[n]) for n in names} if keep_warm else {}
     lead = 0.0
     t_end = None if duration is None else time.monotonic() + duration
@@ -167,8 +168,9 @@ def run_live_several(links: "dict[str, object]", model: "Model | tuple[Model, ..
                         if soon:
                             m = soon[0]
                             due[m] = None  # one warm-up per frame: a laser that stalls is not stepped for
-                            steps[kinds[names.index(m)]].warm(state)
-                            warm_host(steps[kinds[names.index(m)]], last[m], model.classes, samples[m])
+                            step_m = steps[kinds[names.index(m)]]
+                            step_m.warm(state)
+                            warm_host(step_m, last[m], model.classes, samples[m])
                             stats.warm_ups += 1
                         else:
                             time.sleep(0.001)
@@ -205,7 +207,7 @@ def run_live_several(links: "dict[str, object]", model: "Model | tuple[Model, ..
                 lat = (t_done - lf.recv_perf) * 1000.0
                 if keep_warm:
                     step_ms.append(t_done - t_step)
-                    lead = min(0.002 + 2.0 * float(np.median(step_ms)), 0.5 * min(s.period for s in sensors))
+                    lead = warm_up_lead(step_ms, min_period)
                     due[n] = lf.recv_perf + period_ms[n] / 1000.0
                 if n in recorders:
                     recorders[n].append_frame(lf)

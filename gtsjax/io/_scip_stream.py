@@ -89,8 +89,9 @@ class StreamDecoder:
                     j = parts.index(b"", i)
                 except ValueError:
                     j = n
-                if j > i and len(lines) + (j - i) <= self.max_lines and max(map(len, parts[i:j])) <= self.max_line:
-                    lines.extend(parts[i:j])
+                run = parts[i:j]
+                if run and len(lines) + len(run) <= self.max_lines and max(map(len, run)) <= self.max_line:
+                    lines.extend(run)
                     i = j
                     if i == n:
                         break

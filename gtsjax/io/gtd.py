@@ -18,7 +18,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.geometry import wrap
 from ..errors import InputError
 
 HEADER = ("stamp", "track_id", "class", "x", "y", "theta", "var_x", "var_y", "var_theta")
@@ -73,29 +72,23 @@ def wrap_angle(a: float) -> float:
     return math.pi - (math.pi - a) % (2.0 * math.pi)
 
 
+def rows_from_table(stamp: float, table, class_names) -> list[TrackRow]:
+    """Rows for one scan from its track slots as lists ``[id, class, x, y, θ, var_x, var_y, var_θ,
+    confirmed]`` (numbers; ``confirmed`` above 0.5 for a reported track), confirmed tracks only, in
+    id order. Plain Python: the live loop calls it right after the step, where each NumPy call costs
+    many times what it does in a tight loop (see :func:`gtsjax.drivers.live.rows_from_packed`)."""
+    rows = [TrackRow(float(stamp), int(r[0]), class_names[int(r[1])], r[2], r[3], wrap_angle(r[4]), r[5], r[6], r[7])
+            for r in table if r[8] > 0.5]
+    rows.sort(key=lambda row: row.track_id)
+    return rows
+
+
 def rows_from_output(stamp: float, track_id, cls_index, pose, var, mask, class_names) -> list[TrackRow]:
-    """Rows for one scan from the step's fixed-size track arrays (NumPy or JAX), confirmed tracks only."""
-    mask = np.asarray(mask)
-    if not mask.any():
-        return []
-    track_id, cls_index = np.asarray(track_id)[mask], np.asarray(cls_index)[mask]
-    pose, var = np.asarray(pose, np.float64)[mask], np.asarray(var, np.float64)[mask]
-    theta = wrap(pose[:, 2])
-    order = np.argsort(track_id, kind="stable")
-    return [
-        TrackRow(
-            float(stamp),
-            int(track_id[i]),
-            class_names[int(cls_index[i])],
-            float(pose[i, 0]),
-            float(pose[i, 1]),
-            float(theta[i]),
-            float(var[i, 0]),
-            float(var[i, 1]),
-            float(var[i, 2]),
-        )
-        for i in order
-    ]
+    """Rows for one scan from the step's fixed-size track arrays (NumPy or JAX), confirmed tracks only
+    (:func:`rows_from_table` of the slots side by side, in float64)."""
+    col = lambda a: np.asarray(a, np.float64).reshape(len(mask), -1)  # noqa: E731
+    table = np.concatenate([col(track_id), col(cls_index), col(pose), col(var), col(mask)], axis=1)
+    return rows_from_table(stamp, table.tolist(), class_names)
 
 
 class GTDWriter:
