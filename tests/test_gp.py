@@ -509,7 +509,7 @@ def test_starts_vmapped_end_where_they_end_one_by_one(monkeypatch):
     data = fit_module._standardised(x[:80], y[:80])
     xp, yp, mp = fit_module._padded(data.x, data.y, 80)
     starts = fit_module._initial_params(jax.random.key(5), 4, x.shape[1], data.y_var)
-    args = (xp, yp, mp, jnp.asarray(1e-8), jnp.asarray(1.0), 1e-6, 1e-6, 1000)
+    args = (xp, yp, mp, jnp.asarray(1e-8), jnp.asarray(1.0), 1e-6, 1e-6, 1e-6, 1000)
     p_all, f_all, n_all = fit_module._optimise(starts, *args)
     for i in range(4):
         p_one, f_one, n_one = fit_module._optimise(fit_module._one(fit_module._row(starts, i)), *args)
@@ -522,3 +522,28 @@ def test_starts_vmapped_end_where_they_end_one_by_one(monkeypatch):
         fits.append(gp.fit(x[:80], y[:80], key=jax.random.key(5), restarts=4))
     np.testing.assert_allclose(float(fits[0].log_marginal_likelihood()), float(fits[1].log_marginal_likelihood()),
                                rtol=1e-7)
+
+
+def test_gradient_stop_ends_where_the_cauchy_test_ends():
+    """``gtol``: BFGS stops at a first-order optimum (every gradient component of -LML/N at most
+    ``gtol``) instead of waiting for every parameter to stop drifting. Against the same starts run to
+    Optimistix's Cauchy test alone (``gtol`` 0): every start ends at the same LML to 0.001 nats, in at
+    most as many steps, and its gradient there is at most ``gtol`` or the Cauchy test stopped it."""
+    import importlib
+
+    fit_module = importlib.import_module("gtsjax.gp.fit")
+    x, y = _friedman3(np.random.default_rng(32))
+    n = len(y)
+    data = fit_module._standardised(x, y)
+    xp, yp, mp = fit_module._padded(data.x, data.y, n)
+    starts = fit_module._initial_params(jax.random.key(6), 4, x.shape[1], data.y_var)
+    common = (xp, yp, mp, jnp.asarray(1e-8), jnp.asarray(1.0), 1e-6, 1e-6)
+    p_g, f_g, n_g = fit_module._optimise(starts, *common, 1e-6, 1000)
+    p_c, f_c, n_c = fit_module._optimise(starts, *common, 0.0, 1000)
+    np.testing.assert_allclose(np.asarray(f_g) * n, np.asarray(f_c) * n, rtol=0, atol=1e-3)
+    assert np.all(np.asarray(n_g) <= np.asarray(n_c)) and np.any(np.asarray(n_g) < np.asarray(n_c))
+    grad = jax.grad(fit_module._neg_lml_per_point)
+    for i in range(4):
+        g = grad(fit_module._row(p_g, i), (xp, yp, mp, jnp.asarray(1e-8), jnp.asarray(1.0)))
+        at_optimum = max(float(jnp.max(jnp.abs(a))) for a in jax.tree.leaves(g)) <= 1e-6
+        assert at_optimum or int(n_g[i]) == int(n_c[i])
