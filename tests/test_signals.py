@@ -101,13 +101,15 @@ def test_run_stops_cleanly_on_sigterm(tmp_path):
 
 def test_replay_keeps_its_rows_on_sighup(tmp_path):
     """``replay`` stopped by SIGHUP mid-log: exit status 128 + 1 and one line saying so; the CSV written
-    so far is whole (it reads back, every row complete) and holds the first scans' rows, not all."""
+    so far is whole (it reads back, every row complete) and holds the first scans' rows, not all.
+    Replay writes a block of 16 chunks at a time: with 16-scan chunks the log is twelve blocks, so the
+    signal, sent once the first block's rows are on disk, comes while later blocks are computed."""
     log, site = simulate("spl-trajectory", seed=44, n_scans=3000)
     save_log(log, tmp_path / "long.npz")
     save_site(site, tmp_path / "site.json")
     out = tmp_path / "gtd.csv"
     proc = popen_cli("replay", tmp_path / "long.npz", "--site", tmp_path / "site.json", "--model", demo_model_path(),
-                     "--out", out, "--step-by-step")
+                     "--out", out, "--step-by-step", "--chunk", "16")
     deadline = time.monotonic() + PATIENCE_S
     while time.monotonic() < deadline and proc.poll() is None:
         if out.exists() and out.stat().st_size > 2000:
