@@ -64,6 +64,14 @@ def evaluate_targets(res) -> None:
             why = (f"The median itself ({fmt(m['median'], 'us')}) is over the budget; the largest stage is {top[0]} "
                    f"({fmt(top[1]['median_us'], 'us')} median); every jitted call also pays a dispatch floor of "
                    f"{fmt(floor, 'us')}. See the stage breakdown below.")
+        n_step = res.sections.get("pipeline", {}).get("step_kernels")
+        chain = res.get("step.kernel_chain.step") if res.has("step.kernel_chain.step") else None
+        if n_step and chain:
+            k = chain["params"]["kernels"]
+            why += (f" The step runs {n_step} kernels (`python -m benchmarks.kernels`); on this machine a compiled "
+                    f"chain of {k} kernels with no arithmetic to speak of takes {fmt(chain['median'], 'us')} "
+                    f"({chain['median'] / k:.2f} µs a kernel), so the count alone prices the step at about "
+                    f"{fmt(n_step * chain['median'] / k, 'us')}.")
         cost = res.profiles.get("xla_cost.urg-04lx", {})
         parts = {k: c.get("mflop", 0.0) for k, c in cost.items() if k != "frontend_a_to_c"}
         if sum(parts.values()) > 0 and stages:

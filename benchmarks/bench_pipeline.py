@@ -33,13 +33,14 @@ from gtsjax.core.frontend import front_end, front_end_batch
 from gtsjax.core.g_track import Detections, track_step
 from gtsjax.core.geometry import wrap
 from gtsjax.core.multi import init_several, step_several
-from gtsjax.core.pipeline import init_state, landmark_cap, perceive
+from gtsjax.core.pipeline import init_state, landmark_cap, perceive, step
 from gtsjax.drivers.replay import process_log, process_logs
 from gtsjax.drivers.several import merge_logs, process_several, site_poses
 from gtsjax.io import to_scans
 
 from . import _data
 from ._harness import LiveCall, closed_step
+from .kernels import compiled_text, count_kernels
 
 SECTION = "pipeline"
 
@@ -196,6 +197,21 @@ def dispatch_floor(ctx, repeats: int) -> None:
     x = jnp.asarray(1.0, jnp.float32)
     ctx.results.add("step.dispatch_floor", "us", ctx.time_calls(lambda i: f(x), repeats, warmup=20), section=SECTION,
                     label="jitted no-op call (dispatch floor)")
+    # What kernels cost with next to no arithmetic: a compiled chain of tiny reductions and elementwise
+    # kernels (64 floats each) of the budget (150) and of about the step's count. Their cost per
+    # kernel grows with the program's size (its code, not its data, leaves the caches), so the
+    # step's count prices in at the larger figure.
+    v = jnp.ones((64,), jnp.float32)
+    for tag, links in (("budget", 50), ("step", 140)):
+        def chain(a, links=links):
+            for i in range(links):
+                a = a * 0.5 + jnp.max(a) * 0.001 + i  # a reduction, then an elementwise kernel using it
+            return a
+        g = jax.jit(chain)
+        n = count_kernels(compiled_text(chain, v)).total
+        ctx.results.add(f"step.kernel_chain.{tag}", "us", ctx.time_calls(lambda i, g=g: g(v), repeats // 3, warmup=20),
+                        section=SECTION, label=f"a compiled chain of {n} tiny kernels (no arithmetic to speak of)",
+                        kernels=n)
 
 
 def bench_batch(ctx, model, n_scans: int, runs: int) -> None:
@@ -293,5 +309,7 @@ def run(ctx) -> None:
                  stages=not q)
     bench_batch(ctx, model, 512 if q else 3000, 2 if q else 5)
     bench_several(ctx, n_pool, repeats, 2 if q else 5, 5.0 if q else 30.0)
+    scan0 = jax.tree.map(lambda a: a[0], to_scans(log, model.n_beams))
+    kernels = count_kernels(compiled_text(lambda s, x: step(model, s, x), init_state(model), scan0)).total
     ctx.results.sections[SECTION] = {"urg_log": "spl-crossing seed 3", "utm_log": "lab-trajectory seed 5",
-                                     "pool": n_pool, "batch_log": "spl-trajectory seed 4"}
+                                     "pool": n_pool, "batch_log": "spl-trajectory seed 4", "step_kernels": kernels}
