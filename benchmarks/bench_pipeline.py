@@ -198,9 +198,8 @@ def dispatch_floor(ctx, repeats: int) -> None:
     ctx.results.add("step.dispatch_floor", "us", ctx.time_calls(lambda i: f(x), repeats, warmup=20), section=SECTION,
                     label="jitted no-op call (dispatch floor)")
     # What kernels cost with next to no arithmetic: a compiled chain of tiny reductions and elementwise
-    # kernels (64 floats each) of the budget (150) and of about the step's count. Their cost per
-    # kernel grows with the program's size (its code, not its data, leaves the caches), so the
-    # step's count prices in at the larger figure.
+    # kernels (64 floats each) of the budget (150) and of about the step's count; the report
+    # prices the step's count at the larger chain's cost per kernel.
     v = jnp.ones((64,), jnp.float32)
     for tag, links in (("budget", 50), ("step", 140)):
         def chain(a, links=links):
