@@ -172,7 +172,8 @@ def test_motion_limits_from_labelled_motion_not_from_grid_jumps():
     assert lim["robot"]["max_turn_rate"] == pytest.approx(1.25 * 0.5, rel=1e-3)
     grid_only = dataclasses.replace(log_with_motion(), truth_poses=log_with_motion().truth_poses[:60],
                                     ranges=np.ones((60, 5), np.float32), stamps=np.arange(60) * 0.1)
-    assert "robot" not in motion_limits([grid_only], ("background", "robot"))
+    got = motion_limits([grid_only], ("background", "robot"))["robot"]
+    assert "max_speed" not in got and "max_turn_rate" not in got and got["speed_windows_s"] == 0
 
 
 def test_background_log_with_another_step_is_refused(tiny):

@@ -71,6 +71,15 @@ def train_cmd(
     max_turn_rate: list[str] = typer.Option([], "--max-turn-rate", metavar="CLASS=RAD_PER_S",
                                             help="A class's maximum turn rate (default: from its labelled motion, "
                                                  "else 3 rad/s)."),
+    scan_rate: float | None = typer.Option(None, "--scan-rate", metavar="HZ", min=0.5, max=200.0,
+                                           help="The scanner's rate live (default: from the logs' stamps, or the "
+                                                "named scanner's where the logs kept fewer scans)."),
+    check: bool = typer.Option(True, "--check/--no-check",
+                               help="After fitting, replay the labelled logs through the whole step (tracker "
+                                    "included) and score tracking on their held-out seconds."),
+    strict: bool = typer.Option(False, "--strict",
+                                help="Exit 1 (the model still written) when that check finds a tracked class "
+                                     "reported in fewer than 90 % of the held-out scans in which it was detected."),
 ):
     """Train a model from labelled logs (training and held-out evaluation)."""
     console = Console(stderr=True)
@@ -95,7 +104,8 @@ def train_cmd(
                               max_landmark_examples=max_landmark, n_inducing=inducing, n_inducing_class=inducing_class,
                               restarts=restarts, seed=seed, max_tracks=max_tracks, max_background=max_background, max_mobile=max_mobile,
                               max_speed=_per_class(max_speed, "--max-speed"),
-                              max_turn_rate=_per_class(max_turn_rate, "--max-turn-rate"))
+                              max_turn_rate=_per_class(max_turn_rate, "--max-turn-rate"), scan_rate_hz=scan_rate,
+                              check_pipeline=check)
     loaded = [load_log(p) for p in logs]
     bg = [load_input(p, background_topic if _is_bag(p) else None, console) for p in background]
     if loaded and loaded[0].labelled:  # every input checked before the minutes of fitting
@@ -124,6 +134,11 @@ def train_cmd(
         console.print(f"warning: {w}", soft_wrap=True)
     if report is not None:
         report.write_text(json.dumps(rep, indent=2) + "\n")
+    for line in rep.get("pipeline_problems", []):
+        console.print(f"warning: the model cannot track {line}", soft_wrap=True)
+    if strict and rep.get("pipeline_problems"):
+        console.print(f"train --strict: {out} was written, but fails the pipeline check (above)", soft_wrap=True)
+        raise typer.Exit(1)
 
 
 def outline_path(model_path: Path) -> Path:
@@ -196,6 +211,8 @@ def _summary(console: Console, rep: dict, out: Path) -> None:
             line += f"; not used: {o['why']}"
         console.print(line)
     _openset_tables(console, rep)
+    _learnt_table(console, rep)
+    _pipeline_table(console, rep)
     console.print(f"{rep['degraded_scans']} of {rep['scans']} scans without a map transformation; model written to {out}")
 
 
@@ -232,3 +249,41 @@ def _openset_tables(console: Console, rep: dict) -> None:
         if bg:
             taken = ", ".join(f"{c} {100 * v:.2f} %" for c, v in bg["taken_for"].items() if c != "background")
             console.print(f"{what}: {bg['n']} candidates, taken for {taken or 'nothing else'}")
+
+
+def _learnt_table(console: Console, rep: dict) -> None:
+    """Every value learnt from the logs that the tracker relies on, with where it came from."""
+    rows = rep.get("learnt", [])
+    if not rows:
+        return
+    t = Table(title="learnt from your logs (value, where it came from, sanity range)")
+    for col in ("class", "parameter", "value", "from", "evidence", "plausible"):
+        t.add_column(col, justify="right" if col == "value" else "left")
+    for r in rows:
+        lo_hi = r.get("plausible")
+        t.add_row(r["class"] or "–", r["parameter"], f"{r['value']:.3g} {r['unit']}".strip(),
+                  r["source"] + (" ⚠" if "warning" in r else ""), r["evidence"],
+                  "–" if not lo_hi else f"{lo_hi[0]:g}–{lo_hi[1]:.3g}")
+    console.print(t)
+
+
+def _pipeline_table(console: Console, rep: dict) -> None:
+    """The whole step on the labelled logs' held-out seconds (``train.check``), per tracked class."""
+    summary = rep.get("pipeline")
+    if not summary:
+        return
+    t = Table(title="the whole step (tracker included) on the held-out seconds of the labelled logs")
+    for col in ("class", "scans in view", "detected", "rows (of detected)", "position RMSE", "heading RMSE",
+                "scans without a row lost at"):
+        t.add_column(col, justify="left" if col in ("class", "scans without a row lost at") else "right")
+
+    def pct(v):
+        return "–" if v is None else f"{100 * v:.1f} %"
+
+    for name, s in summary.items():
+        lost = ", ".join(f"{k} {100 * v:.0f} %" for k, v in sorted(s["lost_share"].items(), key=lambda kv: -kv[1]))
+        t.add_row(name, f"{s['scans_in_view']} ({s['scans_scored']} scored)", pct(s["detection_rate"]),
+                  pct(s["rows_per_detected_scan"]),
+                  "–" if s["position_rmse_m"] is None else f"{100 * s['position_rmse_m']:.1f} cm",
+                  "–" if s["heading_rmse_deg"] is None else f"{s['heading_rmse_deg']:.1f}°", lost or "–")
+    console.print(t)

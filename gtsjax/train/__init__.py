@@ -30,19 +30,30 @@ from ..io.logs import ScanLog
 from ..io.site import Site
 from ..model import Model
 from ..sensors import MODELS
+from .bounds import shape_rows
+from .check import check_pipeline, held_mask, verdict
 from .classifier import fit_classifier, fit_support, landmark_lookalikes
 from .classifier import fit_envelope as fit_envelope
 from .config import TrainConfig as TrainConfig
 from .fit import GPFits
 from .labels import Examples as Examples
-from .labels import background_examples, check_logs, first_pass, front_end_logs, holdout_groups, second_pass, step_beams
+from .labels import (
+    background_examples,
+    check_logs,
+    first_pass,
+    front_end_logs,
+    holdout_groups,
+    per_log_sites,
+    second_pass,
+    step_beams,
+)
 from .labels import class_list as class_list
 from .labels import estimate_transforms as estimate_transforms
 from .labels import fit_background as fit_background
 from .labels import label_log as label_log
 from .labels import run_front_end as run_front_end
+from .motion import confirmation_entry, scan_rate_entry, tracker_limits
 from .motion import motion_limits as motion_limits
-from .motion import scan_rate, tracker_limits
 from .outline import fit_outlines
 from .pose import fit_landmark_positions, fit_pose_regressors
 from .report import evaluate_examples as evaluate_examples
@@ -118,15 +129,20 @@ def train(logs: Sequence[ScanLog], site: "Site | Sequence[Site]", cfg: TrainConf
     for k, reg in mobile_pose.items():
         pose[k] = reg
     outline, outline_report = fit_outlines(logs, ex, is_held, classes, mobiles, pose, cfg.frontend.window, rng)
-    speed, turn, motion = tracker_limits(logs, classes, mobiles, cfg)
+    rate_hz, rate_row = scan_rate_entry(logs, cfg.scan_rate_hz)
+    speed, turn, motion, motion_rows = tracker_limits(logs, classes, mobiles, cfg, period=1.0 / rate_hz)
+    tracker = TrackerParams.default([c in mobiles for c in classes], rate_hz=rate_hz, max_speed=speed,
+                                    max_turn_rate=turn)
+    learnt = [rate_row, confirmation_entry(int(tracker.n_confirm), rate_hz), *motion_rows,
+              *shape_rows(env_report, sup_report, classes, mobiles)]
+    warnings = warnings + [row["warning"] for row in learnt if "warning" in row]
 
     model = Model(
         frontend=cfg.frontend,
         classifier=classifier,
         envelope=envelope,
         pose=tuple(pose),
-        tracker=TrackerParams.default([c in mobiles for c in classes], rate_hz=scan_rate(logs), max_speed=speed,
-                                      max_turn_rate=turn),
+        tracker=tracker,
         landmark_mask=jnp.asarray([c in landmarks for c in classes]),
         map_gate=jnp.asarray(cfg.map_gate, jnp.float32),
         map_min_spread=jnp.asarray(cfg.map_min_spread, jnp.float32),
@@ -155,12 +171,17 @@ def train(logs: Sequence[ScanLog], site: "Site | Sequence[Site]", cfg: TrainConf
         "envelopes": {classes[k]: v for k, v in env_report.items()},
         "open_set": {classes[k]: v for k, v in sup_report.items()},
         "motion_limits": motion,
+        "learnt": learnt,
         "outlines": outline_report,
         "scans": n_scans,
         "degraded_scans": degraded,
         "warnings": warnings,
         "heldout": evaluate_examples(model, ex.take(np.flatnonzero(is_held))),
     }
+    if cfg.check_pipeline:
+        held_scans = [held_mask(log, i, ex_lab.where, ex_lab.group, held) for i, log in enumerate(logs)]
+        report["pipeline"] = check_pipeline(model, logs, per_log_sites(site, len(logs)), held_scans, mobiles)
+        report["pipeline_problems"] = verdict(report["pipeline"])
     if len(bg_ex.cls):
         report["heldout_background_logs"] = evaluate_examples(
             model, bg_ex.take(np.flatnonzero(np.isin(bg_ex.group, held))))

@@ -63,6 +63,9 @@ class TrainConfig:
     # (``g_track.DEFAULT_MAX_SPEED``, ``DEFAULT_MAX_TURN_RATE``), gives.
     max_speed: dict[str, float] = dataclasses.field(default_factory=dict)
     max_turn_rate: dict[str, float] = dataclasses.field(default_factory=dict)
+    scan_rate_hz: float | None = None  # the scanner's rate (None: from the logs, ``train.motion.scan_rate_entry``)
+    # After fitting, replay the labelled logs through the whole step and score tracking (``train.check``).
+    check_pipeline: bool = True
     holdout: float = 0.2  # fraction of one-second blocks held out for evaluation
     label_radius: float = 0.3  # m: a candidate this close to a labelled object is that object
     landmark_radius: float = 0.25  # m: a candidate this close to a site landmark is that landmark

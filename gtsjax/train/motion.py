@@ -1,87 +1,189 @@
 """What training learns for stage g, tracking: each tracked class's top speed and turn rate (the
-tracker's plausible-motion test, :class:`~gtsjax.core.g_track.TrackerParams`) from its labelled motion
-(:func:`motion_limits`), else the user's or the tracker's defaults (:func:`tracker_limits`), and the
-scanner's rate, which sets the tracker's confirmation and deletion counts (:func:`scan_rate`).
+tracker's plausible-motion test, :class:`~gtsjax.core.g_track.TrackerParams`) from the evidence of
+that motion in its labels (:func:`motion_limits`), else the user's or the tracker's defaults, held to
+their sanity ranges (:func:`tracker_limits`, :mod:`.bounds`); and the scanner's rate, which turns the
+tracker's times (confirmation after half a second, …) into scans (:func:`scan_rate`).
+
+Users label their recordings in many ways: a robot walking, put down for seconds at each pose, carried
+from pose to pose, or turned on the spot through 16 headings with one scan each. Only some of these
+are evidence of how fast the robot moves. A speed is learnt only from *translation*: windows of half a
+second of consecutive scans at the scan period in which the labelled position went somewhere (at
+least 5 cm, along a path at most twice as long: label jitter goes nowhere) and no step was a jump (a
+robot lifted from one grid pose to the next between two scans). A turn rate is learnt the same way
+from windows in which the heading turned consistently. A window's speed is its net displacement over
+its duration, so that a label's jitter from scan to scan is not taken for speed. A step faster than
+the plausible range (:mod:`.bounds`) is a placement, not motion: a robot faster than that is set with
+``--max-speed`` / ``--max-turn-rate``.
 """
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 
 from ..core.g_track import DEFAULT_MAX_SPEED, DEFAULT_MAX_TURN_RATE
 from ..core.geometry import wrap
 from ..io.logs import ScanLog
+from ..sensors import MODELS
+from . import bounds
 from .config import TrainConfig
 
+WINDOW_S = 0.5  # s: the windows motion is measured over
+MIN_TRANSLATION = 0.05  # m: a window that went less far did not translate (label jitter, a turn on the spot)
+MIN_TURN = 0.1  # rad: likewise for turning
+MIN_EVIDENCE_S = 2.0  # s: of translating (turning) windows, at least, before a limit is learnt from them
 
-def motion_limits(logs: Sequence[ScanLog], classes: tuple[str, ...], *, quantile: float = 0.995, margin: float = 1.25,
-                  min_run: int = 5, min_steps: int = 50) -> dict[str, dict]:
-    """Each labelled class's maximum speed (m/s) and turn rate (rad/s) from its labelled motion,
-    where there is some: the ``quantile`` of its speeds and turn rates between consecutive scans, times
-    ``margin``, over runs of at least ``min_run`` consecutive steps in which it moved. A training
-    grid's robot is carried from pose to pose between scans: those jumps are single steps between
-    scans where it stood still, never a run, so they do not count as motion; nor does a step of a run
-    three times faster than the run's median (the jump to where a walk starts). A class with fewer than
-    ``min_steps`` such steps gets no entry (the tracker's default applies)."""
+
+def _runs(stamps: np.ndarray, present: np.ndarray, period: float) -> Iterator[tuple[int, int]]:
+    """Runs ``[a, b)`` of consecutive scans with the object present, each step at the scan period
+    (within half of it): a log that keeps a scan every few seconds, or frames lost, break runs."""
+    dt = np.diff(stamps)
+    ok = present[:-1] & present[1:] & (dt > 0.5 * period) & (dt < 1.5 * period)
+    edges = np.diff(np.concatenate([[0], ok.astype(int), [0]]))
+    for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True):
+        yield int(a), int(b) + 1  # steps a..b-1 join scans a..b
+
+
+def _windows(values: np.ndarray, k: int) -> np.ndarray:
+    """Sliding windows of ``k`` consecutive values, ``[n - k + 1, k]``."""
+    return np.lib.stride_tricks.sliding_window_view(values, k)
+
+
+def _rates(step: np.ndarray, net: np.ndarray, duration: np.ndarray, minimum: float, fastest: float) -> np.ndarray:
+    """Rates of the windows that moved: net change at least ``minimum`` and at least half the path (a
+    consistent motion, not jitter back and forth), no step over three times the window's median step (a
+    jump: carried to the next pose between two scans), and no step faster than ``fastest`` per second
+    (a log of one scan per pose, stamped at the scan period, jumps between poses at every step)."""
+    path = step.sum(1)
+    smooth = step.max(1) <= 3.0 * np.median(step, axis=1) + 1e-3
+    moved = (net >= minimum) & (net >= 0.5 * path) & smooth & (step.max(1) <= fastest * duration / step.shape[1])
+    return net[moved] / duration[moved]
+
+
+def motion_limits(logs: Sequence[ScanLog], classes: tuple[str, ...], *, period: float | None = None,
+                  quantile: float = 0.995, margin: float = 1.25) -> dict[str, dict]:
+    """Each labelled class's top speed (m/s) and turn rate (rad/s) from the evidence of that motion
+    in its labels, where there is enough (``MIN_EVIDENCE_S`` of it): the ``quantile`` of its windows'
+    speeds (turn rates) times ``margin``. Per class, ``speed_windows_s`` and ``turn_windows_s`` say how
+    many seconds of translating and turning windows there were (0 where none), and ``max_speed`` /
+    ``max_turn_rate`` are present only where learnt. ``period``: the scan period (:func:`scan_rate`)."""
+    period = period if period is not None else 1.0 / scan_rate(logs)
+    k = max(2, round(WINDOW_S / period))
     speeds: dict[str, list] = {}
     turns: dict[str, list] = {}
     for log in logs:
-        if log.n_scans < 2:
-            continue
-        dt = np.diff(log.stamps)
         for m, name in enumerate(log.truth_classes):
             p = log.truth_poses[:, m]
-            ok = ~np.isnan(p[:-1, 0]) & ~np.isnan(p[1:, 0]) & (dt > 0)
-            step = np.hypot(*(p[1:, :2] - p[:-1, :2]).T)
-            turn = np.abs(wrap(p[1:, 2] - p[:-1, 2]))
-            moving = ok & ((step > 1e-4) | (turn > 1e-4))
-            # Runs of consecutive moving steps, at least min_run long.
-            edges = np.diff(np.concatenate([[0], moving.astype(int), [0]]))
-            starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
-            for a, b in zip(starts, ends, strict=True):
-                if b - a >= min_run:
-                    # A jump into or out of a run (put down, then walking) is not motion either: steps
-                    # over three times the run's median speed are left out.
-                    v = step[a:b] / dt[a:b]
-                    smooth = v <= 3.0 * max(np.median(v), 1e-3)
-                    speeds.setdefault(str(name), []).append(v[smooth])
-                    turns.setdefault(str(name), []).append((turn[a:b] / dt[a:b])[smooth])
+            present = ~np.isnan(p[:, 0]) & ~np.isnan(p[:, 1])
+            for a, b in _runs(log.stamps, present, period):
+                if b - a <= k:
+                    continue
+                q, t = p[a:b], log.stamps[a:b]
+                step = np.hypot(*np.diff(q[:, :2], axis=0).T)
+                duration = t[k:] - t[:-k]
+                net = np.hypot(*(q[k:, :2] - q[:-k, :2]).T)
+                speeds.setdefault(str(name), []).append(_rates(_windows(step, k), net, duration, MIN_TRANSLATION,
+                                                                 bounds.MAX_SPEED.plausible[1]))
+                if np.isfinite(q[:, 2]).all():
+                    turn = wrap(np.diff(q[:, 2]))
+                    net_turn = np.abs(_windows(turn, k).sum(1))
+                    turns.setdefault(str(name), []).append(
+                        _rates(np.abs(_windows(turn, k)), net_turn, duration, MIN_TURN,
+                               bounds.MAX_TURN_RATE.plausible[1]))
     out = {}
+    window_s = k * period
     for name in classes:
-        if name not in speeds:
-            continue
-        v, w = np.concatenate(speeds[name]), np.concatenate(turns[name])
-        if v.size >= min_steps:
-            out[name] = {"max_speed": round(float(margin * np.quantile(v, quantile)), 3),
-                         "max_turn_rate": round(float(margin * np.quantile(w, quantile)), 3), "steps": int(v.size)}
+        v = np.concatenate(speeds.get(name, [np.zeros(0)]))
+        w = np.concatenate(turns.get(name, [np.zeros(0)]))
+        # Overlapping windows: each adds a step's worth of time.
+        info = {"speed_windows_s": round(float(v.size * period), 2), "turn_windows_s": round(float(w.size * period), 2),
+                "window_s": round(window_s, 3)}
+        if v.size * period >= MIN_EVIDENCE_S:
+            info["max_speed"] = round(float(margin * np.quantile(v, quantile)), 3)
+        if w.size * period >= MIN_EVIDENCE_S:
+            info["max_turn_rate"] = round(float(margin * np.quantile(w, quantile)), 3)
+        if name in speeds or name in turns:
+            out[name] = info
     return out
 
 
+def _one_limit(bound, cls: str, set_value: float | None, info: dict, key: str, default: float, seconds_key: str,
+               what: str) -> tuple[float, dict]:
+    if set_value is not None:
+        return set_value, bounds.entry(bound, cls, set_value, "set", "the command line")
+    seconds = info.get(seconds_key, 0.0)
+    if key in info:
+        raw = info[key]
+        value = bounds.clamp(bound, raw)
+        return value, bounds.entry(bound, cls, value, "learnt",
+                                   f"{seconds:g} s of {what} in the labels ({info['window_s']:g} s windows)", learnt=raw)
+    why = (f"only {seconds:g} s of {what} in the labels (at least {MIN_EVIDENCE_S:g} s needed)" if seconds
+           else f"no {what} in the labels")
+    return default, bounds.entry(bound, cls, default, "default", why)
+
+
 def tracker_limits(logs: Sequence[ScanLog], classes: tuple[str, ...], mobiles: tuple[str, ...],
-                   cfg: TrainConfig) -> tuple[list[float], list[float], dict[str, dict]]:
+                   cfg: TrainConfig, period: float | None = None) -> tuple[list[float], list[float], dict[str, dict], list[dict]]:
     """Every class's top speed and turn rate for :meth:`~gtsjax.core.g_track.TrackerParams.default`: the
-    user's (``cfg.max_speed``, ``cfg.max_turn_rate``), else from labelled motion
-    (:func:`motion_limits`), else the tracker's defaults; and, for the report, each tracked or set
-    class's limits and where they came from."""
-    learnt = motion_limits(logs, classes)
-    motion = {}
+    user's (``cfg.max_speed``, ``cfg.max_turn_rate``), else from the evidence of motion in the labels
+    (:func:`motion_limits`), clamped to :data:`.bounds.MAX_SPEED` and :data:`.bounds.MAX_TURN_RATE`,
+    else the tracker's defaults. Also, for the report, each tracked or set class's limits and where they
+    came from, and the rows of the learnt-parameter table (:func:`.bounds.entry`)."""
+    learnt = motion_limits(logs, classes, period=period)
+    motion, rows = {}, []
     speed, turn = [], []
     for c in classes:
-        if c in cfg.max_speed or c in cfg.max_turn_rate or c in learnt or c in mobiles:
-            src = learnt.get(c, {})
-            v = cfg.max_speed.get(c, src.get("max_speed", DEFAULT_MAX_SPEED))
-            w = cfg.max_turn_rate.get(c, src.get("max_turn_rate", DEFAULT_MAX_TURN_RATE))
-            how = "set" if c in cfg.max_speed else "labelled motion" if "max_speed" in src else "default"
-            how_w = "set" if c in cfg.max_turn_rate else "labelled motion" if "max_turn_rate" in src else "default"
-            motion[c] = {"max_speed": v, "max_speed_from": how, "max_turn_rate": w, "max_turn_rate_from": how_w,
-                         "labelled_steps": src.get("steps", 0)}
+        if c in cfg.max_speed or c in cfg.max_turn_rate or c in mobiles:
+            info = learnt.get(c, {"window_s": WINDOW_S})
+            v, row_v = _one_limit(bounds.MAX_SPEED, c, cfg.max_speed.get(c), info, "max_speed", DEFAULT_MAX_SPEED,
+                                  "speed_windows_s", "translation")
+            w, row_w = _one_limit(bounds.MAX_TURN_RATE, c, cfg.max_turn_rate.get(c), info, "max_turn_rate",
+                                  DEFAULT_MAX_TURN_RATE, "turn_windows_s", "turning")
+            rows += [row_v, row_w]
+            motion[c] = {"max_speed": v, "max_speed_from": row_v["source"], "max_speed_evidence": row_v["evidence"],
+                         "max_turn_rate": w, "max_turn_rate_from": row_w["source"],
+                         "max_turn_rate_evidence": row_w["evidence"],
+                         "translation_s": info.get("speed_windows_s", 0.0), "turning_s": info.get("turn_windows_s", 0.0)}
         speed.append(motion.get(c, {}).get("max_speed", DEFAULT_MAX_SPEED))
         turn.append(motion.get(c, {}).get("max_turn_rate", DEFAULT_MAX_TURN_RATE))
-    return speed, turn, motion
+    return speed, turn, motion, rows
 
 
-def scan_rate(logs: Sequence[ScanLog]) -> float:
-    """Scans per second of the logs (the median interval; 10 Hz when they have none)."""
-    dts = np.concatenate([np.diff(log.stamps) for log in logs if log.n_scans > 1] or [np.array([0.1])])
+def log_period(logs: Sequence[ScanLog]) -> float | None:
+    """The scan period the logs' stamps show: the 10th percentile of their positive intervals (lost frames
+    and pauses only lengthen intervals), or None where they have none."""
+    dts = np.concatenate([np.diff(log.stamps) for log in logs if log.n_scans > 1] or [np.zeros(0)])
     dts = dts[dts > 0]
-    return float(1.0 / np.median(dts)) if dts.size else 10.0
+    return float(np.quantile(dts, 0.1)) if dts.size else None
+
+
+def scan_rate(logs: Sequence[ScanLog], set_hz: float | None = None) -> float:
+    """Scans per second of the scanner the logs were recorded with (see :func:`scan_rate_entry`)."""
+    return scan_rate_entry(logs, set_hz)[0]
+
+
+def scan_rate_entry(logs: Sequence[ScanLog], set_hz: float | None = None) -> tuple[float, dict]:
+    """The scanner's rate and its row of the learnt-parameter table: ``set_hz`` where given; else the
+    rate the logs' stamps show (:func:`log_period`), unless the logs name a known scanner and their
+    stamps are sparser than its rate (a recording that kept one scan per pose: the tracker runs at
+    the scanner's rate, not at the user's pace); else the named scanner's; else 10 Hz."""
+    if set_hz is not None:
+        return set_hz, bounds.entry(bounds.SCAN_RATE, None, set_hz, "set", "the command line")
+    known = [MODELS[log.sensor_model] for log in logs if log.sensor_model in MODELS]
+    period = log_period(logs)
+    if period is not None and not (known and period > 1.5 * known[0].period):
+        raw = 1.0 / period
+        rate = bounds.clamp(bounds.SCAN_RATE, raw)
+        return rate, bounds.entry(bounds.SCAN_RATE, None, rate, "learnt",
+                                  "the logs' stamps (10th percentile of their intervals)", learnt=raw)
+    if known:
+        how = (f"a {known[0].name}'s rate: the logs' stamps are {period:.3g} s apart, sparser than its scans"
+               if period is not None else f"a {known[0].name}'s rate: the logs have one scan each")
+        return known[0].rate_hz, bounds.entry(bounds.SCAN_RATE, None, known[0].rate_hz, "default", how)
+    return 10.0, bounds.entry(bounds.SCAN_RATE, None, 10.0, "default", "no stamps and no known scanner")
+
+
+def confirmation_entry(n_confirm: int, rate_hz: float) -> dict:
+    """The tracker's confirmation, in seconds and in scans at ``rate_hz``, as a row of the report."""
+    return {"class": None, "parameter": "confirmation", "unit": "s", "value": round(n_confirm / rate_hz, 3),
+            "source": "default", "evidence": f"{n_confirm} scans at {rate_hz:.3g} Hz (half a second, at least 3 scans)",
+            "hard_range": None, "plausible": None}

@@ -1,0 +1,98 @@
+"""Sanity ranges of what training learns from a user's data, and where each value came from.
+
+A user's recording can teach a model something no robot does: a robot turned on the spot at each
+grid point has no translation in its labels, and a top speed learnt from it was 0 m/s, so every track
+moved "faster than its class can" and none was ever confirmed. So every parameter learnt from data is
+held to a physical range (:class:`Bound`): a value outside its *hard* range (``floor``–``ceiling``) is
+clamped to it, one outside its *plausible* range is kept but warned about, and either way the report
+says where the value came from (learnt from how much evidence, the default, or set by the user) and
+which option overrides it (:func:`entry`, kept in the training report's ``"learnt"`` list and printed
+by ``gtsjax train``).
+"""
+
+import dataclasses
+import math
+
+
+@dataclasses.dataclass(frozen=True)
+class Bound:
+    """What a learnt value may be: clamped to ``[floor, ceiling]``, warned about outside ``plausible``."""
+
+    what: str  # a reader's name for it
+    unit: str
+    floor: float
+    ceiling: float
+    plausible: tuple[float, float]
+    option: str | None  # the option of ``gtsjax train`` that sets it, where there is one
+    why: str  # why the range is what it is, for the documentation and the warning
+
+
+# Motion limits of a tracked class (the tracker's plausible-motion test). The floors keep a model
+# whose labels hold no motion from confirming nothing: a robot is carried or pushed at least this fast
+# now and then; the ceilings keep a recording of a robot carried or spun by hand from switching the test
+# off. A Nao walks at about 0.35 m/s and turns at about 1 rad/s; wheeled SPL/SSL robots reach 3 m/s.
+MAX_SPEED = Bound("max speed", "m/s", 0.3, 5.0, (0.3, 2.0), "--max-speed",
+                  "a walking robot is slower than 2 m/s; people's legs (1-1.5 m/s) are told from robots by it")
+MAX_TURN_RATE = Bound("max turn rate", "rad/s", 1.0, 12.0, (1.0, 2 * math.pi), "--max-turn-rate",
+                      "a humanoid turns at about 1 rad/s, a wheeled robot at up to one turn a second")
+# The scanner's rate: the tracker's confirmation, reporting and deletion times are seconds, turned into
+# scans by it. Hokuyo's scanners run at 10-40 Hz.
+SCAN_RATE = Bound("scan rate", "Hz", 1.0, 100.0, (5.0, 50.0), "--scan-rate",
+                  "Hokuyo's scanners run at 10-40 Hz; the tracker's times in scans follow from it")
+# The open-set test's threshold (a squared distance in the classifier's input space, per feature):
+# learnt as a quantile of held-out distances to the class's own examples. Below the floor a class
+# rejects its own held-out views; the ceiling keeps it a test.
+OPEN_SET_D2 = Bound("open-set threshold d²", "", 1e-3, 1e6, (1e-2, 1e3), None,
+                    "a quantile of the class's own held-out distances; outside this it rejects its own views "
+                    "or nothing")
+# Shape envelope: the width of a tracked class's candidates (m). A robot narrower than 3 cm or wider
+# than 2 m is not a robot a 2-D laser sees as one segment.
+WIDTH = Bound("width", "m", 0.0, 3.0, (0.03, 2.0), None,
+              "a robot seen as one segment is between 3 cm and 2 m wide")
+
+
+def clamp(bound: Bound, value: float) -> float:
+    return float(min(max(value, bound.floor), bound.ceiling))
+
+
+def entry(bound: Bound, cls: str | None, value: float, source: str, evidence: str, *,
+          learnt: float | None = None) -> dict:
+    """One row of the training report's table of learnt parameters: the value used, where it came from
+    (``source``: "learnt", "default", "set"), the evidence in words, the ranges, and a one-line
+    ``warning`` where ``learnt`` (the value before clamping; ``value`` when it was not clamped) lies
+    outside the plausible range, naming the option that overrides it."""
+    raw = value if learnt is None else learnt
+    row = {"class": cls, "parameter": bound.what, "unit": bound.unit, "value": value, "source": source,
+           "evidence": evidence, "hard_range": [bound.floor, bound.ceiling], "plausible": list(bound.plausible)}
+    lo, hi = bound.plausible
+    if source != "set" and not (lo <= raw <= hi):
+        who = f"{cls}'s " if cls else ""
+        clamped = f", {'raised' if value > raw else 'lowered'} to {value:g}" if value != raw else ""
+        fix = f"; set it with {bound.option} {cls + '=' if cls else ''}VALUE" if bound.option else ""
+        row["warning"] = (f"{who}{bound.what} {source} as {raw:.3g} {bound.unit} from {evidence} is outside its "
+                          f"plausible range {lo:g}-{hi:g} {bound.unit} ({bound.why}){clamped}{fix}")
+    return row
+
+
+def shape_rows(envelopes: dict, open_set: dict, classes, mobiles) -> list[dict]:
+    """Rows of the learnt-parameter table for each tracked class's shape envelope (its widths) and
+    open-set threshold, from the reports of :func:`~gtsjax.train.classifier.fit_envelope` and
+    :func:`~gtsjax.train.classifier.fit_support` (keyed by class index)."""
+    rows = []
+    for k, c in enumerate(classes):
+        if c not in mobiles:
+            continue
+        if (env := envelopes.get(k)) is not None:
+            lo, hi = env["width_m"]
+            row = entry(WIDTH, c, hi, "learnt", f"its labelled views at {env['range_bins_seen'][0]:g}-"
+                        f"{env['range_bins_seen'][1]:g} m (widths {lo:g}-{hi:g} m)")
+            row["parameter"] = "widest view"
+            rows.append(row)
+        if (op := open_set.get(k)) is not None:
+            row = entry(OPEN_SET_D2, c, op["threshold_d2"], "learnt", f"{op['threshold_from']} examples")
+            if op["class_rejected"] > 0.1 and "warning" not in row:
+                row["warning"] = (f"{c}'s open-set test rejects {100 * op['class_rejected']:.0f} % of its own "
+                                  f"{op['threshold_from']} examples: its views vary more than its training examples "
+                                  "cover; record more views of it")
+            rows.append(row)
+    return rows

@@ -1,0 +1,205 @@
+"""The whole step on the labelled logs after training: can the model *track*, not only classify?
+
+A classifier that finds the robot in every scan is no ground truth if the tracker never confirms it
+(a top speed learnt as 0 m/s from a robot turned on the spot did exactly that, silently). So after
+fitting, ``gtsjax train`` replays each labelled log through the complete step (stages a–g, tracker
+included, as ``replay`` runs it) and scores, per tracked class, the scans of the held-out seconds (the
+tracker runs through the whole log, so that a held-out second is tracked as a live run would track it):
+
+- detection rate: scans with the class in view in which the step detected it (within ``radius``);
+- rows: of those scans, the share with a ground-truth row of the class there, once each appearance is
+  older than the tracker's confirmation time plus a margin (``settle``);
+- position and heading RMSE of those rows;
+- where each scan without a row was lost, by stage (:data:`STAGES`): not segmented, the binary
+  filters, the classifier, the open-set test, the shape envelope, the cap of posed objects, the
+  field's bounds, and, for a detection without a row, the tracker's confirmation (too few scans, the
+  majority test, implausible speed or turn rate: ``core.g_track.HOLDS``).
+
+:func:`verdict` turns that into one line naming the stage and the option to change where rows cover
+fewer than 90 % of the scans in which the robot was detected.
+"""
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from ..core.geometry import wrap
+from ..core.pipeline import REASONS
+from ..drivers.replay import process_log
+from ..io.logs import ScanLog, to_scans
+from ..io.site import Site
+from ..model import Model
+
+STAGES = ("not segmented", "filters", "classifier", "open set", "envelope", "cap", "bounds",
+          "confirmation", "majority", "speed", "turn rate", "tracker")
+# What to change where a stage loses the robot (the verdict's advice).
+ADVICE = {
+    "not segmented": "the robot is rarely a segment of its own: check the range window and the segmentation",
+    "filters": "the binary filters drop it: the robot's views differ from the filters' size limits",
+    "classifier": "the classifier takes it for something else: record more views of the robot (or --max-mobile)",
+    "open set": "the open-set test rejects it: record more, and more varied, views of the robot",
+    "envelope": "its shape envelope rejects it: record the robot at more ranges",
+    "cap": "more objects than the model poses per scan (--max-tracks)",
+    "bounds": "it is outside the site's bounds: check the site's bounds and the sensor pose guess",
+    "confirmation": "its tracks end before they are confirmed: the robot leaves view within half a second, or its "
+                    "detections are too far apart to be one track",
+    "majority": "its tracks are seen as another class in most scans: record more views of the robot",
+    "speed": "its tracks move faster than the class's max speed: retrain with --max-speed CLASS=M_PER_S",
+    "turn rate": "its tracks turn faster than the class's max turn rate: retrain with --max-turn-rate CLASS=RAD_PER_S",
+    "tracker": "its detections start no track: check --max-tracks and the tracker's gates",
+}
+ROWS_PER_DETECTION = 0.9  # rows for at least this share of the scans in which the robot was detected
+
+
+def _held_scans(n: int, held: np.ndarray, block: int) -> np.ndarray:
+    return np.isin(np.arange(n) // block, held)
+
+
+def _lost_at(out, t: int, xy: np.ndarray, cls: int, radius: float, holds: Sequence[str]) -> str:
+    """Where scan ``t``'s object at ``xy`` of class ``cls`` was lost (a stage of :data:`STAGES`)."""
+    det = np.asarray(out.det_mask[t]) & (np.asarray(out.det_class[t]) == cls)
+    if det.any() and np.min(np.linalg.norm(out.det_pose[t][det, :2] - xy, axis=1)) <= radius:
+        live = getattr(out, "track_live", None)
+        if live is None:
+            return "tracker"
+        ok = np.asarray(live[t]) & ~np.asarray(out.track_mask[t]) & (np.asarray(out.track_class[t]) == cls)
+        if not ok.any():
+            return "tracker"
+        d = np.linalg.norm(out.track_pose[t][:, :2] - xy, axis=1)
+        d[~ok] = np.inf
+        j = int(np.argmin(d))
+        if d[j] > radius:
+            return "tracker"
+        hold = holds[int(out.track_hold[t][j])]
+        return {"too few scans": "confirmation"}.get(hold, hold if hold in STAGES else "tracker")
+    d = np.linalg.norm(out.cand_xy[t] - xy, axis=1)
+    reason = np.asarray(out.cand_reason[t])
+    d[reason == REASONS.index("none")] = np.inf
+    if not np.isfinite(d).any() or d.min() > radius:
+        return "not segmented"
+    why = REASONS[int(reason[int(np.argmin(d))])]
+    return {"filtered": "filters", "background": "classifier", "unlike": "open set", "off envelope": "envelope",
+            "unposed": "cap"}.get(why, "classifier" if int(out.cand_class[t][int(np.argmin(d))]) != cls else "bounds")
+
+
+def check_log(model: Model, log: ScanLog, held: np.ndarray, tracked: Sequence[str], *, radius: float = 0.3,
+              settle_s: float | None = None) -> dict:
+    """Per tracked class of ``log``'s labels, counts over the held-out scans (``held`` [T]) of ``log``
+    replayed whole through ``model`` (its site attached), for the classes ``tracked``; summed over logs
+    by :func:`summarise`."""
+    classes = list(model.classes)
+    try:
+        from ..core.g_track import HOLDS
+    except ImportError:  # a tracker that does not say why a track waits
+        HOLDS = ("none",)
+    _, out = process_log(model, to_scans(log, model.n_beams))
+    rate = 1.0 / max(float(np.median(np.diff(log.stamps))) if log.n_scans > 1 else 0.1, 1e-3)
+    settle = settle_s if settle_s is not None else float(model.tracker.n_confirm) / rate + 0.5
+    truth = log.truth_poses
+    present = ~np.isnan(truth[..., 0])
+    if bool(model.site.has_bounds):
+        b = np.asarray(model.site.bounds)
+        x, y = np.nan_to_num(truth[..., 0]), np.nan_to_num(truth[..., 1])
+        present &= (x >= b[0]) & (y >= b[1]) & (x <= b[2]) & (y <= b[3])
+    since = np.zeros(present.shape)
+    for t in range(1, log.n_scans):
+        since[t] = np.where(present[t] & present[t - 1], since[t - 1] + log.stamps[t] - log.stamps[t - 1], 0.0)
+    res: dict[str, dict] = {}
+    for i, name in enumerate(log.truth_classes):
+        name = str(name)
+        if name not in tracked:
+            continue
+        c = classes.index(name)
+        r = res.setdefault(name, {"in_view": 0, "settled": 0, "detected": 0, "detected_settled": 0, "rows": 0,
+                                  "rows_detected": 0, "lost": dict.fromkeys(STAGES, 0), "err_xy": [], "err_th": []})
+        for t in np.flatnonzero(present[:, i] & held):
+            xy = truth[t, i, :2]
+            det = np.asarray(out.det_mask[t]) & (np.asarray(out.det_class[t]) == c)
+            found = det.any() and np.min(np.linalg.norm(out.det_pose[t][det, :2] - xy, axis=1)) <= radius
+            r["in_view"] += 1
+            r["detected"] += int(found)
+            if since[t, i] < settle:
+                continue
+            r["settled"] += 1
+            r["detected_settled"] += int(found)
+            rows = np.asarray(out.track_mask[t]) & (np.asarray(out.track_class[t]) == c)
+            d = np.linalg.norm(out.track_pose[t][:, :2] - xy, axis=1)
+            d[~rows] = np.inf
+            j = int(np.argmin(d))
+            if d[j] <= radius:
+                r["rows"] += 1
+                r["rows_detected"] += int(found)
+                r["err_xy"].append(float(d[j]))
+                r["err_th"].append(float(wrap(out.track_pose[t][j, 2] - truth[t, i, 2])))
+            else:
+                r["lost"][_lost_at(out, t, xy, c, radius, HOLDS)] += 1
+    return res
+
+
+def summarise(parts: Sequence[dict]) -> dict:
+    """Per class, the rates and RMSEs of :func:`check_log`'s counts summed over logs."""
+    total: dict[str, dict] = {}
+    for part in parts:
+        for name, r in part.items():
+            t = total.setdefault(name, {"in_view": 0, "settled": 0, "detected": 0, "detected_settled": 0, "rows": 0,
+                                        "rows_detected": 0, "lost": dict.fromkeys(STAGES, 0), "err_xy": [],
+                                        "err_th": []})
+            for k in ("in_view", "settled", "detected", "detected_settled", "rows", "rows_detected"):
+                t[k] += r[k]
+            for k in STAGES:
+                t["lost"][k] += r["lost"][k]
+            t["err_xy"] += r["err_xy"]
+            t["err_th"] += r["err_th"]
+    out = {}
+    for name, t in total.items():
+        exy, eth = np.asarray(t["err_xy"]), np.asarray(t["err_th"])
+        missed = t["settled"] - t["rows"]
+        out[name] = {
+            "scans_in_view": t["in_view"], "scans_scored": t["settled"],
+            "detection_rate": t["detected"] / t["in_view"] if t["in_view"] else None,
+            "rows_per_scan": t["rows"] / t["settled"] if t["settled"] else None,
+            "rows_per_detected_scan": t["rows_detected"] / t["detected_settled"] if t["detected_settled"] else None,
+            "position_rmse_m": float(np.sqrt(np.mean(exy**2))) if exy.size else None,
+            "heading_rmse_deg": float(np.degrees(np.sqrt(np.mean(eth**2)))) if eth.size else None,
+            "lost": {k: v for k, v in t["lost"].items() if v},
+            "lost_share": {k: v / missed for k, v in t["lost"].items() if v} if missed else {},
+        }
+    return out
+
+
+def check_pipeline(model: Model, logs: Sequence[ScanLog], sites: Sequence[Site], held: Sequence[np.ndarray],
+                   tracked: Sequence[str]) -> dict:
+    """:func:`check_log` over every labelled log (each with its site and held-out scans), summarised."""
+    parts = [check_log(model.with_site(site), log, h, tracked) for log, site, h in zip(logs, sites, held, strict=True)]
+    return summarise(parts)
+
+
+def verdict(summary: dict, min_scored: int = 30) -> list[str]:
+    """One line per tracked class the step cannot track on its own held-out scans: rows for fewer than
+    90 % of the scans in which it was detected, naming the stage that lost most of them and what to
+    change; or too few scans to tell."""
+    lines = []
+    for name, s in summary.items():
+        if s["scans_scored"] < min_scored:
+            lines.append(f"{name}: only {s['scans_scored']} held-out scans in view long enough to be tracked; the "
+                         "pipeline check cannot tell whether the model tracks it (record longer stays in view)")
+            continue
+        rate = s["rows_per_detected_scan"]
+        if rate is None or rate < ROWS_PER_DETECTION:
+            stage = max(s["lost"], key=s["lost"].get) if s["lost"] else "tracker"
+            share = 100 * s["lost_share"].get(stage, 0.0)
+            lines.append(f"{name}: detected in {100 * (s['detection_rate'] or 0):.0f} % of held-out scans but reported "
+                         f"in {100 * (rate or 0):.0f} % of those: {share:.0f} % of the missing rows are lost at "
+                         f"{stage} ({ADVICE[stage]})")
+    return lines
+
+
+def held_mask(log: ScanLog, log_index: int, ex_where: np.ndarray, ex_group: np.ndarray, held) -> np.ndarray:
+    """Which scans of labelled log ``log_index`` lie in held-out one-second blocks: the blocks of its
+    held-out examples (``Examples.where``/``group``)."""
+    from .labels import _block_scans
+
+    block = _block_scans(log)
+    sel = (ex_where[:, 0] == log_index) & np.isin(ex_group, held)
+    return _held_scans(log.n_scans, np.unique(ex_where[sel, 1] // block), block)
+
