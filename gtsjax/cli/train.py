@@ -269,20 +269,22 @@ def _learnt_table(console: Console, rep: dict) -> None:
 
 def _pipeline_table(console: Console, rep: dict) -> None:
     """The whole step on the labelled logs' held-out seconds (``train.check``), per tracked class."""
-    summary = rep.get("pipeline")
-    if not summary:
+    if not rep.get("pipeline") and not rep.get("pipeline_simulated"):
         return
-    t = Table(title="the whole step (tracker included) on the held-out seconds of the labelled logs")
-    for col in ("class", "scans in view", "detected", "rows (of detected)", "position RMSE", "heading RMSE",
+    t = Table(title="tracking check: the whole step on the labelled logs' held-out seconds, and the tracker on a "
+                    "simulated stay and walk with the held-out errors")
+    for col in ("class", "check", "scans in view", "detected", "rows (of detected)", "position RMSE", "heading RMSE",
                 "scans without a row lost at"):
-        t.add_column(col, justify="left" if col in ("class", "scans without a row lost at") else "right")
+        t.add_column(col, justify="left" if col in ("class", "check", "scans without a row lost at") else "right")
 
     def pct(v):
         return "–" if v is None else f"{100 * v:.1f} %"
 
-    for name, s in summary.items():
+    checks = [(n, "held-out", s) for n, s in rep.get("pipeline", {}).items()]
+    checks += [(n, "simulated", s) for n, s in rep.get("pipeline_simulated", {}).items()]
+    for name, which, s in checks:
         lost = ", ".join(f"{k} {100 * v:.0f} %" for k, v in sorted(s["lost_share"].items(), key=lambda kv: -kv[1]))
-        t.add_row(name, f"{s['scans_in_view']} ({s['scans_scored']} scored)", pct(s["detection_rate"]),
+        t.add_row(name, which, f"{s['scans_in_view']} ({s['scans_scored']} scored)", pct(s["detection_rate"]),
                   pct(s["rows_per_detected_scan"]),
                   "–" if s["position_rmse_m"] is None else f"{100 * s['position_rmse_m']:.1f} cm",
                   "–" if s["heading_rmse_deg"] is None else f"{s['heading_rmse_deg']:.1f}°", lost or "–")

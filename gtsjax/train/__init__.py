@@ -31,7 +31,7 @@ from ..io.site import Site
 from ..model import Model
 from ..sensors import MODELS
 from .bounds import shape_rows
-from .check import check_pipeline, held_mask, verdict
+from .check import check_pipeline, held_mask, simulated_checks, verdict
 from .classifier import fit_classifier, fit_support, landmark_lookalikes
 from .classifier import fit_envelope as fit_envelope
 from .config import TrainConfig as TrainConfig
@@ -181,7 +181,8 @@ def train(logs: Sequence[ScanLog], site: "Site | Sequence[Site]", cfg: TrainConf
     if cfg.check_pipeline:
         held_scans = [held_mask(log, i, ex_lab.where, ex_lab.group, held) for i, log in enumerate(logs)]
         report["pipeline"] = check_pipeline(model, logs, per_log_sites(site, len(logs)), held_scans, mobiles)
-        report["pipeline_problems"] = verdict(report["pipeline"])
+        report["pipeline_simulated"] = simulated_checks(model, report["heldout"], mobiles, rate_hz, cfg.seed)
+        report["pipeline_problems"] = verdict(report["pipeline"], report["pipeline_simulated"])
     if len(bg_ex.cls):
         report["heldout_background_logs"] = evaluate_examples(
             model, bg_ex.take(np.flatnonzero(np.isin(bg_ex.group, held))))
