@@ -3,7 +3,10 @@ scenarios that write labelled logs with their site files (``gtsjax simulate``). 
 live sensor lives in :mod:`gtsjax.sim.emulator`."""
 
 from .scenarios import SCENARIOS as _SCENARIOS
+from .scenarios import STYLES as STYLES
+from .scenarios import check_scene as check_scene
 from .scenarios import plan_scenario as plan_scenario
+from .scenarios import recording as recording
 from .scenarios import simulate as simulate
 from .scene import Effects as Effects
 from .scene import Scene as Scene

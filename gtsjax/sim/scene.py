@@ -12,6 +12,7 @@ import dataclasses
 
 import numpy as np
 
+from ..errors import InputError
 from ..sensors import SensorModel
 from .geometry import beam_directions, polygon_edges, ray_circles, ray_segments
 
@@ -24,6 +25,19 @@ from .geometry import beam_directions, polygon_edges, ray_circles, ray_segments
 # nearly the same width. Edge order: front, left side, fin (left face), fin (right face), right side.
 NAO_OUTLINE = np.array([[0.06, -0.135], [0.06, 0.135], [-0.06, 0.135], [-0.18, 0.06], [-0.06, -0.135]])
 NAO_REFLECTIVITY = np.array([0.5, 0.45, 0.9, 0.75, 0.45])  # the fin carries reflective tape
+
+# A second robot: a rectangular wheeled base 0.36 m long and 0.24 m wide, centred on its pose (front at
+# +x). Both longer and narrower than the Nao (0.24 × 0.27 m with its fin), with four plain faces and
+# the same kind of surfaces (reflectivity 0.45–0.5, no tape). Edge order: front, left, back, right.
+BOX_OUTLINE = np.array([[0.18, -0.12], [0.18, 0.12], [-0.18, 0.12], [-0.18, -0.12]])
+BOX_REFLECTIVITY = np.array([0.5, 0.45, 0.5, 0.45])
+
+OUTLINES: dict[str, tuple[np.ndarray, np.ndarray]] = {
+    "nao": (NAO_OUTLINE, NAO_REFLECTIVITY),
+    "box": (BOX_OUTLINE, BOX_REFLECTIVITY),
+}
+"""The robot outlines the simulator renders, by name: vertices (counter-clockwise, body frame) and
+reflectivity per edge."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -65,8 +79,12 @@ class Scene:
     moving_circles: list[MovingCircle] = dataclasses.field(default_factory=list)
 
 
-def robot_shape() -> Polygon:
-    return Polygon(NAO_OUTLINE, NAO_REFLECTIVITY)
+def robot_shape(outline: str = "nao") -> Polygon:
+    """The robot's outline at the laser's height, by name (:data:`OUTLINES`: ``"nao"``, ``"box"``)."""
+    if outline not in OUTLINES:
+        raise InputError(outline, f"unknown robot outline; known: {', '.join(OUTLINES)}")
+    vertices, reflectivity = OUTLINES[outline]
+    return Polygon(vertices, reflectivity)
 
 
 def box(x0, y0, x1, y1, reflectivity=0.6) -> Polygon:
