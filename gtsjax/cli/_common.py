@@ -56,6 +56,20 @@ def track_summary(model, track_ids: dict, unlike: int, off_envelope: int) -> str
             f"outside their class's shape envelope: {off_envelope}")
 
 
+def print_warnings(console, tally: dict | None, model=None, prefix: str = "") -> list[str]:
+    """Print the run's diagnosis (:func:`gtsjax.drivers.diagnose.warnings` of its ``tally``) as one
+    ``warning: ...`` line each on ``console`` (stderr); returns the lines. Nothing for a run whose
+    counts show no problem, or without a tally."""
+    if tally is None:
+        return []
+    from ..drivers.diagnose import warnings
+
+    lines = [f"warning: {prefix}{w}" for w in warnings(tally, model)]
+    for line in lines:
+        console.print(line, soft_wrap=True, markup=False, highlight=False)
+    return lines
+
+
 def load_for_run(model_path: Path, site_path: Path, sensor: str | None = None):
     """The model with the site attached, as one of its lasers sees it (``--sensor``; whether it fits
     the scans is ``fit_to_model``'s check)."""

@@ -28,6 +28,8 @@ def live_view(model, link, stats, output, stamp) -> Group:
     ls = link.stats
     lines = [f"frames {stats.frames}  rows {stats.rows}  latency median {med:.2f} ms  p99 {p99:.2f} ms  "
              f"late {stats.late}"]
+    if output is not None and getattr(output, "track_hold", None) is not None:
+        lines.append(tentative_line(model, output))
     if output is not None:
         tf, sp = output.transform, np.asarray(output.sensor_pose)
         lines.append(f"sensor in O: x={sp[0]:.3f} m  y={sp[1]:.3f} m  θ={np.degrees(sp[2]):.2f}°"
@@ -37,6 +39,21 @@ def live_view(model, link, stats, output, stamp) -> Group:
                  f"malformed {ls.malformed}  garbage bytes {ls.garbage_bytes}  timeouts {ls.timeouts}  "
                  f"reconnects {ls.reconnects}")
     return Group(t, *lines)
+
+
+def tentative_line(model, output) -> str:
+    """The view's line of tracks not (yet) confirmed, per class and why (``g_track.HOLDS``)."""
+    from ..core.g_track import HOLDS
+
+    hold = np.asarray(output.track_hold)
+    waiting = np.asarray(output.track_live) & (hold > 0)
+    per = {}
+    for i in np.flatnonzero(waiting):
+        per.setdefault(model.classes[int(output.track_class[i])], []).append(HOLDS[int(hold[i])])
+    if not per:
+        return "tentative: none"
+    return "tentative: " + "; ".join(
+        f"{c} {len(h)} ({', '.join(f'{w} {h.count(w)}' for w in dict.fromkeys(h))})" for c, h in sorted(per.items()))
 
 
 def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Path | None = None,
@@ -165,8 +182,12 @@ def track_live_several(lasers: "dict[str, str]", model_paths: "list[Path]", site
                       + (f"; calibration check: landmarks shared with another laser at most {p.disagreement_max_m * 100:.1f} cm "
                          "apart" if p.disagreement_m else "; no landmark shared with another laser")
                       + (f"; raw scans -> {record_paths[n]}" if record_paths else ""))
+    doc["diagnosis"] = stats.tally.finish() if stats.tally is not None else None
     if summary is not None:
         summary.write_text(json.dumps(doc) + "\n")
+    from ._common import print_warnings
+
+    print_warnings(console, doc["diagnosis"])
     return stats
 
 

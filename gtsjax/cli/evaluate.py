@@ -139,6 +139,10 @@ def evaluate_cmd(
           + ["", "Per scan, before tracking (the paper's per-sample errors):", ""] + _markdown(DET_COLUMNS, results))
     (out_dir / "results.md").write_text("\n".join(md) + "\n")
     Console(stderr=True).print(f"wrote {out_dir / 'results.md'} and {out_dir / 'results.json'}")
+    from ._common import print_warnings
+
+    for label, res in results.items():
+        print_warnings(Console(stderr=True), res.get("diagnosis"), base, prefix=f"{label}: ")
 
 
 def _evaluate_match(bases, spec: str, name: str, seed: int, robots: int, seconds: float) -> dict:

@@ -7,6 +7,7 @@ The log is checked against the scanner geometry the model was trained on before 
 (:func:`~gtsjax.io.logs.fit_to_model`): another angular step is refused, and so is a wider field of
 view unless ``--crop-fov`` cuts it (and the range window) to the model's."""
 
+import json
 import time
 from pathlib import Path
 
@@ -34,6 +35,7 @@ from ._common import (
     load_input,
     one_model,
     open_view,
+    print_warnings,
     serve_view,
     source_of,
     track_summary,
@@ -71,6 +73,9 @@ def replay_cmd(
                                       help="Run each scan's whole step in turn, as the live loop does, instead of perceiving "
                                            "groups of scans at once (faster). Either equals the live loop's rows to float32 "
                                            "round-off, which can tip a near-tie of heading hypotheses."),
+    summary: Path | None = typer.Option(None, "--summary", help="Write the replay's counters (scans, rows, tracks, "
+                                        "the diagnosis of what it reported) as JSON here; with several logs, one "
+                                        "object per log."),
 ):
     """Process logged scan files into ground truth (GTD CSV); with --log NAME=LOG per laser, several
     lasers of one field into one."""
@@ -79,8 +84,10 @@ def replay_cmd(
         if logs or sensor is not None or step_by_step or out_bag is not None or view or view_save:
             raise InputError("replay", "--log NAME=LOG (several lasers) takes no positional logs, --sensor, "
                                        "--step-by-step, --out-bag or --view (not yet)")
+        if summary is not None:
+            check_out_file(summary, "--summary")
         _replay_lasers(laser_logs, site, models, out, chunk, topic, crop_fov, confirm_scans, console, sensor_out,
-                       max_tracks)
+                       max_tracks, summary)
         return
     if not logs:
         raise InputError("replay", "give a log (or --log NAME=LOG per laser of a site with several)")
@@ -90,6 +97,8 @@ def replay_cmd(
             raise InputError(option, "takes one log (several logs side by side write one CSV each)")
     if out_bag is not None:
         check_bag_dir(out_bag)
+    if summary is not None:
+        check_out_file(summary, "--summary")
     m = load_for_run(model, site, sensor).with_confirmation(confirm_scans).with_capacity(max_tracks)
     outs, sensor_outs = _outputs(logs, out, sensor_out)
     scan_logs = [_load_fitted(log, topic, m, crop_fov, console) for log in logs]
@@ -120,9 +129,22 @@ def replay_cmd(
                       f"{totals['degraded']} scans without a new map transformation, "
                       f"{totals['n_overflow']} segments over the candidate limit, {totals['n_too_long']} over-long segments")
         console.print(track_summary(m, totals["track_ids"], totals["unlike"], totals["off_envelope"]), soft_wrap=True)
+    for log, totals in zip(logs, results, strict=True):
+        print_warnings(console, totals["diagnosis"], m, prefix="" if len(results) == 1 else f"{log.name}: ")
+    if summary is not None:
+        docs = {_name(log): _summary_doc(totals) for log, totals in zip(logs, results, strict=True)}
+        doc = next(iter(docs.values())) if len(docs) == 1 else {"logs": docs}
+        summary.write_text(json.dumps(doc) + "\n")
     if view_save is not None:
         console.print(f"view recorded to {view_save}")
     serve_view(shown, console)
+
+
+def _summary_doc(totals: dict) -> dict:
+    """A log's totals as JSON: tracks reported per class counted (not their ids)."""
+    doc = {k: v for k, v in totals.items() if k != "track_ids"}
+    doc["tracks"] = {c: len(ids) for c, ids in sorted(totals["track_ids"].items())}
+    return doc
 
 
 def _outputs(logs: list[Path], out: Path, sensor_out: Path | None) -> tuple[list[Path], list[Path | None]]:
@@ -177,7 +199,7 @@ def _load_fitted(log: Path, topic: str | None, m, crop_fov: bool, console: Conso
 
 def _replay_lasers(specs: list[str], site_path: Path, model_paths: list[Path], out: Path, chunk: int, topic: str | None,
                    crop_fov: bool, confirm_scans: int | None, console: Console, sensor_out: Path | None,
-                   max_tracks: int | None = None) -> None:
+                   max_tracks: int | None = None, summary: Path | None = None) -> None:
     """``replay --log NAME=LOG ...``: the lasers' logs merged by stamp into one track table."""
     from ..drivers.several import models_for_lasers, replay_several
     from ..io import load_site
@@ -217,3 +239,6 @@ def _replay_lasers(specs: list[str], site_path: Path, model_paths: list[Path], o
     tracks = ", ".join(f"{c} {k}" for c, k in sorted(totals["tracks"].items())) or "none"
     console.print(f"{len(logs)} lasers, {total} scans in {dt:.1f} s (compilation included): {per}; "
                   f"{totals['rows']} track rows written to {out}; tracks reported: {tracks}", soft_wrap=True)
+    print_warnings(console, totals["diagnosis"], models[0])
+    if summary is not None:
+        summary.write_text(json.dumps(totals) + "\n")

@@ -8,7 +8,15 @@ from rich.console import Console
 
 from ..errors import InputError
 from ._app import CONFIRM_HELP, MAX_TRACKS_HELP, app
-from ._common import OUT_BAG_HELP, VIEW_HELP, VIEW_SAVE_HELP, check_out_file, one_model, track_summary
+from ._common import (
+    OUT_BAG_HELP,
+    VIEW_HELP,
+    VIEW_SAVE_HELP,
+    check_out_file,
+    one_model,
+    print_warnings,
+    track_summary,
+)
 from ._live import track_live
 
 
@@ -38,7 +46,8 @@ def run_cmd(
     view: str | None = typer.Option(None, "--view", metavar="[web]", help=VIEW_HELP),
     view_save: Path | None = typer.Option(None, "--view-save", help=VIEW_SAVE_HELP),
     summary: Path | None = typer.Option(None, "--summary", help="Write the run's counters (frames, rows, latency, "
-                                        "link faults by cause) as JSON here when it stops."),
+                                        "link faults by cause, the diagnosis of what it reported) as JSON here when "
+                                        "it stops."),
     keep_warm: bool = typer.Option(True, "--keep-warm/--no-keep-warm",
                                    help="Shortly before each frame is due, run the step once on the last frame and "
                                         "throw the result away, so the frame finds it in the caches (lower latency "
@@ -82,6 +91,7 @@ def run_cmd(
 
     Console(stderr=True).print(track_summary(load_model(model), stats.track_ids, stats.unlike, stats.off_envelope),
                                soft_wrap=True)
+    print_warnings(Console(stderr=True), stats.tally.finish() if stats.tally is not None else None)
 
 
 @app.command("emulate")

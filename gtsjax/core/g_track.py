@@ -83,6 +83,11 @@ class can is taken for a misread and rejected like one outside the heading gate 
 scans the gate is wide and misreads get through it; on the SPL scenarios, unconfirming the robot for
 them instead cost 1 % of recall, 96.3 % instead of 97.4 % with three robots crossing).
 
+Why a tentative track is not (yet) confirmed, for the user (a model whose top speed is too low
+leaves every track tentative, and nothing reported): ``track_step(..., explain=True)`` also returns
+per slot an index into :data:`HOLDS` (the test that held it in this scan) and its estimated speed and
+turn rate (:class:`TrackHolds`), a few whole-array selects on what the step computes anyway.
+
 **Majority confirmation.** Clutter that the classifier calls "robot" in some scans is called something
 else in the others. The step also receives the scan's ``other`` candidates (kept by the front end's
 binary filters, not detections of a tracked class: background, rejected, landmarks, another class,
@@ -125,6 +130,14 @@ DEFAULT_MAX_TURN_RATE = 3.0
 # used, and the errors of consecutive scans are correlated, not independent trials), while a leg
 # at twice the limit is flagged once σ_v is below half the limit (2 m > m + 2 σ_v), three or four scans.
 _PLAUSIBLE_SIGMAS = 2.0
+
+# Why a live track slot is not confirmed after a scan (``TrackHolds.hold``, ``Output.track_hold``: an
+# index into this): "none" for a confirmed slot or a free one; "speed" where its motion failed
+# :func:`plausible`'s speed test in this scan, "turn rate" where it failed the turn-rate test (and not
+# the speed test); "majority" where it has its ``n_confirm`` hits but no more of them than ``contrary``
+# scans; "too few scans" otherwise (fewer than ``n_confirm`` hits since its birth or its last
+# implausible scan). For the host's diagnosis of a run (:mod:`gtsjax.drivers.diagnose`).
+HOLDS = ("none", "too few scans", "majority", "speed", "turn rate")
 
 
 class TrackerParams(eqx.Module):
@@ -540,9 +553,27 @@ def merge_duplicates(heading: Float[Array, "tracks sides"], lw: Float[Array, "tr
     return jnp.where(dropped, -jnp.inf, jnp.logaddexp(lw, add))
 
 
+class TrackHolds(eqx.Module):
+    """Per track slot after a scan, why it is not (yet) confirmed and its estimated motion
+    (:func:`track_step` with ``explain=True``)."""
+
+    hold: Int[Array, " tracks"]  # an index into ``HOLDS``
+    speed: Float[Array, " tracks"]  # |v̂|, m/s (0 for a free slot or a track born in this scan)
+    turn_rate: Float[Array, " tracks"]  # |ω̂| before clipping at the class's limit, rad/s (0 likewise)
+
+
 def plausible(mean: Float[Array, "tracks 6"], cov: Float[Array, "tracks 6 6"], omega: Float[Array, " tracks"],
               class_id: Int[Array, " tracks"], params: TrackerParams) -> Bool[Array, " tracks"]:
-    """Whether each track's motion is one its class can make: ``|v̂| ≤ max_speed + 2 σ_v`` and
+    """Whether each track's motion is one its class can make: both tests of :func:`plausible_parts`."""
+    speed_ok, turn_ok = plausible_parts(mean, cov, omega, class_id, params)
+    return speed_ok & turn_ok
+
+
+def plausible_parts(mean: Float[Array, "tracks 6"], cov: Float[Array, "tracks 6 6"], omega: Float[Array, " tracks"],
+                    class_id: Int[Array, " tracks"], params: TrackerParams
+                    ) -> tuple[Bool[Array, " tracks"], Bool[Array, " tracks"]]:
+    """The two tests of :func:`plausible` apart, ``(speed_ok, turn_ok)``: whether each track's speed
+    and turn rate are ones its class can make, ``|v̂| ≤ max_speed + 2 σ_v`` and
     ``|ω| ≤ max_turn_rate + 2 σ_ω`` (``omega``: the turn rate before clipping).
 
     ``σ_v²`` is the largest eigenvalue of the velocity covariance, ``(a + d)/2 + √(((a − d)/2)² + b²)``
@@ -556,7 +587,7 @@ def plausible(mean: Float[Array, "tracks 6"], cov: Float[Array, "tracks 6 6"], o
     root = jnp.where(pos, jnp.sqrt(jnp.where(pos, disc, 1.0)), 0.0)  # double where: finite gradients at a = d, b = 0
     sigma_v = jnp.sqrt(jnp.maximum(0.5 * (a + d) + root, 0.0))
     v_max = _select(params.max_speed, class_id) + _PLAUSIBLE_SIGMAS * sigma_v
-    return (mean[:, 3] ** 2 + mean[:, 4] ** 2 <= v_max**2) & plausible_turn(omega, cov, class_id, params)
+    return mean[:, 3] ** 2 + mean[:, 4] ** 2 <= v_max**2, plausible_turn(omega, cov, class_id, params)
 
 
 def plausible_turn(omega: Float[Array, " tracks"], cov: Float[Array, "tracks 6 6"], class_id: Int[Array, " tracks"],
@@ -584,8 +615,8 @@ def reported(state: TrackerState, params: TrackerParams, watchers: Int[Array, " 
 def track_step(
     state: TrackerState, det: Detections, dt: Float[Array, ""], params: TrackerParams, period: float | None = None,
     visible: Bool[Array, " tracks"] | None = None, span_dt: Float[Array, ""] | None = None,
-    watchers: Int[Array, " tracks"] | None = None,
-) -> tuple[TrackerState, Bool[Array, " dets"]]:
+    watchers: Int[Array, " tracks"] | None = None, explain: bool = False,
+) -> "tuple[TrackerState, Bool[Array, ' dets']] | tuple[TrackerState, Bool[Array, ' dets'], TrackHolds]":
     """Stage g for one scan: predict, gate, assign, update, start, confirm and end tracks.
 
     ``period``: the scanner's scan period (s), where known. A track without a detection then counts
@@ -604,7 +635,8 @@ def track_step(
     (and stops being reported) after the same time unseen however many lasers watch it. (Counted per
     scan, a robot hidden for half a second from both of two lasers lost its track and its id.)
 
-    Returns the new state and, per detection, whether it was used by an existing track.
+    Returns the new state and, per detection, whether it was used by an existing track; with
+    ``explain``, also each slot's :class:`TrackHolds` (why it is not confirmed: :data:`HOLDS`).
     """
     state = predict(state, dt, params)
     d2 = jax.vmap(lambda z, R: jax.vmap(lambda mu, P: mahalanobis(mu, P, z, R))(state.mean, state.cov))(
@@ -717,7 +749,9 @@ def track_step(
     # detection the predicted one (same velocity, larger covariance, turn rate clipped at its last
     # update: coasting never makes a plausible track implausible). An implausible scan restarts
     # confirmation, of a tentative and a confirmed track alike.
-    sane = plausible(mean, cov, jnp.where(has, omega_raw, state.mean[:, 5]), state.class_id, params)
+    omega_used = jnp.where(has, omega_raw, state.mean[:, 5])
+    speed_ok, turn_ok = plausible_parts(mean, cov, omega_used, state.class_id, params)
+    sane = speed_ok & turn_ok
     hits = jnp.where(sane, hits, 0)
     contrary = jnp.where(sane, contrary, 0)
     confirmed = state.live & sane & (state.confirmed | ((hits >= params.n_confirm) & (hits > contrary)))
@@ -768,4 +802,15 @@ def track_step(
         next_id=state.next_id + n_born,
     )
     used_by_track = used
-    return new, used_by_track
+    if not explain:
+        return new, used_by_track
+    # Why each slot is not confirmed (``HOLDS``), whole-array selects: a track born in this scan
+    # waits for its scans; one that lives on, for the first test it failed in this scan.
+    majority = (hits >= params.n_confirm) & (hits <= contrary)
+    why = jnp.where(~speed_ok, 3, jnp.where(~turn_ok, 4, jnp.where(majority, 2, 1)))
+    hold = jnp.where(new.live & ~new.confirmed, jnp.where(born, 1, why), 0).astype(jnp.int32)
+    on = new.live & ~born
+    v2 = mean[:, 3] ** 2 + mean[:, 4] ** 2
+    speed = jnp.where(on & (v2 > 0), jnp.sqrt(jnp.where(v2 > 0, v2, 1.0)), 0.0)  # double where: no root of 0
+    turn = jnp.where(on, jnp.abs(omega_used), 0.0)
+    return new, used_by_track, TrackHolds(hold, speed, turn)

@@ -80,6 +80,10 @@ class Output(eqx.Module):
     track_pose: Float[Array, "tracks 3"]
     track_var: Float[Array, "tracks 3"]
     track_mask: Bool[Array, " tracks"]
+    track_live: Bool[Array, " tracks"]  # slot in use: a tentative or confirmed track
+    track_hold: Int[Array, " tracks"]  # why a live slot is not confirmed: an index into ``g_track.HOLDS``
+    track_speed: Float[Array, " tracks"]  # estimated speed |v̂|, m/s
+    track_turn_rate: Float[Array, " tracks"]  # estimated turn rate |ω̂| before clipping, rad/s
     transform: Transform
     sensor_pose: Float[Array, "3"]  # the sensor in O as this scan's transform sees it
     landmark_residual: Float[Array, "landmarks 2"]
@@ -248,8 +252,8 @@ def update_view(model: Model, prev_tf: Transform, tracker: TrackerState, p: Perc
         if unwatched is not None:
             visible = visible | unwatched
     period = model.scan_period if period is None else period  # lasers of different rates: a common clock
-    tracker, _ = track_step(tracker, det, dt, model.tracker, period, visible=visible, span_dt=span_dt,
-                            watchers=watchers)
+    tracker, _, holds = track_step(tracker, det, dt, model.tracker, period, visible=visible, span_dt=span_dt,
+                                   watchers=watchers, explain=True)
     ts = tracker
     out = Output(
         track_id=ts.track_id,
@@ -260,6 +264,10 @@ def update_view(model: Model, prev_tf: Transform, tracker: TrackerState, p: Perc
         # if missed in this scan, not where the scan sees through.
         track_mask=reported(ts, model.tracker, watchers) & _inside(site, ts.mean[:, :3])
         & ((ts.misses == 0) | ~seen_through(scan, tf, ts.mean[:, :2], model.range_max if several else None)),
+        track_live=ts.live,
+        track_hold=holds.hold,
+        track_speed=holds.speed,
+        track_turn_rate=holds.turn_rate,
         transform=tf,
         sensor_pose=tf.sensor_pose(),
         landmark_residual=residual,

@@ -139,6 +139,10 @@ def evaluate_outputs(model: Model, log: ScanLog, out, *, match_radius: float = 0
             ok = (e_s[j:] < tol_xy) & (e_sth[j:] < tol_th)
             first = int(np.argmax(ok)) if ok.any() else None
             res["bump_recovered_after_s"] = None if first is None else float(log.stamps[j + first] - log.stamps[j])
+    from .diagnose import tally_outputs
+
+    if hasattr(out, "track_hold") and hasattr(model, "tracker"):  # the step's outputs (not a test's stand-in)
+        res["diagnosis"] = tally_outputs(model, out)
     res["_errors"] = (np.asarray(scan_of_err), np.asarray(obj_of_err), e_pos, e_th)
     return res
 

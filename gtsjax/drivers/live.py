@@ -55,6 +55,9 @@ class LiveStats:
     # Every frame's latency since the start, binned (LATENCY_EDGES_MS; first and last bins open-ended).
     latency_counts: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(LATENCY_EDGES_MS.size + 1, np.int64))
     latency_max_ms: float = 0.0
+    # Why the run reports what it does (:class:`~gtsjax.drivers.diagnose.Tally`, fed each frame's packed
+    # table after its latency is taken); None outside the live loops.
+    tally: object = None
 
     def add_latency(self, ms: float) -> None:
         self.latencies_ms.append(ms)
@@ -104,20 +107,31 @@ def frame_arrays(ranges_m: np.ndarray, intensities: np.ndarray | None, sensor: S
 
 
 # Columns of :func:`pack_tracks`.
-PACKED = ("track_id", "class", "x", "y", "theta", "var_x", "var_y", "var_theta", "reported")
+PACKED = ("track_id", "class", "x", "y", "theta", "var_x", "var_y", "var_theta", "reported", "live", "hold", "speed",
+          "turn_rate")
+# Classes a status row's bit field of detected classes can hold (exact in float32 below 2^24).
+_CLASS_BITS = 24
 
 
 def pack_tracks(o: Output):
-    """The GTD rows' fields of one output as a single ``[M + 1, 9]`` float32 array (columns
+    """The GTD rows' fields of one output as a single ``[M + 1, 13]`` float32 array (columns
     :data:`PACKED`; track ids and classes are exact in float32 below 2^24), so that one transfer
-    brings a scan's rows to the host. The last row holds the scan's status: degraded, objects,
-    candidates unlike their class's examples, candidates outside their best class's envelope."""
+    brings a scan's rows to the host, with what the run's diagnosis counts (each slot's live flag,
+    hold and estimated motion: :mod:`gtsjax.drivers.diagnose`). The last row holds the scan's
+    status: degraded, objects, candidates unlike their class's examples, candidates outside their
+    best class's envelope, and the classes detected in the scan as a bit field (bit ``c``: class
+    ``c``, for the first 24 classes)."""
     f32 = jnp.float32
+    col = lambda a: a[:, None].astype(f32)  # noqa: E731
     tracks = jnp.concatenate([
-        o.track_id[:, None].astype(f32), o.track_class[:, None].astype(f32), o.track_pose.astype(f32),
-        o.track_var.astype(f32), o.track_mask[:, None].astype(f32)], axis=1)
-    status = jnp.zeros((1, len(PACKED)), f32).at[0, :4].set(jnp.stack([
-        o.degraded.astype(f32), o.n_objects.astype(f32), o.unlike.astype(f32), o.off_envelope.astype(f32)]))
+        col(o.track_id), col(o.track_class), o.track_pose.astype(f32), o.track_var.astype(f32), col(o.track_mask),
+        col(o.track_live), col(o.track_hold), col(o.track_speed), col(o.track_turn_rate)], axis=1)
+    bit = jnp.arange(_CLASS_BITS, dtype=jnp.int32)
+    seen = jnp.any(o.det_mask[:, None] & (o.det_class[:, None] == bit[None, :]), axis=0)
+    detected = jnp.sum(jnp.where(seen, jnp.left_shift(1, bit), 0), dtype=jnp.int32)
+    status = jnp.zeros((1, len(PACKED)), f32).at[0, :5].set(jnp.stack([
+        o.degraded.astype(f32), o.n_objects.astype(f32), o.unlike.astype(f32), o.off_envelope.astype(f32),
+        detected.astype(f32)]))
     return jnp.concatenate([tracks, status], axis=0)
 
 
@@ -344,7 +358,9 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
     sensor = link.model
     check_sensor(model, sensor, str(getattr(link, "port", "sensor")), intensity=with_intensity)
     live_step, state = compiled if compiled is not None else warm_up(model, sensor)
-    stats = LiveStats()
+    from .diagnose import Tally
+
+    stats = LiveStats(tally=Tally(model))
     while link.get(timeout=0) is not None:  # frames that queued up while compiling are stale
         stats.stale += 1
     outputs = outputs or Outputs()
@@ -405,6 +421,7 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
                 stats.count(rows, lat, degraded, period_ms)
                 stats.unlike += int(table[-1][2])
                 stats.off_envelope += int(table[-1][3])
+                stats.tally.add_packed(table)
                 if on_scan is not None:
                     on_scan(stats, o, lf.stamp)
     except KeyboardInterrupt:
@@ -435,8 +452,9 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
 def summary_json(stats: LiveStats, link_stats) -> str:
     """The counters of a live run as one JSON object (``gtsjax run --summary``): frames, rows, the
     recent latency (``latency_ms_*``, last 2 000 frames) and the whole run's (``latency_ms_run_*``,
-    binned), late and degraded scans, tracks per class, and the link's counters by cause (its
-    ``frames``, the frames it delivered, as ``received``: ``frames`` is those processed)."""
+    binned), late and degraded scans, tracks per class, the link's counters by cause (its
+    ``frames``, the frames it delivered, as ``received``: ``frames`` is those processed), and the
+    run's ``diagnosis`` (:mod:`gtsjax.drivers.diagnose`)."""
     med, p99 = stats.latency()
     link = dataclasses.asdict(link_stats)
     link["received"] = link.pop("frames")
@@ -447,4 +465,4 @@ def summary_json(stats: LiveStats, link_stats) -> str:
                        "late": stats.late, "stale": stats.stale, "degraded": stats.degraded, "unlike": stats.unlike,
                        "off_envelope": stats.off_envelope, "warm_ups": stats.warm_ups,
                        "tracks": {c: len(ids) for c, ids in sorted(stats.track_ids.items())},
-                       **link})
+                       **link, "diagnosis": stats.tally.finish() if stats.tally is not None else None})

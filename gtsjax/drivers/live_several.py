@@ -130,7 +130,9 @@ def run_live_several(links: "dict[str, object]", model: "Model | tuple[Model, ..
     steps, state = compiled if compiled is not None else warm_up_several(
         models, tuple(sensors[k] for k in first_of), poses, kinds)
     model = models[0]
-    stats, per = LiveStats(), {n: LaserStats() for n in names}
+    from .diagnose import Tally
+
+    stats, per = LiveStats(tally=Tally(model)), {n: LaserStats() for n in names}
     for n in names:  # frames that queued up while compiling are stale
         while links[n].get(timeout=0) is not None:
             stats.stale += 1
@@ -213,6 +215,7 @@ def run_live_several(links: "dict[str, object]", model: "Model | tuple[Model, ..
                     recorders[n].append_frame(lf)
                 o = steps[kinds[k]].output(o)
                 stats.count(rows, lat, degraded, period_ms[n])
+                stats.tally.add_packed(table)
                 late = lat > period_ms[n]
                 p = per[n]
                 p.frames += 1

@@ -26,6 +26,7 @@ from ..io.gtd import GTDWriter, rows_from_output
 from ..io.logs import to_scans
 from ..model import Model
 from .compile import batch_jit
+from .diagnose import Tally
 
 
 def _run_scans(model: Model, state: PipelineState, scans: Scan, n_real: Int[Array, ""]):
@@ -213,11 +214,13 @@ def bag_for(log, path: Path | None):
 
 class _Sink:
     """One log's outputs as they come, block by block: its GTD CSV (rows flushed per scan), its
-    sensor-pose rows, and the totals ``replay`` reports."""
+    sensor-pose rows, and the totals ``replay`` reports (with the run's ``diagnosis``:
+    :mod:`gtsjax.drivers.diagnose`)."""
 
     def __init__(self, model: Model, out: Path, sensor_out: Path | None, bag=None, view=None):
         self.model, self.sensor_out, self.bag, self.view = model, sensor_out, bag, view
         self.writer = GTDWriter(out)
+        self.tally = Tally(model)
         self.totals = {"scans": 0, "rows": 0, "degraded": 0, "n_overflow": 0, "n_too_long": 0, "unlike": 0,
                        "off_envelope": 0, "track_ids": {}}
         self.sensor_rows = []
@@ -244,6 +247,7 @@ class _Sink:
             for i in range(part.n_scans):
                 self.sensor_rows.append((repr(float(part.stamps[i])), f"{sp[i, 0]:.6f}", f"{sp[i, 1]:.6f}",
                                          f"{float(wrap(sp[i, 2])):.6f}", int(tf.degraded[i]), int(tf.n_landmarks[i])))
+        self.tally.add(out_arrays)
         totals["scans"] += part.n_scans
         for k in ("degraded", "n_overflow", "n_too_long", "unlike", "off_envelope"):
             totals[k] += int(np.sum(getattr(out_arrays, k)))
@@ -256,6 +260,7 @@ class _Sink:
         if self.view is not None:
             self.view.close()
         self.totals["rows"] = self.writer.rows
+        self.totals["diagnosis"] = self.tally.finish()
         if self.sensor_out is not None:
             with open(self.sensor_out, "w", newline="") as f:
                 w = csv.writer(f, lineterminator="\n")

@@ -244,7 +244,8 @@ def site_poses(site: Site, names) -> np.ndarray:
 def replay_several(logs: "dict[str, ScanLog]", model: "Model | tuple[Model, ...]", site: Site, out: Path, *,
                    kinds=None, chunk: int = 256, progress=None, sensor_out: Path | None = None) -> dict:
     """Replay several lasers' logs (names of the site's ``sensors``) into one GTD CSV; returns totals
-    (scans, rows, tracks per class, degraded scans per laser). ``sensor_out``: each scan's laser pose
+    (scans, rows, tracks per class, degraded scans per laser, the run's ``diagnosis``:
+    :mod:`gtsjax.drivers.diagnose`). ``sensor_out``: each scan's laser pose
     in O as its own transform places it (``stamp,laser,x,y,theta,degraded,n_landmarks``): a tripod
     bumped shows as a step in its laser's rows. ``model``: every laser's, or one per scanner model
     with ``kinds`` (:func:`models_for_lasers`)."""
@@ -273,9 +274,12 @@ def replay_several(logs: "dict[str, ScanLog]", model: "Model | tuple[Model, ...]
                             f"{sp[t, 1]:.6f}", f"{float(wrap(sp[t, 2])):.6f}", int(o.transform.degraded[t]),
                             int(o.transform.n_landmarks[t]), "" if np.isnan(d) else f"{d:.4f}"))
     degraded = {n: int(np.sum(o.degraded[merged.laser == k])) for k, n in enumerate(merged.names)}
+    from .diagnose import tally_outputs
+
     return {"scans": int(merged.log.n_scans), "rows": rows_total, "tracks": {c: len(v) for c, v in ids.items()},
             "degraded": degraded, "scans_per_laser": {n: int(np.sum(merged.laser == k))
-                                                       for k, n in enumerate(merged.names)}}
+                                                       for k, n in enumerate(merged.names)},
+            "diagnosis": tally_outputs(model, o)}
 
 
 class Disagreement:
