@@ -53,10 +53,6 @@ ROWS_PER_DETECTION = 0.9
 JUMP_SPEED = 2.0  # m/s: a labelled object faster than this between two scans was put down elsewhere  # rows for at least this share of the scans in which the robot was detected
 
 
-def _held_scans(n: int, held: np.ndarray, block: int) -> np.ndarray:
-    return np.isin(np.arange(n) // block, held)
-
-
 def _lost_at(out, t: int, xy: np.ndarray, cls: int, radius: float, holds: Sequence[str]) -> str:
     """Where scan ``t``'s object at ``xy`` of class ``cls`` was lost (a stage of :data:`STAGES`)."""
     det = np.asarray(out.det_mask[t]) & (np.asarray(out.det_class[t]) == cls)
@@ -218,14 +214,13 @@ def simulated_checks(model: Model, heldout: dict, mobiles: Sequence[str], rate_h
 
 
 def held_mask(log: ScanLog, log_index: int, ex_where: np.ndarray, ex_group: np.ndarray, held) -> np.ndarray:
-    """Which scans of labelled log ``log_index`` lie in held-out one-second blocks: the blocks of its
-    held-out examples (``Examples.where``/``group``)."""
-    from .labels import _block_scans
+    """Which scans of labelled log ``log_index`` lie in held-out groups (:func:`~.labels.scan_groups`):
+    the groups of its held-out examples (``Examples.where``/``group``)."""
+    from .labels import scan_groups
 
-    block = _block_scans(log)
+    groups = scan_groups(log)
     sel = (ex_where[:, 0] == log_index) & np.isin(ex_group, held)
-    return _held_scans(log.n_scans, np.unique(ex_where[sel, 1] // block), block)
-
+    return np.isin(groups, np.unique(groups[ex_where[sel, 1]]))
 
 
 # ------------------------------------------------------------ the tracker on a simulated walk and stay

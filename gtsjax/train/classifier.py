@@ -30,7 +30,9 @@ def fit_envelope(ex: Examples, n_classes: int, beam_step: float, *, n_bins: int 
     ``n · r``, widened by a tenth of their spread plus what one beam more or less and the range noise
     can add at the bin's far edge (a beam's spacing for width, 1 cm for depth, one point for
     ``n · r``). Bins with fewer than ``min_per_bin`` examples of the class take the limits of the
-    nearest bin that has enough (the quantities depend on range only through noise and spacing); a
+    nearest bin that has enough (the quantities depend on range only through noise and spacing), and no
+    bin is narrower than the class's limits over all its examples (a range seen from few placements shows
+    few of the class's views); a
     class with no examples at all is closed, and background (class 0) is open. A class is ``whole``
     (must be seen unoccluded) when at least ``whole_fraction`` of its examples were. The quantiles
     leave out the rarest views (1 % at each end: a robot's outline half lost to grazing beams), which
@@ -68,6 +70,11 @@ def fit_envelope(ex: Examples, n_classes: int, beam_step: float, *, n_bins: int 
             if j not in filled:
                 near = filled[np.argmin(np.abs(filled - j))]
                 lo[k, j], hi[k, j] = lo[k, near], hi[k, near]
+        # No bin narrower than the class over all ranges: width, depth and n · r of a rigid object do
+        # not depend on range but through noise and beam spacing, and a bin seen from a few placements
+        # only (a robot put down at a handful of poses) shows few of its views, not all it has.
+        all_lo, all_hi = limits(ex.shape[sel], r_max)
+        lo[k], hi[k] = np.minimum(lo[k], all_lo), np.maximum(hi[k], all_hi)
         seen_whole = float(np.mean(~ex.occluded[sel]))
         whole[k] = seen_whole >= whole_fraction
         report[k] = {"width_m": [round(float(lo[k, :, 0].min()), 3), round(float(hi[k, :, 0].max()), 3)],

@@ -131,6 +131,41 @@ def _block_scans(log: ScanLog) -> int:
     return max(1, int(round(1.0 / max(period, 1e-3))))
 
 
+def scan_groups(log: ScanLog, *, moved: float = 0.05, jump: float = 0.25, block_s: float = 1.0) -> np.ndarray:
+    """Each scan's held-out group within ``log`` (``[T]``, from 0): scans that see the labelled objects
+    where they were are one group, so that no held-out view has a near-copy in the training set.
+
+    A robot put down for seconds at a pose (or turned on the spot there) is one group for as long as it
+    stays: held out, it is a pose the model never saw, as the poses of a live run are. Where the labels
+    move (walking, carried), a group is one second of scans, as a log without labels is cut: a new group
+    starts once the group is ``block_s`` old and an object has moved ``moved`` from where it was at the
+    group's start. A jump (an object ``jump`` away from its last scan's pose: put down at the next grid
+    pose) or an object appearing or leaving starts a new group at once."""
+    block = _block_scans(log)
+    poses = log.truth_poses
+    if poses is None or poses.shape[1] == 0:
+        return np.arange(log.n_scans) // block
+    xy = poses[..., :2]
+    present = ~np.isnan(xy[..., 0])
+    out = np.zeros(log.n_scans, np.int64)
+    g, start = 0, 0
+    for t in range(1, log.n_scans):
+        new = bool(np.any(present[t] != present[t - 1]))
+        both = present[t] & present[t - 1]
+        if not new and both.any():
+            step = np.linalg.norm(xy[t, both] - xy[t - 1, both], axis=-1)
+            new = bool(np.any(step > jump))
+            if not new and t - start >= block:
+                since = present[t] & present[start]
+                new = bool(np.any(np.linalg.norm(xy[t, since] - xy[start, since], axis=-1) > moved))
+        elif not present[t].any() and t - start >= block:
+            new = True  # nobody in view: one-second blocks, as a log without labels
+        if new:
+            g, start = g + 1, t
+        out[t] = g
+    return out
+
+
 # ---------------------------------------------------------------------------- stages a–c over the logs
 
 
@@ -281,7 +316,7 @@ def label_log(log: ScanLog, fe: dict, tf: dict, site: Site, classes: tuple[str, 
         vectors=fe["vector"][t_idx, k_idx],
         cls=cls[t_idx, k_idx],
         target=target[t_idx, k_idx],
-        group=group_offset + t_idx // _block_scans(log),
+        group=group_offset + scan_groups(log)[t_idx],
         origin=origin[t_idx, k_idx],
         heading=heading[t_idx, k_idx],
         shape=fe["shape"][t_idx, k_idx],
