@@ -31,7 +31,7 @@ from ..io.site import Site
 from ..model import Model
 from ..sensors import MODELS
 from .bounds import shape_rows
-from .check import check_pipeline, held_mask, simulated_checks, verdict
+from .check import check_pipeline, coverage, held_mask, simulated_checks, verdict
 from .classifier import fit_classifier, fit_support, landmark_lookalikes
 from .classifier import fit_envelope as fit_envelope
 from .config import TrainConfig as TrainConfig
@@ -178,6 +178,8 @@ def train(logs: Sequence[ScanLog], site: "Site | Sequence[Site]", cfg: TrainConf
         "warnings": warnings,
         "heldout": evaluate_examples(model, ex.take(np.flatnonzero(is_held))),
     }
+    report["coverage"], where = coverage(logs, per_log_sites(site, len(logs)), mobiles)
+    report["warnings"] = report["warnings"] + where
     if cfg.check_pipeline:
         held_scans = [held_mask(log, i, ex_lab.where, ex_lab.group, held) for i, log in enumerate(logs)]
         report["pipeline"] = check_pipeline(model, logs, per_log_sites(site, len(logs)), held_scans, mobiles)

@@ -306,3 +306,65 @@ def check_tracker(model: Model, name: str, *, detection_rate: float, position_si
         why = HOLDS[int(hold[t, j])] if d[j] <= radius else "tracker"
         r["lost"][{"too few scans": "confirmation", "none": "tracker"}.get(why, why)] += 1
     return summarise([{name: r}])[name]
+
+
+def coverage(logs: Sequence[ScanLog], sites: Sequence[Site], tracked: Sequence[str], *, cell: float = 1.0,
+             share: float = 0.5, sides: int = 8, side_share: float = 0.05) -> tuple[dict, list[str]]:
+    """Where on the field each tracked class was labelled: the share of the field's ``cell``-sized squares
+    (the sites' bounds) holding at least one labelled pose, and a warning line where under ``share``.
+    A model sees a robot where it was recorded: a few placements (seconds at each of a handful of poses)
+    pass every held-out test at those places and miss the robot elsewhere (a box robot labelled at 4
+    points: 78 % of its scans detected on a walk across the field).
+
+    And from which sides the laser saw it: the robot's heading less the laser's bearing to it, in
+    ``sides`` sectors, each to hold at least ``side_share`` of the labelled poses. A robot walking paths
+    across the laser's view is seen side-on: trained on two minutes of that, 42 % of a static robot's
+    heading reads on the SPL field were misread (5 % trained turned on the spot), and its tracked
+    position was 3.5 cm off."""
+    cells: dict[str, set] = {}
+    views: dict[str, list] = {}
+    total: set = set()
+    for log, site in zip(logs, sites, strict=True):
+        sx, sy, _ = site.sensor_pose
+        for m, name in enumerate(log.truth_classes):
+            q = log.truth_poses[:, m]
+            q = q[~np.isnan(q[:, 0]) & ~np.isnan(q[:, 2])]
+            if str(name) in tracked and len(q):
+                views.setdefault(str(name), []).append(wrap(q[:, 2] - np.arctan2(q[:, 1] - sy, q[:, 0] - sx)))
+        if site.bounds is None:
+            continue
+        x0, y0, x1, y1 = site.bounds
+        nx, ny = max(1, int(np.ceil((x1 - x0) / cell - 1e-9))), max(1, int(np.ceil((y1 - y0) / cell - 1e-9)))
+        total |= {(i, j) for i in range(nx) for j in range(ny)}
+        for m, name in enumerate(log.truth_classes):
+            if str(name) not in tracked:
+                continue
+            p = log.truth_poses[:, m, :2]
+            p = p[~np.isnan(p[:, 0])]
+            i = np.clip(((p[:, 0] - x0) // cell).astype(int), 0, nx - 1)
+            j = np.clip(((p[:, 1] - y0) // cell).astype(int), 0, ny - 1)
+            inside = (p[:, 0] >= x0) & (p[:, 0] <= x1) & (p[:, 1] >= y0) & (p[:, 1] <= y1)
+            cells.setdefault(str(name), set()).update(zip(i[inside].tolist(), j[inside].tolist(), strict=True))
+    report, lines = {}, []
+    for name in tracked:
+        if name not in views:
+            continue
+        v = np.concatenate(views[name])
+        seen = np.histogram(v, bins=sides, range=(-np.pi, np.pi))[0] / v.size
+        report[name] = {"side_shares": [round(float(x), 3) for x in seen]}
+        rare = int(np.sum(seen < side_share))
+        if rare:
+            lines.append(f"{name} is seen from {sides - rare} of {sides} sides in its labels ({rare} sides of "
+                         f"{360 // sides}° in under {100 * side_share:.0f} % of its poses, the laser's view of it): "
+                         "its heading, and with it its position, may be misread from those sides; record it "
+                         "turned through every heading (on the spot, or put down at each)")
+    if not total:
+        return report, lines
+    for name in tracked:
+        got = len(cells.get(name, set()))
+        report.setdefault(name, {}).update({"cells": got, "of": len(total), "cell_m": cell, "share": got / len(total)})
+        if got / len(total) < share:
+            lines.append(f"{name} is labelled in {got} of the field's {len(total)} squares of {cell:g} m "
+                         f"({100 * got / len(total):.0f} %): the model has not seen it elsewhere, where its "
+                         "detection and pose may fail; record it all over the field")
+    return report, lines

@@ -1,0 +1,87 @@
+"""Recordings made the ways users make them (issue 38): each trained model must track held-out scenes.
+
+A model trained on a robot turned on the spot through 16 headings, one scan each, once tracked nothing
+(its top speed was learnt as 0 m/s) while training reported 99.8 % held-out accuracy. These tests train
+small models (small example caps: a minute or so each) on simulated recordings of other habits than
+the simulator's own grid: turned on the spot, put down for seconds per pose, walking, carried between
+poses with no gap; at 10 and 40 Hz; with and without clutter; the Nao-like outline and a box of another
+size. Each must pass training's own tracking check (``train --strict``'s) and track held-out scenes of
+its site (the robot put down for 2 s at six poses, and walking for 30 s) with recall at least 97 % once
+each track had its confirmation time, and position RMSE at most 2 cm, scored by
+``drivers.evaluation`` (the README's tables' scorer) against the simulator's truth.
+"""
+
+import dataclasses
+
+import pytest
+
+from gtsjax.drivers.evaluation import evaluate_log
+from gtsjax.sim import check_scene, recording
+from gtsjax.train import TrainConfig, train
+
+# Small models: enough views for 2 cm, few enough for about a minute of training on 2 cores.
+SMALL = dataclasses.replace(TrainConfig(), max_per_class=100, max_pose_examples=300, max_pose_fit=150, n_inducing=300,
+                            n_inducing_class=128, max_landmark_examples=100, restarts=1)
+
+CASES = {
+    # The recording that broke training: 16 headings turned on the spot, one scan each, carried away between points.
+    "turned on the spot, SPL field, URG-04LX 10 Hz, Nao": dict(site="spl", style="turn", rate_hz=None, outline="nao",
+                                                               clutter=False, seconds=100.0),
+    "turned on the spot, hall, 40 Hz, box, clutter": dict(site="hall", style="turn", rate_hz=40.0, outline="box",
+                                                          clutter=True, seconds=None),
+    "put down for seconds per pose, hall, 10 Hz, box": dict(site="hall", style="hold", rate_hz=None, outline="box",
+                                                            clutter=False, seconds=200.0),
+    # A walk sees the robot side-on: training warns so, and position suffers from the heading misreads.
+    "walking, SPL field, 10 Hz, Nao, clutter": dict(site="spl", style="walk", rate_hz=None, outline="nao",
+                                                    clutter=True, seconds=120.0,
+                                                    position_short="heading misread from sides a walk never "
+                                                                   "showed: 3.5 cm (issue 38, item 5)"),
+    # Carried from pose to pose over the whole field (450 s, 18 points): fewer points leave the robot
+    # unseen where the check scenes put it, and training warns so.
+    "carried between poses, SPL field, 10 Hz, Nao": dict(site="spl", style="carried", rate_hz=None, outline="nao",
+                                                         clutter=False, seconds=450.0),
+}
+
+
+@pytest.fixture(scope="module", params=list(CASES), ids=lambda s: s.split(",")[0].replace(" ", "-"))
+def trained(request):
+    case = CASES[request.param]
+    log, site = recording(case["site"], case["style"], seed=1, rate_hz=case["rate_hz"], clutter=case["clutter"],
+                          outline=case["outline"], seconds=case["seconds"])
+    model, report = train([log], site, SMALL)
+    return case, model, report
+
+
+def test_training_checks_that_its_model_tracks(trained):
+    case, model, report = trained
+    assert report["pipeline_problems"] == []  # train --strict would pass
+    for row in report["learnt"]:
+        lo, hi = row["hard_range"] or (float("-inf"), float("inf"))
+        assert lo <= row["value"] <= hi, row
+    motion = report["motion_limits"]["robot"]
+    if case["style"] in ("turn", "hold"):  # no translation in the labels: never a speed learnt from them
+        assert motion["max_speed_from"] == "default"
+    # The walk's labels see the robot side-on, and training says so; the others see it from every side.
+    side_warnings = [w for w in report["warnings"] if "sides" in w]
+    assert bool(side_warnings) == (case["style"] == "walk"), report["warnings"]
+
+
+@pytest.fixture(scope="module", params=["static", "walking"])
+def scored(request, trained):
+    case, model, _ = trained
+    log, site = check_scene(case["site"], request.param, seed=2, rate_hz=case["rate_hz"], outline=case["outline"],
+                            clutter=case["clutter"])
+    return case, evaluate_log(model.with_site(site), log)
+
+
+def test_the_model_finds_the_robot_in_held_out_scenes(scored):
+    case, res = scored
+    assert res["recall"] >= 0.97, res
+    assert res["false_tracks_per_scan"] <= 0.01, res
+
+
+def test_the_model_places_the_robot_within_2_cm(scored, request):
+    case, res = scored
+    if "position_short" in case:  # a known shortfall: strict, so that its fix is noticed
+        request.applymarker(pytest.mark.xfail(strict=True, reason=case["position_short"]))
+    assert res["position_rmse_m"] <= 0.02, res
