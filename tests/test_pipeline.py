@@ -106,8 +106,7 @@ def test_step_traced_once_per_model_shape_and_replay_equals_stepping(tiny):
             for name in ("track_id", "track_class", "track_mask", "det_mask"):
                 np.testing.assert_array_equal(getattr(o, name), getattr(b, name)[i], err_msg=f"{form}: {name} at scan {i}")
             for name in ("track_pose", "track_var", "det_pose", "sensor_pose"):
-                np.testing.assert_allclose(getattr(o, name), getattr(b, name)[i], rtol=1e-4, atol=1e-5,
-                                           err_msg=f"{form}: {name} at scan {i}")
+                _close(getattr(o, name), getattr(b, name)[i], name, f"{form}: {name} at scan {i}")
     for f in (final, vfinal):
         np.testing.assert_array_equal(np.asarray(state.tracker.track_id), np.asarray(f.tracker.track_id))
 
@@ -138,7 +137,20 @@ def _same_tracks(a, b, what: str):
     for name in ("track_id", "track_class", "track_mask", "det_mask"):
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=f"{what}: {name}")
     for name in ("track_pose", "track_var", "det_pose", "sensor_pose"):
-        np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=1e-4, atol=1e-5, err_msg=f"{what}: {name}")
+        _close(getattr(a, name), getattr(b, name), name, f"{what}: {name}")
+
+
+def _close(a, b, name: str, msg: str):
+    """Float32 round-off apart. Poses' headings (the last column) to 1e-4 rad: stage e′'s Gauss–Newton
+    steps amplify a last-bit difference in a near-flat fit to some 2e-5 rad, where positions stay within
+    1e-5 m."""
+    a, b = np.asarray(a), np.asarray(b)
+    if name.endswith("pose"):
+        np.testing.assert_allclose(a[..., :-1], b[..., :-1], rtol=1e-4, atol=1e-5, err_msg=msg)
+        np.testing.assert_allclose(np.angle(np.exp(1j * (a[..., -1] - b[..., -1]).astype(np.float64))), 0.0,
+                                   atol=1e-4, err_msg=msg)
+    else:
+        np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5, err_msg=msg)
 
 
 def test_several_logs_side_by_side_give_each_logs_own_tracks(tiny):
