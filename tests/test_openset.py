@@ -256,3 +256,18 @@ def test_train_cli_takes_several_background_logs_and_refuses_another_step(tmp_pa
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and not (tmp_path / "m2.npz").exists()
     assert len(err) == 1 and "sick.npz" in err[0] and "angular step" in err[0], err
+
+
+def test_a_range_seen_from_few_placements_is_no_narrower_than_the_class():
+    """A robot put down at a handful of poses: at 3-3.5 m the class was seen from one placement only (one
+    width). The envelope there still holds the widths seen at other ranges."""
+    rng = np.random.default_rng(8)
+    n = 300
+    r = np.concatenate([rng.uniform(1.0, 2.0, n), rng.uniform(3.0, 3.5, 40)])
+    widths = np.concatenate([rng.uniform(0.15, 0.3, n), rng.normal(0.2, 0.002, 40)])
+    shape = np.column_stack([widths, np.full(n + 40, 0.1), np.full(n + 40, 60.0)])
+    env, _ = fit_envelope(examples(np.full(n + 40, 1), shape, r, np.zeros(n + 40, bool)), 2, np.radians(0.35),
+                          n_bins=8, min_per_bin=20)
+    q = jnp.asarray([[0.16, 0.1, 60.0], [0.29, 0.1, 60.0], [0.6, 0.1, 60.0]], F32)
+    got = np.asarray(envelope_pass(env, q, jnp.full(3, 3.2, F32)))[:, 1]
+    np.testing.assert_array_equal(got, [True, True, False])  # a table top's width is still out

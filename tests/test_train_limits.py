@@ -112,3 +112,52 @@ def test_scan_rate_from_stamps_or_the_scanner_when_the_log_kept_one_scan_a_pose(
 def test_defaults_are_inside_their_own_ranges():
     for bound, default in ((B.MAX_SPEED, DEFAULT_MAX_SPEED), (B.MAX_TURN_RATE, DEFAULT_MAX_TURN_RATE)):
         assert bound.floor <= bound.plausible[0] <= default <= bound.plausible[1] <= bound.ceiling
+
+
+# ------------------------------------------------------------------ held-out groups and coverage
+
+
+def test_a_placement_is_one_held_out_group_and_a_walk_is_cut_by_the_second():
+    from gtsjax.train.labels import scan_groups
+
+    period = 0.1
+    stay = lambda x, th, n: np.repeat([[x, 1.0, th]], n, 0)  # noqa: E731
+    away = np.full((10, 3), np.nan)
+    t = np.arange(50) * period
+    walk = np.column_stack([1 + 0.3 * t, np.full(50, 2.0), np.zeros(50)])
+    poses = np.concatenate([stay(1.0, 0.0, 30), away, stay(1.0, 1.5, 25), stay(2.0, 1.5, 20), walk])
+    g = scan_groups(_log(poses, period))
+    # Each placement one group however long it stays (3 s, 2.5 s); the jump to the next pose starts one.
+    first, second, third = g[:30], g[40:65], g[65:85]
+    assert len(set(first)) == len(set(second)) == len(set(third)) == 1
+    assert len({first[0], second[0], third[0]}) == 3
+    # The absent second is its own block; the 5 s walk (0.3 m/s) is cut into blocks of about one second.
+    assert set(g[30:40]).isdisjoint(set(first) | set(second))
+    sizes = np.unique(g[85:], return_counts=True)[1]
+    assert 4 <= len(sizes) <= 6 and sizes[:-1].min() >= 10
+
+
+def test_training_says_where_the_labels_leave_the_robot_unseen():
+    from gtsjax.io.site import Landmark, Site
+    from gtsjax.train.check import coverage
+
+    site = Site(tuple(Landmark("post", x, y) for x, y in ((0, 1.3), (0, 2.7), (6, 1.3))), (3.0, 4.0, -math.pi / 2),
+                (0.0, 0.0, 6.0, 4.0))
+    # Turned on the spot at every point of a 0.5 m grid: every square, every side; no warning.
+    grid = [[x, y, -math.pi + k * math.pi / 8] for x in np.arange(0.25, 6, 0.5) for y in np.arange(0.25, 4, 0.5)
+            for k in range(16)]
+    rep, lines = coverage([_log(grid)], [site], ("robot",))
+    assert lines == [] and rep["robot"]["cells"] == rep["robot"]["of"] == 24
+    # Put down at two points only: 2 of 24 squares.
+    two = [[x, 1.0, -math.pi + k * math.pi / 4] for x in (1.0, 4.0) for k in range(8) for _ in range(20)]
+    rep, lines = coverage([_log(two)], [site], ("robot",))
+    assert rep["robot"]["cells"] == 2 and any("2 of the field's 24 squares" in w for w in lines)
+    # Everywhere on the field, but always side-on to the laser (heading = bearing + 90°, as a robot walking
+    # paths across the laser's view mostly is): one side of eight, and warned so.
+    across = [[x, y, math.atan2(y - 4.0, x - 3.0) + math.pi / 2] for x in np.arange(0.25, 6, 0.5)
+              for y in np.arange(0.25, 4, 0.5)]
+    rep, lines = coverage([_log(across)], [site], ("robot",))
+    assert any("sides" in w for w in lines)
+    seen = np.asarray(rep["robot"]["side_shares"])
+    assert np.sum(seen < 0.05) >= 6 and seen.sum() == pytest.approx(1.0)
+    assert lines[0].startswith("robot is seen from")
