@@ -22,14 +22,18 @@ fewer than 90 % of the scans in which the robot was detected.
 
 from collections.abc import Sequence
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
+from ..core.g_track import HOLDS, Detections, TrackerState, reported, track_step
 from ..core.geometry import wrap
 from ..core.pipeline import REASONS
 from ..drivers.replay import process_log
 from ..io.logs import ScanLog, to_scans
 from ..io.site import Site
 from ..model import Model
+from .labels import scan_groups
 
 STAGES = ("not segmented", "filters", "classifier", "open set", "envelope", "cap", "bounds",
           "confirmation", "majority", "speed", "turn rate", "tracker")
@@ -53,23 +57,59 @@ ROWS_PER_DETECTION = 0.9
 JUMP_SPEED = 2.0  # m/s: a labelled object faster than this between two scans was put down elsewhere  # rows for at least this share of the scans in which the robot was detected
 
 
-def _lost_at(out, t: int, xy: np.ndarray, cls: int, radius: float, holds: Sequence[str]) -> str:
+def _counts() -> dict:
+    """Per class, what :func:`_score` counts (summed over logs by :func:`summarise`)."""
+    return {"in_view": 0, "settled": 0, "detected": 0, "detected_settled": 0, "rows": 0, "rows_detected": 0,
+            "lost": dict.fromkeys(STAGES, 0), "err_xy": [], "err_th": []}
+
+
+def _score(r: dict, found: bool, settled: bool, row: "tuple[float, float] | None", lost) -> None:
+    """One object in one scan into the counts ``r``: whether it was detected, whether it is old enough to
+    be tracked, its row's position and heading errors (None: no row) and, for a scan without one,
+    ``lost()``, the stage that lost it."""
+    r["in_view"] += 1
+    r["detected"] += int(found)
+    if not settled:
+        return
+    r["settled"] += 1
+    r["detected_settled"] += int(found)
+    if row is None:
+        r["lost"][lost()] += 1
+        return
+    r["rows"] += 1
+    r["rows_detected"] += int(found)
+    r["err_xy"].append(row[0])
+    r["err_th"].append(row[1])
+
+
+def _stage_of_hold(hold: int) -> str:
+    """The stage of :data:`STAGES` a tentative track's hold (an index into ``HOLDS``) stands for."""
+    name = HOLDS[hold]
+    return {"too few scans": "confirmation", "none": "tracker"}.get(name, name)
+
+
+def _since(xy: np.ndarray, stamps: np.ndarray, present: np.ndarray) -> np.ndarray:
+    """Seconds since each object (``xy`` [T, M, 2]) appeared, or last jumped (a labelled robot put down at
+    its next grid pose between two scans: no tracker follows that, nor should it)."""
+    since = np.zeros(present.shape)
+    for t in range(1, len(stamps)):
+        dt = stamps[t] - stamps[t - 1]
+        jump = np.hypot(*(xy[t] - xy[t - 1]).T) > JUMP_SPEED * dt + 0.02
+        since[t] = np.where(present[t] & present[t - 1] & ~jump, since[t - 1] + dt, 0.0)
+    return since
+
+
+def _lost_at(out, t: int, xy: np.ndarray, cls: int, radius: float) -> str:
     """Where scan ``t``'s object at ``xy`` of class ``cls`` was lost (a stage of :data:`STAGES`)."""
     det = np.asarray(out.det_mask[t]) & (np.asarray(out.det_class[t]) == cls)
     if det.any() and np.min(np.linalg.norm(out.det_pose[t][det, :2] - xy, axis=1)) <= radius:
-        live = getattr(out, "track_live", None)
-        if live is None:
-            return "tracker"
-        ok = np.asarray(live[t]) & ~np.asarray(out.track_mask[t]) & (np.asarray(out.track_class[t]) == cls)
+        ok = np.asarray(out.track_live[t]) & ~np.asarray(out.track_mask[t]) & (np.asarray(out.track_class[t]) == cls)
         if not ok.any():
             return "tracker"
         d = np.linalg.norm(out.track_pose[t][:, :2] - xy, axis=1)
         d[~ok] = np.inf
         j = int(np.argmin(d))
-        if d[j] > radius:
-            return "tracker"
-        hold = holds[int(out.track_hold[t][j])]
-        return {"too few scans": "confirmation"}.get(hold, hold if hold in STAGES else "tracker")
+        return _stage_of_hold(int(out.track_hold[t][j])) if d[j] <= radius else "tracker"
     d = np.linalg.norm(out.cand_xy[t] - xy, axis=1)
     reason = np.asarray(out.cand_reason[t])
     d[reason == REASONS.index("none")] = np.inf
@@ -86,10 +126,6 @@ def check_log(model: Model, log: ScanLog, held: np.ndarray, tracked: Sequence[st
     replayed whole through ``model`` (its site attached), for the classes ``tracked``; summed over logs
     by :func:`summarise`."""
     classes = list(model.classes)
-    try:
-        from ..core.g_track import HOLDS
-    except ImportError:  # a tracker that does not say why a track waits
-        HOLDS = ("none",)
     _, out = process_log(model, to_scans(log, model.n_beams))
     rate = 1.0 / max(float(np.median(np.diff(log.stamps))) if log.n_scans > 1 else 0.1, 1e-3)
     settle = settle_s if settle_s is not None else float(model.tracker.n_confirm) / rate + 0.5
@@ -99,42 +135,23 @@ def check_log(model: Model, log: ScanLog, held: np.ndarray, tracked: Sequence[st
         b = np.asarray(model.site.bounds)
         x, y = np.nan_to_num(truth[..., 0]), np.nan_to_num(truth[..., 1])
         present &= (x >= b[0]) & (y >= b[1]) & (x <= b[2]) & (y <= b[3])
-    # Time since each object appeared, or last jumped (a labelled robot put down at its next grid pose
-    # between two scans: no tracker follows that, nor should it).
-    since = np.zeros(present.shape)
-    for t in range(1, log.n_scans):
-        dt = log.stamps[t] - log.stamps[t - 1]
-        jump = np.hypot(*(truth[t, :, :2] - truth[t - 1, :, :2]).T) > JUMP_SPEED * dt + 0.02
-        since[t] = np.where(present[t] & present[t - 1] & ~jump, since[t - 1] + dt, 0.0)
+    since = _since(truth[..., :2], log.stamps, present)
     res: dict[str, dict] = {}
     for i, name in enumerate(log.truth_classes):
         name = str(name)
         if name not in tracked:
             continue
         c = classes.index(name)
-        r = res.setdefault(name, {"in_view": 0, "settled": 0, "detected": 0, "detected_settled": 0, "rows": 0,
-                                  "rows_detected": 0, "lost": dict.fromkeys(STAGES, 0), "err_xy": [], "err_th": []})
+        r = res.setdefault(name, _counts())
         for t in np.flatnonzero(present[:, i] & held):
             xy = truth[t, i, :2]
             det = np.asarray(out.det_mask[t]) & (np.asarray(out.det_class[t]) == c)
             found = det.any() and np.min(np.linalg.norm(out.det_pose[t][det, :2] - xy, axis=1)) <= radius
-            r["in_view"] += 1
-            r["detected"] += int(found)
-            if since[t, i] < settle:
-                continue
-            r["settled"] += 1
-            r["detected_settled"] += int(found)
             rows = np.asarray(out.track_mask[t]) & (np.asarray(out.track_class[t]) == c)
-            d = np.linalg.norm(out.track_pose[t][:, :2] - xy, axis=1)
-            d[~rows] = np.inf
+            d = np.where(rows, np.linalg.norm(out.track_pose[t][:, :2] - xy, axis=1), np.inf)
             j = int(np.argmin(d))
-            if d[j] <= radius:
-                r["rows"] += 1
-                r["rows_detected"] += int(found)
-                r["err_xy"].append(float(d[j]))
-                r["err_th"].append(float(wrap(out.track_pose[t][j, 2] - truth[t, i, 2])))
-            else:
-                r["lost"][_lost_at(out, t, xy, c, radius, HOLDS)] += 1
+            row = (float(d[j]), float(wrap(out.track_pose[t][j, 2] - truth[t, i, 2]))) if d[j] <= radius else None
+            _score(r, found, since[t, i] >= settle, row, lambda t=t, xy=xy, c=c: _lost_at(out, t, xy, c, radius))
     return res
 
 
@@ -143,9 +160,7 @@ def summarise(parts: Sequence[dict]) -> dict:
     total: dict[str, dict] = {}
     for part in parts:
         for name, r in part.items():
-            t = total.setdefault(name, {"in_view": 0, "settled": 0, "detected": 0, "detected_settled": 0, "rows": 0,
-                                        "rows_detected": 0, "lost": dict.fromkeys(STAGES, 0), "err_xy": [],
-                                        "err_th": []})
+            t = total.setdefault(name, _counts())
             for k in ("in_view", "settled", "detected", "detected_settled", "rows", "rows_detected"):
                 t[k] += r[k]
             for k in STAGES:
@@ -216,8 +231,6 @@ def simulated_checks(model: Model, heldout: dict, mobiles: Sequence[str], rate_h
 def held_mask(log: ScanLog, log_index: int, ex_where: np.ndarray, ex_group: np.ndarray, held) -> np.ndarray:
     """Which scans of labelled log ``log_index`` lie in held-out groups (:func:`~.labels.scan_groups`):
     the groups of its held-out examples (``Examples.where``/``group``)."""
-    from .labels import scan_groups
-
     groups = scan_groups(log)
     sel = (ex_where[:, 0] == log_index) & np.isin(ex_group, held)
     return np.isin(groups, np.unique(groups[ex_where[sel, 1]]))
@@ -251,11 +264,6 @@ def check_tracker(model: Model, name: str, *, detection_rate: float, position_si
     (rad), and a ``misread`` share of headings read on another side (±90°, 180°). Where the labelled
     logs are too short to track (one scan per pose, a few scans per heading), this is the check of
     stage g: of its motion limits, confirmation and gates. Scored as :func:`check_log` scores a log."""
-    import jax
-    import jax.numpy as jnp
-
-    from ..core.g_track import HOLDS, Detections, TrackerState, reported, track_step
-
     rng = np.random.default_rng(seed)
     truth = _synthetic_truth(rate_hz, rng)
     n, c = len(truth), list(model.classes).index(name)
@@ -281,30 +289,19 @@ def check_tracker(model: Model, name: str, *, detection_rate: float, position_si
         TrackerState.empty(model.max_tracks), (jnp.asarray(z[:, None], f32), jnp.asarray(found[:, None])))
     xy, rep, live, hold = (np.asarray(a) for a in (xy, rep, live, hold))
     settle = float(params.n_confirm) / rate_hz + 0.5
-    since = np.zeros(n)
-    for t in range(1, n):
-        since[t] = since[t - 1] + period if present[t] and present[t - 1] else 0.0
-    r = {"in_view": 0, "settled": 0, "detected": 0, "detected_settled": 0, "rows": 0, "rows_detected": 0,
-         "lost": dict.fromkeys(STAGES, 0), "err_xy": [], "err_th": []}
-    for t in np.flatnonzero(present):
-        r["in_view"] += 1
-        r["detected"] += int(found[t])
-        if since[t] < settle:
-            continue
-        r["settled"] += 1
-        r["detected_settled"] += int(found[t])
-        d = np.linalg.norm(xy[t, :, :2] - truth[t, :2], axis=1)
-        if np.any(rep[t] & (d <= radius)):
-            j = int(np.argmin(np.where(rep[t], d, np.inf)))
-            r["rows"] += 1
-            r["rows_detected"] += int(found[t])
-            r["err_xy"].append(float(d[j]))
-            r["err_th"].append(float(wrap(xy[t, j, 2] - truth[t, 2])))
-            continue
-        d[~(live[t] & ~rep[t])] = np.inf
+    since = _since(np.nan_to_num(truth[:, None, :2]), np.arange(n) * period, present[:, None])[:, 0]
+    r = _counts()
+
+    def lost(t):  # the nearest live unreported track's hold, where one is near
+        d = np.where(live[t] & ~rep[t], np.linalg.norm(xy[t, :, :2] - truth[t, :2], axis=1), np.inf)
         j = int(np.argmin(d))
-        why = HOLDS[int(hold[t, j])] if d[j] <= radius else "tracker"
-        r["lost"][{"too few scans": "confirmation", "none": "tracker"}.get(why, why)] += 1
+        return _stage_of_hold(int(hold[t, j])) if d[j] <= radius else "tracker"
+
+    for t in np.flatnonzero(present):
+        d = np.where(rep[t], np.linalg.norm(xy[t, :, :2] - truth[t, :2], axis=1), np.inf)
+        j = int(np.argmin(d))
+        row = (float(d[j]), float(wrap(xy[t, j, 2] - truth[t, 2]))) if d[j] <= radius else None
+        _score(r, bool(found[t]), since[t] >= settle, row, lambda t=t: lost(t))
     return summarise([{name: r}])[name]
 
 
