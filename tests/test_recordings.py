@@ -12,6 +12,7 @@ each track had its confirmation time, and position RMSE at most 2 cm, scored by
 """
 
 import dataclasses
+import re
 
 import pytest
 
@@ -40,21 +41,37 @@ CASES = {
     # unseen where the check scenes put it, and training warns so.
     "carried between poses, SPL field, 10 Hz, Nao": dict(site="spl", style="carried", rate_hz=None, outline="nao",
                                                          clutter=False, seconds=450.0),
+    # A mirror-symmetric cart: its flat side at 3.5 m looks like the flat stretches of the box beside the
+    # field at that range, which the classifier learns as background. Training says so; a confirmed
+    # track follows the cart past it on its guesses; a cart put down side-on there is never found.
+    # Trained with the defaults on the recording of seed 5 and checked on scenes of seed 6: the small
+    # settings' 100 examples a class, and seed 1's recording, happen not to show it (which views of the
+    # cart the classifier gets near the box's range is down to the grid and the draw).
+    "turned on the spot, SPL field, 10 Hz, cart": dict(site="spl", style="turn", rate_hz=None, outline="cart",
+                                                       clutter=False, seconds=100.0, config=TrainConfig(), seeds=(5, 6),
+                                                       training_says="detected in only",
+                                                       recall_short={"static": "put down where its side looks "
+                                                                     "like the box beside the field: the "
+                                                                     "classifier takes it for background "
+                                                                     "(issue 38)"}),
 }
 
 
-@pytest.fixture(scope="module", params=list(CASES), ids=lambda s: s.split(",")[0].replace(" ", "-"))
+@pytest.fixture(scope="module", params=list(CASES), ids=lambda s: re.sub(r"[^a-z0-9]+", "-", s.lower()).strip("-"))
 def trained(request):
     case = CASES[request.param]
-    log, site = recording(case["site"], case["style"], seed=1, rate_hz=case["rate_hz"], clutter=case["clutter"],
+    log, site = recording(case["site"], case["style"], seed=case.get("seeds", (1, 2))[0], rate_hz=case["rate_hz"], clutter=case["clutter"],
                           outline=case["outline"], seconds=case["seconds"])
-    model, report = train([log], site, SMALL)
+    model, report = train([log], site, case.get("config", SMALL))
     return case, model, report
 
 
 def test_training_checks_that_its_model_tracks(trained):
     case, model, report = trained
-    assert report["pipeline_problems"] == []  # train --strict would pass
+    if "training_says" in case:  # train --strict would fail, saying why
+        assert any(case["training_says"] in p for p in report["pipeline_problems"]), report["pipeline_problems"]
+    else:
+        assert report["pipeline_problems"] == []  # train --strict would pass
     for row in report["learnt"]:
         lo, hi = row["hard_range"] or (float("-inf"), float("inf"))
         assert lo <= row["value"] <= hi, row
@@ -69,19 +86,21 @@ def test_training_checks_that_its_model_tracks(trained):
 @pytest.fixture(scope="module", params=["static", "walking"])
 def scored(request, trained):
     case, model, _ = trained
-    log, site = check_scene(case["site"], request.param, seed=2, rate_hz=case["rate_hz"], outline=case["outline"],
+    log, site = check_scene(case["site"], request.param, seed=case.get("seeds", (1, 2))[1], rate_hz=case["rate_hz"], outline=case["outline"],
                             clutter=case["clutter"])
-    return case, evaluate_log(model.with_site(site), log)
+    return case, request.param, evaluate_log(model.with_site(site), log)
 
 
-def test_the_model_finds_the_robot_in_held_out_scenes(scored):
-    case, res = scored
+def test_the_model_finds_the_robot_in_held_out_scenes(scored, request):
+    case, kind, res = scored
+    if kind in case.get("recall_short", {}):  # a known shortfall: strict, so that its fix is noticed
+        request.applymarker(pytest.mark.xfail(strict=True, reason=case["recall_short"][kind]))
     assert res["recall"] >= 0.97, res
     assert res["false_tracks_per_scan"] <= 0.01, res
 
 
 def test_the_model_places_the_robot_within_2_cm(scored, request):
-    case, res = scored
+    case, _, res = scored
     if "position_short" in case:  # a known shortfall: strict, so that its fix is noticed
         request.applymarker(pytest.mark.xfail(strict=True, reason=case["position_short"]))
     assert res["position_rmse_m"] <= 0.02, res

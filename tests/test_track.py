@@ -893,3 +893,47 @@ def test_two_lasers_interleaved_do_not_make_a_walking_robot_implausible():
 
     assert confirmed_share(TRANSFORM_VAR) == 1.0
     assert confirmed_share(0.0) < 0.9
+
+
+def test_guesses_keep_a_confirmed_track_near_its_prediction_only():
+    """Candidates the classifier took for background but that could be the class (``guess``): alone
+    they start nothing; they keep a confirmed track updated while they lie within ``GUESS_RADIUS`` of
+    its prediction; one further off (a person's legs in front of a hidden robot) leaves it missing,
+    and after more than ``GUESS_MISSES`` misses even a near one does not revive it. The reference
+    tracker agrees scan by scan on ids, confirmation, misses and the state."""
+    pytest.importorskip("filterpy")
+    from gtsjax.core.g_track import GUESS_MISSES, GUESS_RADIUS
+    from tests.reference.track import Tracker
+
+    def run(kinds):
+        """``kinds`` per scan: "det" a detection, "guess" a guess at the robot, "far" a guess 2 radii
+        off, "none" nothing; the robot walks along x at 0.2 m/s."""
+        ref = Tracker(CONFIRM3, 4)
+        state = TrackerState.empty(4)
+        rng = np.random.default_rng(3)
+        out = []
+        for i, kind in enumerate(kinds):
+            x = 1.0 + 0.02 * i + rng.normal(0, 0.002)
+            y = 2.0 + (2 * GUESS_RADIUS if kind == "far" else 0.0) + rng.normal(0, 0.002)
+            d, (zz, R, c, o, _) = scan([[x, y, 0.1]] if kind != "none" else np.zeros((0, 3)))
+            g = jnp.asarray(np.arange(6) == 0) & (kind in ("guess", "far"))
+            d = Detections(d.pose, d.cov, d.class_id, d.mask, d.other, guess=g)
+            state, _ = step(state, d, jnp.asarray(0.1, F32), CONFIRM3)
+            ref.step(zz, R, c, 0.1, o, guess=np.asarray(g)[:len(zz)])
+            live = np.flatnonzero(np.asarray(state.live))
+            got = {int(state.track_id[s]): (bool(state.confirmed[s]), int(state.misses[s])) for s in live}
+            want = {t.track_id: (t.confirmed, t.misses) for t in ref.slots if t is not None}
+            assert got == want, (i, kind, got, want)
+            for s in live:
+                t = next(t for t in ref.slots if t is not None and t.track_id == int(state.track_id[s]))
+                np.testing.assert_allclose(np.asarray(state.mean[s]), t.kf.x[:, 0], atol=2e-4, err_msg=str(i))
+            out.append(got)
+        return out
+
+    assert all(h == {} for h in run(["guess"] * 8))  # guesses alone: no track at all
+    hist = run(["det"] * 4 + ["guess"] * 8)
+    assert all(h == {0: (True, 0)} for h in hist[3:])  # confirmed by detections, followed through guesses
+    hist = run(["det"] * 4 + ["far"] * 2 + ["guess"] * 3)
+    assert [h[0][1] for h in hist[4:]] == [1, 2, 0, 0, 0]  # the far ones missed; the near ones taken back
+    hist = run(["det"] * 4 + ["none"] * (GUESS_MISSES + 1) + ["guess"] * 2)
+    assert [h[0][1] for h in hist[4:] if 0 in h] == list(range(1, GUESS_MISSES + 4))  # too long missing: not revived

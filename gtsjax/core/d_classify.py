@@ -128,6 +128,11 @@ class Decision(eqx.Module):
     ok: Bool[Array, " cands"]  # kept, not background, score at or above threshold, like its class's examples
     unlike: Bool[Array, " cands"]  # would be ok, but unlike every training example of its class
     off_envelope: Bool[Array, " cands"]  # kept, and its best score is a class whose envelope it lies outside
+    # Not ok, yet within the shape envelope of a tracked class and like its training examples: where a
+    # confirmed track of that class (``guess_cls``, the best scoring such class) expects its object, it
+    # is that object seen from a side the classifier takes for something else (see ``classify``).
+    guess: Bool[Array, " cands"]
+    guess_cls: Int[Array, " cands"]
 
 
 def classify(
@@ -137,6 +142,7 @@ def classify(
     in_envelope: Bool[Array, "cands classes"] | None = None,
     bucket: bool = False,
     axis_name=None,
+    tracked: Bool[Array, " classes"] | None = None,
 ) -> Decision:
     """Scores; each candidate's class, the best score among the classes whose shape envelope it lies
     in (``in_envelope``; background always qualifies); and which candidates survive: kept by the
@@ -146,7 +152,16 @@ def classify(
     With ``bucket`` only the kept candidates are scored, at the smallest of a few fixed counts that
     holds them (:func:`~gtsjax.core.buckets.bucketed`; ``axis_name`` under ``vmap``, as there): the
     score GPs over all candidate slots were the step's largest arithmetic. The others' scores are then
-    zeros and their class background; nothing downstream reads them."""
+    zeros and their class background; nothing downstream reads them.
+
+    **Guesses.** A robot's flat side at 3.5 m and a flat stretch of a box beside the field at the same
+    range give the same characteristic vector: where the background holds such an object, seen in every
+    scan of the recording, the classifier learns that view as background, and a robot walking past
+    side-on is lost for seconds. Shape cannot settle it; where the robot is can. So a kept candidate
+    that is not ok but lies within the shape envelope of a ``tracked`` class and passes that class's
+    open-set test is a *guess* of that class: it gets a pose (after the candidates the classifier
+    took for the class, ``e_pose.regress``) and may update a confirmed track whose gate it falls in,
+    never start or confirm one (``g_track``)."""
     if bucket:
         scores, nearest = _kept_only(clf, vectors, keep, axis_name)
     else:
@@ -162,4 +177,10 @@ def classify(
     like = d2 <= clf.support.threshold[cls]
     top = jnp.argmax(scores, axis=-1)
     off = keep & (top != BACKGROUND) & ~jnp.take_along_axis(in_envelope, top[:, None], axis=-1)[:, 0]
-    return Decision(scores, cls, scored & like, scored & ~like, off)
+    if tracked is None:
+        guess, guess_cls = jnp.zeros_like(keep), cls
+    else:
+        could = in_envelope & (nearest <= clf.support.threshold[None, :]) & tracked[None, :]
+        guess_cls = jnp.argmax(jnp.where(could, scores, -jnp.inf), axis=-1).astype(jnp.int32)
+        guess = keep & ~(scored & like) & jnp.any(could, axis=-1)
+    return Decision(scores, cls, scored & like, scored & ~like, off, guess, guess_cls)

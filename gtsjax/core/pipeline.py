@@ -53,6 +53,7 @@ class Perception(eqx.Module):
     side_pose: Float[Array, "cands sides 3"]  # side hypotheses in S (stage e′)
     side_logp: Float[Array, "cands sides"]
     refined: Bool[Array, " cands"]  # the pose comes from the outline fit (stage e′), not the GP
+    guess: Bool[Array, " cands"]  # not ok, but posed as the tracked class ``cls`` (``d_classify.classify``)
     at_s: Float[Array, "cands 2"]  # where the candidate is in S (its ORS origin), whatever became of it
     reason: Int[Array, " cands"]  # what became of it: an index into ``REASONS``
     n_segments: Int[Array, ""]
@@ -134,12 +135,15 @@ def perceive(model: Model, scan: Scan, *, bucket: bool | None = None, axis_name=
     x = gp_inputs(f.vector, f.origin, f.height, model.gp_columns)
     rng = jnp.sqrt(jnp.sum(f.origin**2, axis=-1))
     in_env = envelope_pass(model.envelope, shape_quantities(f.width, f.height, f.n_points, rng), rng)
-    dec = classify(model.classifier, x, fe.keep, in_env, bucket, axis_name)
-    cls, ok, scores = dec.cls, dec.ok, dec.scores
-    rel, var, posed = regress(model.pose, x, cls, ok, scores, model.max_objects, landmark_cap(model), bucket, axis_name)
+    dec = classify(model.classifier, x, fe.keep, in_env, bucket, axis_name, model.tracker.tracked)
+    ok, scores = dec.ok, dec.scores
+    cls = jnp.where(dec.guess, dec.guess_cls, dec.cls)
+    rel, var, posed = regress(model.pose, x, cls, ok | dec.guess, scores, model.max_objects, landmark_cap(model),
+                              bucket, axis_name)
     pose_s, cov_s = to_sensor_frame(f.origin, f.heading, rel, var)
     c = fe.candidates
-    sides = refine_candidates(model.outline, model.max_objects, cls, ok & posed & model.tracker.tracked[cls], scores,
+    sides = refine_candidates(model.outline, model.max_objects, cls, (ok | dec.guess) & posed & model.tracker.tracked[cls],
+                              scores,
                               c.xy, c.mask, pose_s, cov_s, bucket, axis_name)
     d = fe.diagnostics
     unposed = jnp.sum(ok & ~posed, dtype=jnp.int32)
@@ -149,7 +153,7 @@ def perceive(model: Model, scan: Scan, *, bucket: bool | None = None, axis_name=
     reason = jnp.where(ok & posed, 6, jnp.where(ok, 5, jnp.where(dec.unlike, 3, jnp.where(
         dec.off_envelope, 4, jnp.where(fe.keep, 2, jnp.where(c.live, 1, 0)))))).astype(jnp.int32)
     return Perception(cls, ok & posed, fe.keep, partial, vague & ~sides.refined, scores, sides.pose, sides.cov,
-                      sides.side_pose, sides.side_logp, sides.refined, f.origin, reason, d.n_segments, d.n_kept,
+                      sides.side_pose, sides.side_logp, sides.refined, dec.guess & posed & sides.refined, f.origin, reason, d.n_segments, d.n_kept,
                       d.n_overflow,
                       d.n_too_long, unposed, count(dec.unlike), count(dec.off_envelope))
 
@@ -240,8 +244,11 @@ def update_view(model: Model, prev_tf: Transform, tracker: TrackerState, p: Perc
         # recall 97.8 % with the floor alone, 98.8 % with this). Counted as measurement noise.
         cov_o = cov_o + jnp.diag(jnp.asarray([TRANSFORM_VAR, TRANSFORM_VAR, 0.0], cov_o.dtype))[None]
     side_o = jnp.concatenate([tf.apply(p.side_pose[..., :2]), wrap(p.side_pose[..., 2:] + tf.heading())], -1)
-    tracked = p.ok & model.tracker.tracked[p.cls] & _inside(site, pose_o)
-    det = Detections(pose_o, cov_o, p.cls, tracked, p.kept & ~tracked, p.partial, p.vague, side_o, p.side_logp)
+    inside = _inside(site, pose_o)
+    tracked = p.ok & model.tracker.tracked[p.cls] & inside
+    guess = p.guess & inside
+    det = Detections(pose_o, cov_o, p.cls, tracked | guess, p.kept & ~tracked, p.partial, p.vague, side_o, p.side_logp,
+                     guess)
     # Several lasers: a track this laser cannot see (out of its range or field of view) is not missed
     # by it, nor is it seen through there (another laser may be watching it).
     # A track no laser can see (``unwatched``: outside every laser's reach) is missed by each, so that

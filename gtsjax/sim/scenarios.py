@@ -755,7 +755,7 @@ def simulate(name: str, *, seed: int = 0, n_scans: int | None = None, sensor: st
 def recording(site: str, style: str, *, seed: int = 0, rate_hz: float | None = None, clutter: bool = False,
               outline: str = "nao", seconds: float | None = None) -> tuple[ScanLog, Site]:
     """A labelled training log of ``site`` ("spl", "lab", "hall") recorded in ``style`` (:data:`STYLES`),
-    of a robot of ``outline`` ("nao", "box"), the site's scanner at ``rate_hz`` (its own rate unless
+    of a robot of ``outline`` ("nao", "box", "cart"), the site's scanner at ``rate_hz`` (its own rate unless
     given), with chairs, a bag and people at the field's edge if ``clutter``. Grid styles visit an
     even spread of the training grid's points, as many as make about 2000 scans ("grid": all of them);
     ``seconds`` shortens any style to the whole poses (points for "turn") that fit in it, the

@@ -32,9 +32,17 @@ NAO_REFLECTIVITY = np.array([0.5, 0.45, 0.9, 0.75, 0.45])  # the fin carries ref
 BOX_OUTLINE = np.array([[0.18, -0.12], [0.18, 0.12], [-0.18, 0.12], [-0.18, -0.12]])
 BOX_REFLECTIVITY = np.array([0.5, 0.45, 0.5, 0.45])
 
+# A third: a wheeled base 0.30 m long and 0.26 m wide with its front corners cut off at 45° (0.06 m),
+# mirror-symmetric about its long axis as most robots are. Its left and right views are mirror images
+# of each other, and its back and sides are plain faces: the outline's cue to the heading is the
+# chamfered front. Edge order: front, front-left chamfer, left, back, right, front-right chamfer.
+CART_OUTLINE = np.array([[0.15, -0.07], [0.15, 0.07], [0.09, 0.13], [-0.15, 0.13], [-0.15, -0.13], [0.09, -0.13]])
+CART_REFLECTIVITY = np.array([0.5, 0.5, 0.45, 0.5, 0.45, 0.5])
+
 OUTLINES: dict[str, tuple[np.ndarray, np.ndarray]] = {
     "nao": (NAO_OUTLINE, NAO_REFLECTIVITY),
     "box": (BOX_OUTLINE, BOX_REFLECTIVITY),
+    "cart": (CART_OUTLINE, CART_REFLECTIVITY),
 }
 """The robot outlines the simulator renders, by name: vertices (counter-clockwise, body frame) and
 reflectivity per edge."""
@@ -80,7 +88,7 @@ class Scene:
 
 
 def robot_shape(outline: str = "nao") -> Polygon:
-    """The robot's outline at the laser's height, by name (:data:`OUTLINES`: ``"nao"``, ``"box"``)."""
+    """The robot's outline at the laser's height, by name (:data:`OUTLINES`: ``"nao"``, ``"box"``, ``"cart"``)."""
     if outline not in OUTLINES:
         raise InputError(outline, f"unknown robot outline; known: {', '.join(OUTLINES)}")
     vertices, reflectivity = OUTLINES[outline]

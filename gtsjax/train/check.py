@@ -53,14 +53,15 @@ ADVICE = {
     "turn rate": "its tracks turn faster than the class's max turn rate: retrain with --max-turn-rate CLASS=RAD_PER_S",
     "tracker": "its detections start no track: check --max-tracks and the tracker's gates",
 }
-ROWS_PER_DETECTION = 0.9
-JUMP_SPEED = 2.0  # m/s: a labelled object faster than this between two scans was put down elsewhere  # rows for at least this share of the scans in which the robot was detected
+ROWS_PER_DETECTION = 0.9  # rows for at least this share of the scans in which the robot was detected
+DETECTION = 0.9  # the robot detected in at least this share of the held-out scans in which it is in view
+JUMP_SPEED = 2.0  # m/s: a labelled object faster than this between two scans was put down elsewhere
 
 
 def _counts() -> dict:
     """Per class, what :func:`_score` counts (summed over logs by :func:`summarise`)."""
     return {"in_view": 0, "settled": 0, "detected": 0, "detected_settled": 0, "rows": 0, "rows_detected": 0,
-            "lost": dict.fromkeys(STAGES, 0), "err_xy": [], "err_th": []}
+            "lost": dict.fromkeys(STAGES, 0), "undetected": dict.fromkeys(STAGES, 0), "err_xy": [], "err_th": []}
 
 
 def _score(r: dict, found: bool, settled: bool, row: "tuple[float, float] | None", lost) -> None:
@@ -69,6 +70,8 @@ def _score(r: dict, found: bool, settled: bool, row: "tuple[float, float] | None
     ``lost()``, the stage that lost it."""
     r["in_view"] += 1
     r["detected"] += int(found)
+    if not found:
+        r["undetected"][lost()] += 1
     if not settled:
         return
     r["settled"] += 1
@@ -165,6 +168,7 @@ def summarise(parts: Sequence[dict]) -> dict:
                 t[k] += r[k]
             for k in STAGES:
                 t["lost"][k] += r["lost"][k]
+                t["undetected"][k] += r["undetected"][k]
             t["err_xy"] += r["err_xy"]
             t["err_th"] += r["err_th"]
     out = {}
@@ -180,6 +184,7 @@ def summarise(parts: Sequence[dict]) -> dict:
             "heading_rmse_deg": float(np.degrees(np.sqrt(np.mean(eth**2)))) if eth.size else None,
             "lost": {k: v for k, v in t["lost"].items() if v},
             "lost_share": {k: v / missed for k, v in t["lost"].items() if v} if missed else {},
+            "undetected": {k: v for k, v in t["undetected"].items() if v},
         }
     return out
 
@@ -195,9 +200,18 @@ def verdict(summary: dict, simulated: dict | None = None, min_scored: int = 30) 
     """One line per tracked class the step cannot track: rows for fewer than 90 % of the scans in which
     it was detected, on the labelled logs' held-out seconds (``summary``, where they hold at least
     ``min_scored`` scans in view long enough to be tracked) or on the simulated stay and walk
-    (``simulated``, :func:`check_tracker`), naming the stage that lost most of them and what to change."""
+    (``simulated``, :func:`check_tracker`), naming the stage that lost most of them and what to change;
+    and one per tracked class detected in fewer than 90 % of the held-out scans in which it is in view,
+    naming the stage of the step that lost most of those."""
     lines = []
     simulated = simulated or {}
+    for name, s in summary.items():
+        rate = s["detection_rate"]
+        if s["scans_in_view"] >= min_scored and rate is not None and rate < DETECTION and s["undetected"]:
+            stage = max(s["undetected"], key=s["undetected"].get)
+            share = 100 * s["undetected"][stage] / sum(s["undetected"].values())
+            lines.append(f"{name}: detected in only {100 * rate:.0f} % of the held-out scans in which it is in view: "
+                         f"{share:.0f} % of the misses lost at {stage} ({ADVICE[stage]})")
     for name in dict.fromkeys([*summary, *simulated]):
         for where, s in (("held-out scans", summary.get(name)), ("a simulated stay and walk", simulated.get(name))):
             if s is None or s["scans_scored"] < min_scored:

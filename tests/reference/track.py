@@ -22,6 +22,10 @@ SAME_SIDE = 0.5
 NEW_P = 0.1
 MERGE = 0.05  # hypotheses closer than this (rad) merge
 SWITCH_ODDS = 3.0
+# A guess (gtsjax: ``g_track.GUESS_RADIUS``, ``GUESS_MISSES``) updates only a confirmed track that has
+# missed at most this many scans in a row, within this distance (m) of its prediction.
+GUESS_RADIUS = 0.03
+GUESS_MISSES = 2
 
 
 def wrap(a):
@@ -224,6 +228,7 @@ class Tracker:
         vague: np.ndarray | None = None,
         side_heading: np.ndarray | None = None,
         side_logp: np.ndarray | None = None,
+        guess: np.ndarray | None = None,
     ) -> None:
         """Predict, gate, assign, update, and start, confirm and end tracks, for detections ``z`` [n, 3]
         with covariances ``R`` [n, 3, 3] and classes ``cls`` [n] (all of tracked classes); ``other``
@@ -232,10 +237,14 @@ class Tracker:
         ``vague`` [n]: headings read with a variance above the class's ``heading_var_max``. Neither
         kind's heading is used or rejected: the track takes its position only. ``side_heading``,
         ``side_logp`` [n, sides]: each detection's side headings and their log-probabilities (-inf:
-        unused; the most probable side's heading is ``z[:, 2]``); ``None``: one side, ``z[:, 2]``."""
+        unused; the most probable side's heading is ``z[:, 2]``); ``None``: one side, ``z[:, 2]``.
+        ``guess`` [n]: candidates classified as something else but posed as this class, which only a
+        confirmed track with at most ``GUESS_MISSES`` misses may take, within ``GUESS_RADIUS`` of its
+        prediction and its gate; never recaptured, never starting a track."""
         other = np.zeros((0, 2)) if other is None else np.asarray(other, np.float64).reshape(-1, 2)
         partial = np.zeros(len(z), bool) if partial is None else np.asarray(partial, bool)
         vague = np.zeros(len(z), bool) if vague is None else np.asarray(vague, bool)
+        guess = np.zeros(len(z), bool) if guess is None else np.asarray(guess, bool)
         if side_heading is None or side_logp is None:
             side_heading = np.repeat(np.asarray(z, np.float64)[:, 2:3], self.sides, axis=1)
             side_logp = np.full((len(z), self.sides), -np.inf)
@@ -273,6 +282,9 @@ class Tracker:
             for j in np.flatnonzero(cls == t.cls):
                 if partial[j] and not t.confirmed:
                     continue
+                if guess[j] and not (t.confirmed and t.misses <= GUESS_MISSES
+                                     and math.hypot(z[j, 0] - x[0], z[j, 1] - x[1]) < GUESS_RADIUS):
+                    continue
                 nu = z[j] - x
                 nu[2] = wrap(nu[2])
                 S = P + R[j]
@@ -294,7 +306,8 @@ class Tracker:
                 continue
             for j in np.flatnonzero(cls == t.cls):
                 d = math.hypot(z[j, 0] - t.kf.x[0, 0], z[j, 1] - t.kf.x[1, 0])
-                if j not in det_of.values() and d < self.birth_exclusion and (t.confirmed or not partial[j]):
+                if (j not in det_of.values() and d < self.birth_exclusion and (t.confirmed or not partial[j])
+                        and not guess[j]):
                     near[j, i] = d
         while n and np.isfinite(near).any():
             j, i = np.unravel_index(np.argmin(near), near.shape)
@@ -364,7 +377,7 @@ class Tracker:
         used = set(det_of.values())
         may_start = []
         for j in range(n):
-            if j in used or partial[j]:
+            if j in used or partial[j] or guess[j]:
                 continue
             near = any(
                 t is not None
