@@ -37,6 +37,13 @@ OBJECT = REASONS.index("object")
 VIEWER_EXTRA = 'pip install "gtsjax[viewer]"'
 TRAIL = 100  # scans of trail drawn behind each track
 SEEN_COLOUR = (0, 200, 0)  # where a scan saw the landmarks
+LASER_COLOUR = (230, 150, 0)
+# Rerun draws a 2-D view as an image is drawn, y down, and ignores view coordinates there (rerun-io/rerun
+# #1387): the field (O) would be mirrored, the laser at y = 4 m drawn below the field and counter-
+# clockwise headings turning clockwise. So the field's entities sit under ``/field``, which is the
+# view's space mirrored in y (its transform from ``/``), and the view shows ``/``: y up, as the field is
+# seen from above and as ``gtsjax plot`` draws it. Hovered values are still the field's own.
+Y_UP = [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0]]
 CLASS_COLOURS = [(150, 150, 150), (40, 40, 40), (30, 90, 220), (200, 60, 200), (20, 160, 160)]  # by class index
 FAINT = (170, 170, 170, 90)  # candidates that are not objects
 _COLOURS = [(230, 25, 75), (60, 180, 75), (0, 130, 200), (245, 130, 48), (145, 30, 180), (70, 240, 240),
@@ -118,11 +125,13 @@ class View:
         series = [rrb.TimeSeriesView(origin=f"stats/{name}", name=title) for name, title in (
             ("tracks", "tracks reported"), ("landmark_residual_cm", "largest landmark residual [cm]"),
             ("latency_ms", "frame-to-GTD latency [ms] (live)"), ("dropped", "dropped frames (live)"))]
-        return rrb.Blueprint(rrb.Horizontal(rrb.Spatial2DView(origin="field", name="field (O)"), rrb.Vertical(*series),
+        field = rrb.Spatial2DView(origin="/", contents="/field/**", name="field (O), y up")
+        return rrb.Blueprint(rrb.Horizontal(field, rrb.Vertical(*series),
                                             column_shares=[3, 1]), collapse_panels=True)
 
     def _static(self) -> None:
         rr, site = self.rr, self.model.site
+        rr.log("field", rr.Transform3D(mat3x3=Y_UP), static=True, recording=self.rec)
         if bool(np.asarray(site.has_bounds)):
             x0, y0, x1, y1 = (float(v) for v in np.asarray(site.bounds))
             rr.log("field/bounds", rr.LineStrips2D([[(x0, y0), (x1, y0), (x1, y1), (x0, y1), (x0, y0)]],
@@ -140,7 +149,7 @@ class View:
         rr.set_time("stamp", timestamp=float(stamp), recording=rec)
         sx, sy, sth = (float(v) for v in np.asarray(out.sensor_pose))
         rr.log("field/laser", rr.Arrows2D(origins=[(sx, sy)], vectors=[(0.3 * math.cos(sth), 0.3 * math.sin(sth))],
-                                          colors=[(230, 150, 0)], labels=["laser"]), recording=rec)
+                                          colors=[LASER_COLOUR], labels=["laser"]), recording=rec)
         r = np.asarray(ranges, np.float64)
         ok = np.isfinite(r) & (r > 0)
         a = angle_min + angle_increment * np.arange(r.size) + sth

@@ -533,13 +533,13 @@ EXIT_2 = {
         "log.npz",
         "is a file, not a folder",
     ),
-    "replay, a site of two sensors without --sensor": (
+    "replay, a site of two sensors without --laser": (
         ["replay", "{d}/log.npz", "--site", "{d}/two_sensors.json", "--model", str(DEMO_MODEL), "--out", "{o}/o.csv"],
         "two_sensors.json",
-        "has 2 sensors (north, south): name the one the scans are from with --sensor NAME",
+        "has 2 sensors (north, south): name the one the scans are from with --laser NAME",
     ),
     "run, a sensor the site does not have": (
-        ["run", "--port", "{d}/no-tty", "--site", "{d}/two_sensors.json", "--sensor", "east", "--model",
+        ["run", "--port", "{d}/no-tty", "--site", "{d}/two_sensors.json", "--laser", "east", "--model",
          str(DEMO_MODEL), "--out", "{o}/o.csv"],
         "two_sensors.json",
         "has no sensor named 'east'",
@@ -578,7 +578,7 @@ EXIT_2 = {
         "--scanner",
         "unknown sensor model",
     ),
-    "emulate, unknown scanner": (["emulate", "{d}/log.npz", "--model", "LMS-100"], "LMS-100", "unknown sensor model"),
+    "emulate, unknown scanner": (["emulate", "{d}/log.npz", "--scanner", "LMS-100"], "LMS-100", "unknown sensor model"),
     "emulate, bad log": (["emulate", "{d}/bad_model.npz"], "bad_model.npz", "not a NumPy .npz archive"),
 }
 
@@ -650,12 +650,12 @@ def test_gtd_writer_on_a_full_device_is_one_line():
 
 
 def test_replay_picks_the_named_sensor_of_a_site_with_two(inputs, tmp_path):
-    """``--sensor NAME`` on a site of several lasers: the scans are that laser's, so the replay with the
+    """``--laser NAME`` on a site of several lasers: the scans are that laser's, so the replay with the
     first sensor named writes what the one-sensor site writes."""
     one, two = tmp_path / "one.csv", tmp_path / "two.csv"
     common = ["replay", str(inputs / "log.npz"), "--model", str(DEMO_MODEL)]
     assert main([*common, "--site", str(inputs / "site.json"), "--out", str(one)]) == 0
-    assert main([*common, "--site", str(inputs / "two_sensors.json"), "--sensor", "north", "--out", str(two)]) == 0
+    assert main([*common, "--site", str(inputs / "two_sensors.json"), "--laser", "north", "--out", str(two)]) == 0
     assert one.read_text() == two.read_text()
 
 

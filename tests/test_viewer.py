@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from gtsjax.io.gtd import read_gtd
+from gtsjax.viewer import LASER_COLOUR, SEEN_COLOUR
 
 from .conftest import in_ci
 
@@ -61,8 +62,8 @@ def test_a_demo_runs_rrd_reopens_with_one_track_per_robot(tmp_path):
     assert tracks == [f"robot_{i}" for i in ids]
     for i in ids:
         assert per_entity[f"/field/tracks/robot_{i}/pose"] == sum(r.track_id == i for r in rows)
-    for e in ("/field/scan", "/field/laser", "/field/landmarks", "/stats/latency_ms", "/stats/tracks"):
-        assert per_entity.get(e, 0) > 0, e
+    for e in ("/field", "/field/scan", "/field/laser", "/field/landmarks", "/stats/latency_ms", "/stats/tracks"):
+        assert per_entity.get(e, 0) > 0, e  # "/field": the transform that draws the field y up
 
 
 def _free_port() -> int:
@@ -131,6 +132,10 @@ def test_replay_view_web_draws_in_headless_chromium(tmp_path):
                 drawn = _drew(shot)
             browser.close()
         assert drawn, f"no field drawn in 90 s (last screenshot {shot})"
+        # The field the right way up: the laser, on the side line at y = 4 m, is drawn above the posts
+        # (y = 1.3 and 2.7 m), as anyone standing behind the laser sees the field.
+        laser_row, posts_row = _rows(shot, LASER_COLOUR), _rows(shot, SEEN_COLOUR)
+        assert laser_row < posts_row, (laser_row, posts_row, shot)
         if os.environ.get("GTSJAX_VIEW_SHOT"):  # the README's screenshot: GTSJAX_VIEW_SHOT=docs/view.png
             shutil.copy(shot, os.environ["GTSJAX_VIEW_SHOT"])
     finally:
@@ -140,6 +145,16 @@ def test_replay_view_web_draws_in_headless_chromium(tmp_path):
         except subprocess.TimeoutExpired:
             proc.kill()
             raise
+
+
+def _rows(png: Path, colour) -> float:
+    """The mean row (0 at the top) of the screenshot's pixels near ``colour``."""
+    from PIL import Image
+
+    a = np.asarray(Image.open(png).convert("RGB")).astype(int)
+    rows, _ = np.nonzero(np.all(np.abs(a - np.asarray(colour)) < 40, axis=-1))
+    assert rows.size > 5, f"no pixels of {colour} in {png}"
+    return float(rows.mean())
 
 
 def _drew(png: Path) -> bool:

@@ -29,6 +29,43 @@ _MULTI = ("--background",)
 VIEW_MODES = ("native", "web")
 
 
+# One vocabulary: ``--scanner`` a scanner type, ``--model`` a model file, ``--laser`` a laser's name in a
+# site. The old spellings still work for a release, with a warning: (command, old) -> new.
+RENAMED = {("emulate", "--model"): "--scanner", ("simulate", "--sensor"): "--scanner",
+           **{(c, "--sensor"): "--laser" for c in ("replay", "run", "evaluate", "train")}}
+# The shipped model by name: ``--model demo``, ``gtsjax info demo`` (unless a file of that name is here).
+SHIPPED = "demo"
+
+
+def _vocabulary(argv: list[str]) -> list[str]:
+    """``argv`` with the old spellings of renamed options (:data:`RENAMED`) in their new ones, each
+    said once in a warning, and the shipped model's name (:data:`SHIPPED`) as its path."""
+    from pathlib import Path
+
+    from .demo import demo_model_path
+
+    cmd = next((a for a in argv if not a.startswith("-")), None)
+    out: list[str] = []
+    said: set[str] = set()
+    for i, a in enumerate(argv):
+        name, eq, value = a.partition("=")
+        new = RENAMED.get((cmd, name)) if name.startswith("--") else None
+        if new is not None:
+            if name not in said:
+                warnings.warn(InputWarning(name, f"is now {new} (the old name goes in a later release)"), stacklevel=2)
+                said.add(name)
+            a = new + eq + value
+        prev = out[-1] if out else None
+        model_arg = (prev == "--model" and a == SHIPPED) or (cmd == "info" and a == SHIPPED and i > 0
+                                                              and not (prev or "").startswith("-"))
+        if model_arg and not Path(SHIPPED).exists():
+            a = str(demo_model_path())
+        elif a == f"--model={SHIPPED}" and not Path(SHIPPED).exists():
+            a = f"--model={demo_model_path()}"
+        out.append(a)
+    return out
+
+
 def _spread(argv: list[str]) -> list[str]:
     out: list[str] = []
     i = 0
@@ -160,7 +197,7 @@ def main(argv: list[str] | None = None) -> int:
 
     warnings.showwarning = show
     try:
-        app(args=_spread(sys.argv[1:] if argv is None else list(argv)), prog_name="gtsjax")
+        app(args=_spread(_vocabulary(sys.argv[1:] if argv is None else list(argv))), prog_name="gtsjax")
     except InputError as err:
         print(f"gtsjax: {err}", file=sys.stderr)
         return 2

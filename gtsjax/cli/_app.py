@@ -16,6 +16,25 @@ app = typer.Typer(
 )
 
 
+def _version(value: bool) -> None:
+    if value:
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            print(f"gtsjax {version('gtsjax')}")
+        except PackageNotFoundError:  # run from a source tree that was never installed
+            print("gtsjax (not installed: version unknown)")
+        raise typer.Exit(0)
+
+
+@app.callback()
+def _root(version: bool = typer.Option(False, "--version", is_eager=True, callback=_version,
+                                       help="Print gtsjax's version and exit.")) -> None:
+    """Portable laser ground truth for mobile robots: simulate, train, replay, run live.
+
+    Example, a live ground truth of a simulated robot: gtsjax demo"""
+
+
 def fail(where: object, problem: str) -> "typer.Exit":
     """Print ``gtsjax: <where>: <problem>`` on stderr; return the exit (status 2) to raise."""
     print(f"gtsjax: {InputError(where, problem)}", file=sys.stderr)

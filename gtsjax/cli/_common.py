@@ -71,7 +71,7 @@ def print_warnings(console, tally: dict | None, model=None, prefix: str = "") ->
 
 
 def load_for_run(model_path: Path, site_path: Path, sensor: str | None = None):
-    """The model with the site attached, as one of its lasers sees it (``--sensor``; whether it fits
+    """The model with the site attached, as one of its lasers sees it (``--laser``; whether it fits
     the scans is ``fit_to_model``'s check)."""
     site = one_sensor(load_site(site_path), sensor, site_path)
     return load_model(model_path).with_site(site, where=str(site_path))
@@ -131,6 +131,40 @@ def load_for_lasers(model_paths: list[Path], site_path: Path, site, confirm_scan
     first = site.sensor_list[0].name
     return [load_model(p).with_site(one_sensor(site, first), where=str(site_path))
             .with_confirmation(confirm_scans).with_capacity(max_tracks) for p in model_paths]
+
+
+def _same_place(a: Path, b: Path) -> bool:
+    """Whether two paths name one file or folder: the same path once resolved, or (both existing) one
+    file under two names (a link)."""
+    try:
+        if a.resolve() == b.resolve():
+            return True
+        return a.exists() and b.exists() and os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def distinct_paths(inputs: dict[str, "Path | list[Path] | None"], outputs: dict[str, "Path | list[Path] | None"]) -> None:
+    """Before any work, for every command that writes: no output is one of the command's inputs (the
+    input would be replaced by what the command writes) and no two outputs are one file (the second
+    would replace the first). Keys are the options as the user wrote them (``--out``, ``LOG``); a
+    clash is one line naming both (:class:`InputError`)."""
+    def flat(d):
+        for option, v in d.items():
+            for p in ([] if v is None else v if isinstance(v, list | tuple) else [v]):
+                if p is not None:
+                    yield option, Path(p)
+
+    ins, outs = list(flat(inputs)), list(flat(outputs))
+    for i, (o_opt, o) in enumerate(outs):
+        for in_opt, src in ins:
+            if _same_place(o, src):
+                raise InputError(o, f"is both {o_opt} and the input {in_opt}: writing it would destroy the input; "
+                                    f"give {o_opt} another path")
+        for o2_opt, o2 in outs[:i]:
+            if _same_place(o, o2):
+                raise InputError(o, f"is given as both {o2_opt} and {o_opt}: one would overwrite the other; give "
+                                    "each its own path")
 
 
 def check_out_file(path: Path, option: str = "--out") -> None:

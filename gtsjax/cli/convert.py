@@ -10,7 +10,7 @@ from rich.console import Console
 from ..io.importers import format_name
 from ..io.logs import save_log
 from ._app import app
-from ._common import INPUT_HELP, TOPIC_HELP, describe, load_input, source_of
+from ._common import INPUT_HELP, TOPIC_HELP, check_out_file, describe, distinct_paths, load_input, source_of
 
 
 @app.command()
@@ -21,9 +21,9 @@ def convert(
 ):
     """Convert a ROS bag, CARMEN or BreezySLAM log to the .npz scan log every command reads."""
     console = Console(stderr=True, soft_wrap=True)
+    distinct_paths({"INPUT": input}, {"--out": out})
+    check_out_file(out)
     log = load_input(input, topic, console)
-    if out.parent and not out.parent.exists():
-        out.parent.mkdir(parents=True, exist_ok=True)
     save_log(log, out)
     console.print(f"{input} ({format_name(input)}): {describe(log)}")
     if (src := source_of(log)) is not None:

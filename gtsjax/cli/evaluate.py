@@ -56,7 +56,7 @@ def evaluate_cmd(
                                                            "model."),
     logs: list[Path] = typer.Argument(None, help="Labelled scan logs (.npz); with --site."),
     site: Path | None = typer.Option(None, "--site", help="Site file of the logs."),
-    sensor: str | None = typer.Option(None, "--sensor", help="With a site of several lasers: the one the scans are "
+    sensor: str | None = typer.Option(None, "--laser", help="With a site of several lasers: the one the scans are "
                                                           "from (its name in the site's sensors list)."),
     scenario: list[str] = typer.Option(None, "--scenario", help="Simulated scenario(s) instead of logs (NAME or NAME:SEED)."),
     out_dir: Path = typer.Option(Path("eval-out"), "--out-dir", help="Where to write results.md, results.json, PNGs."),

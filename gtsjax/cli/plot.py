@@ -15,7 +15,7 @@ from ..errors import InputError
 from ..io import load_log, load_site
 from ..io.gtd import TrackRow, read_gtd, tracks_of
 from ._app import app
-from ._common import check_out_file
+from ._common import check_out_file, distinct_paths
 
 
 def scan_index(row_stamps: np.ndarray, log_stamps: np.ndarray) -> np.ndarray:
@@ -89,6 +89,8 @@ def plot(
     from ..viz import trajectory_figure
 
     console = Console(stderr=True, soft_wrap=True)
+    distinct_paths({"GTD": gtd, "--site": site, "--coverage": coverage, "--truth": truth},
+                   {"--out": out if out is not None else gtd.with_suffix(".png") if gtd is not None else None})
     if coverage is not None:
         if gtd is not None or site is not None or truth is not None:
             raise InputError("plot", "--coverage SITE.json draws a site alone: give no CSV, --site or --truth")

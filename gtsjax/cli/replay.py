@@ -30,6 +30,7 @@ from ._common import (
     VIEW_SAVE_HELP,
     check_out_file,
     describe,
+    distinct_paths,
     load_for_lasers,
     load_for_run,
     load_input,
@@ -50,7 +51,7 @@ def replay_cmd(
                                          help="Several lasers of one field (the site's sensors list): each laser's "
                                               "log, merged by stamp into one track table and one --out CSV."),
     site: Path = typer.Option(..., "--site", help="Site file (.json)."),
-    sensor: str | None = typer.Option(None, "--sensor", help="With a site of several lasers: the one the scans are "
+    sensor: str | None = typer.Option(None, "--laser", help="With a site of several lasers: the one the scans are "
                                                           "from (its name in the site's sensors list)."),
     models: list[Path] = typer.Option(..., "--model", help="Model file from gtsjax train. With --log, one per scanner "
                                                            "model of the site's lasers (each laser gets the one "
@@ -80,9 +81,13 @@ def replay_cmd(
     """Process logged scan files into ground truth (GTD CSV); with --log NAME=LOG per laser, several
     lasers of one field into one."""
     console = Console(stderr=True)
+    distinct_paths({"LOG": logs, "--log": [s.partition("=")[2] for s in laser_logs or []], "--site": site,
+                    "--model": models},
+                   {"--out": out, "--sensor-out": sensor_out, "--out-bag": out_bag, "--view-save": view_save,
+                    "--summary": summary})
     if laser_logs:
         if logs or sensor is not None or step_by_step or out_bag is not None or view or view_save:
-            raise InputError("replay", "--log NAME=LOG (several lasers) takes no positional logs, --sensor, "
+            raise InputError("replay", "--log NAME=LOG (several lasers) takes no positional logs, --laser, "
                                        "--step-by-step, --out-bag or --view (not yet)")
         if summary is not None:
             check_out_file(summary, "--summary")

@@ -13,6 +13,7 @@ from ._common import (
     VIEW_HELP,
     VIEW_SAVE_HELP,
     check_out_file,
+    distinct_paths,
     one_model,
     print_warnings,
     track_summary,
@@ -26,7 +27,7 @@ def run_cmd(
                                                        "socket://host:port); with a site of several lasers, "
                                                        "NAME=PORT once per laser."),
     site: Path = typer.Option(..., "--site", help="Site file (.json)."),
-    sensor: str | None = typer.Option(None, "--sensor", help="With a site of several lasers: the one the scans are "
+    sensor: str | None = typer.Option(None, "--laser", help="With a site of several lasers: the one the scans are "
                                                           "from (its name in the site's sensors list)."),
     models: list[Path] = typer.Option(..., "--model", help="Model file from gtsjax train. With --port NAME=PORT, one "
                                                            "per scanner model of the site's lasers (each laser gets "
@@ -54,6 +55,9 @@ def run_cmd(
                                         "for one more step per frame)."),
 ):
     """Track robots live from a sensor: GTD CSV, optional JSON lines / UDP, optional raw recording."""
+    distinct_paths({"--site": site, "--model": models},
+                   {"--out": out, "--record": record, "--out-bag": out_bag, "--view-save": view_save,
+                    "--summary": summary})
     for path, option in ((out, "--out"), (record, "--record"), (summary, "--summary")):
         if path is not None:
             check_out_file(path, option)
@@ -97,7 +101,8 @@ def run_cmd(
 @app.command("emulate")
 def emulate_cmd(
     scenario: str = typer.Argument(..., help="Scenario name (gtsjax simulate --list) or a scan log (.npz)."),
-    sensor: str | None = typer.Option(None, "--model", help="Sensor model to emulate (default: the scenario's)."),
+    sensor: str | None = typer.Option(None, "--scanner", help="Scanner model to emulate: URG-04LX, UTM-30LX "
+                                                                "(default: the scenario's)."),
     seed: int = typer.Option(0, help="Scenario seed."),
     checksum_errors: float = typer.Option(0.0, help="Probability of a bad checksum per data block."),
     line_errors: float = typer.Option(0.0, help="Probability of a bad checksum per data line (several per block)."),
@@ -118,7 +123,7 @@ def emulate_cmd(
                     stall_s=stall_seconds, disconnect_p=disconnects, seed=seed)
     if is_match(scenario):
         if sensor is not None:
-            raise InputError("--model", "a match scenario names its scanner (spl-match-N: URG-04LX, "
+            raise InputError("--scanner", "a match scenario names its scanner (spl-match-N: URG-04LX, "
                                         "spl-match-N-utm: UTM-30LX, spl-match-N-mixed: both)")
         serve_match(scenario, faults, seed=seed, n_robots=robots, seconds=seconds, referee=referee,
                     print_fn=lambda s: print(s, flush=True))
@@ -133,6 +138,8 @@ def recover_cmd(
 ):
     """Turn the journal of an interrupted --record into a scan log."""
     from ..io.record import main as record_main
+
+    distinct_paths({"JOURNAL": journal}, {"OUT": out})
 
     code = record_main([str(journal)] + ([str(out)] if out else []))
     if code:
@@ -155,7 +162,7 @@ def _laser_ports(ports: list[str], site: Path, sensor: str | None) -> "dict[str,
         raise InputError("--port", f"{bad!r}: with several ports each is NAME=PORT, NAME one of the site's sensors "
                                    f"({', '.join(sorted(names)) or 'it has no sensors list'})")
     if sensor is not None:
-        raise InputError("--sensor", "picks one laser; with NAME=PORT per laser, leave it out")
+        raise InputError("--laser", "picks one laser; with NAME=PORT per laser, leave it out")
     lasers = dict(named)
     if len(lasers) != len(named):
         raise InputError("--port", "a laser named twice")

@@ -9,6 +9,7 @@ from rich.table import Table
 
 from ..io import save_log, save_site
 from ._app import app, fail
+from ._common import check_out_file, distinct_paths
 
 
 @app.command("simulate")
@@ -18,7 +19,7 @@ def simulate_cmd(
     site: Path | None = typer.Option(None, "--site", help="Site file (.json) to write."),
     seed: int = typer.Option(0, help="Seed: noise, paths and the rough sensor-pose guess."),
     scans: int | None = typer.Option(None, "--scans", min=1, help="Number of scans (default: the scenario's)."),
-    sensor: str | None = typer.Option(None, help="Sensor model (default: the scenario's)."),
+    sensor: str | None = typer.Option(None, "--scanner", help="Scanner model: URG-04LX, UTM-30LX (default: the scenario's)."),
     robots: int = typer.Option(10, "--robots", min=1, max=14, help="spl-match-*: robots on the field."),
     seconds: float = typer.Option(60.0, "--seconds", min=0.1, help="spl-match-*: how long."),
     referee: bool = typer.Option(True, "--referee/--no-referee", help="spl-match-*: a referee walking about."),
@@ -43,12 +44,16 @@ def simulate_cmd(
         return
     if scenario is None or out is None or site is None:
         raise fail("simulate", "needs SCENARIO, --out LOG.npz and --site SITE.json (or --list)")
+    distinct_paths({}, {"--out": out, "--site": site})
+    for path, option in ((out, "--out"), (site, "--site")):
+        check_out_file(path, option)
     t0 = time.perf_counter()
     if is_match(scenario):
         logs, site_obj = simulate_match(scenario, seed=seed, n_robots=robots, seconds=seconds, referee=referee)
         paths = [out.with_name(f"{out.stem}-{name}{out.suffix or '.npz'}") for name in logs]
-        for path in (*paths, site):
-            path.parent.mkdir(parents=True, exist_ok=True)
+        distinct_paths({}, {**{f"--out (laser {name})": p for name, p in zip(logs, paths, strict=True)}, "--site": site})
+        for path in paths:
+            check_out_file(path, "--out")
         for path, log in zip(paths, logs.values(), strict=True):
             save_log(log, path)
         save_site(site_obj, site)
@@ -61,8 +66,6 @@ def simulate_cmd(
             f"{seconds:g} s in {time.perf_counter() - t0:.1f} s -> {', '.join(map(str, paths))}, {site}")
         return
     log, site_obj = simulate(scenario, seed=seed, n_scans=scans, sensor=sensor)
-    for p in (out, site):
-        p.parent.mkdir(parents=True, exist_ok=True)
     save_log(log, out)
     save_site(site_obj, site)
     Console(stderr=True).print(

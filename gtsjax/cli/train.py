@@ -18,7 +18,7 @@ from ..io.site import one_sensor
 from ..model import MAX_TRACKS_LIMIT
 from ..train import TrainConfig, fit_background, train
 from ._app import app
-from ._common import check_out_file, load_input
+from ._common import check_out_file, distinct_paths, load_input
 
 
 @app.command("train")
@@ -28,7 +28,7 @@ def train_cmd(
                                          help="A labelled log of one laser of a site with several (its name in the "
                                               "site's sensors list); repeatable, with or without positional logs."),
     site: Path = typer.Option(..., "--site", help="Site file (.json) the logs were recorded on."),
-    sensor: str | None = typer.Option(None, "--sensor", help="With a site of several lasers: the one the scans are "
+    sensor: str | None = typer.Option(None, "--laser", help="With a site of several lasers: the one the scans are "
                                                           "from (its name in the site's sensors list)."),
     out: Path = typer.Option(..., "--out", help="Model file to write."),
     max_per_class: int = typer.Option(TrainConfig.max_per_class, help="Classifier examples per class (balanced)."),
@@ -96,6 +96,8 @@ def train_cmd(
             raise InputError(site, "has no sensors list; --log NAME=LOG is for a site with several lasers")
         sites.append(one_sensor(full, name, site))
         logs.append(Path(path))
+    distinct_paths({"LOG": logs, "--site": site, "--background": list(background or [])},
+                   {"--out": out, "--report": report})
     check_out_file(out)  # before the minutes of fitting
     if report is not None:
         check_out_file(report, "--report")

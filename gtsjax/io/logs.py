@@ -9,12 +9,14 @@ and written back on save, so other programs' additions survive a round trip.
 import dataclasses
 import math
 import os
+import warnings
 import zipfile
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, InputWarning
+from .npz import check_npz
 
 REQUIRED = ("ranges", "stamps", "angle_min", "angle_increment")
 OPTIONAL = ("intensities", "range_min", "range_max", "sensor_model", "truth_classes", "truth_poses")
@@ -124,6 +126,7 @@ def load_log(path: str | os.PathLike) -> ScanLog:
         raise InputError(path, "no such file")
     if path.is_dir():
         raise InputError(path, "is a directory, not a .npz scan log")
+    check_npz(path)
     try:
         with np.load(path, allow_pickle=False) as npz:
             data = {}
@@ -141,6 +144,9 @@ def load_log(path: str | os.PathLike) -> ScanLog:
     if not isinstance(data, dict) or not data:
         raise InputError(path, "empty archive, not a scan log")
     _validate(data, path)
+    if data["stamps"].dtype != np.float64:
+        warnings.warn(InputWarning(path, f"'stamps' are {data['stamps'].dtype}, not float64 as the format says; read "
+                                         "as float64 (each stamp is still later than the one before)"), stacklevel=2)
     extra = {k: v for k, v in data.items() if k not in REQUIRED + OPTIONAL}
     has_truth = "truth_poses" in data
     return ScanLog(
@@ -180,6 +186,11 @@ def _validate(d: dict[str, np.ndarray], where: object) -> None:
     stamps = np.asarray(d["stamps"])
     if stamps.dtype.kind != "f":
         bad(f"'stamps' must be float64, got {stamps.dtype}")
+    if stamps.dtype != np.float64 and t > 1 and stamps.shape == (t,) and np.any(np.diff(stamps) <= 0):
+        # Seconds since 1970 in float32 step by 128 s: every scan of a minute gets one stamp.
+        i = int(np.flatnonzero(np.diff(stamps) <= 0)[0]) + 1
+        bad(f"'stamps' are {stamps.dtype} (the format says float64) and scan {i} has no later stamp than the one "
+            f"before ({float(stamps[i - 1])!r}): the rounding lost the time; write the stamps as float64")
     if stamps.shape != (t,):
         bad(f"'stamps' must have shape [{t}] to match 'ranges', got {list(stamps.shape)}")
     if not np.all(np.isfinite(stamps)):

@@ -20,6 +20,7 @@ file without them loads.
 
 import dataclasses
 import json
+import math
 import os
 import types
 import typing
@@ -42,6 +43,7 @@ from ..core.g_track import TrackerParams
 from ..errors import InputError
 from ..gp import GP, Hyperparameters, SharedSparseGP, SparseGP
 from ..model import Model, SiteArrays
+from .npz import check_npz
 
 FORMAT = "gtsjax-model"
 VERSION = 3  # 3: scanner geometry, open-set supports, shape envelopes, per-class motion limits (and, optional, the pose regressors' heading_var_max)
@@ -70,6 +72,13 @@ _HEADER = {"format": str, "version": int, "sensor_model": str, "n_beams": int, "
 _DERIVED = {(PoseRegressor, "common")}
 # Tuples with one entry per class.
 _PER_CLASS = {(Classifier, "gps"), (Model, "pose")}
+# The shape-fixing settings a model file carries, and the ranges within which the step can run on
+# them: outside, a file is damaged or edited by hand, and is refused before anything runs.
+_RANGES = {
+    (Model, "max_tracks"): (1, 1024), (Model, "max_objects"): (1, 1024), (Model, "n_beams"): (1, 1_000_000),
+    (FrontEndConfig, "max_candidates"): (1, 4096), (FrontEndConfig, "window"): (2, 65536),
+    (FrontEndConfig, "n_dist"): (1, 1024), (FrontEndConfig, "n_intensity"): (0, 1024),
+}
 # The dtype the float32 step expects of each jaxtyping kind.
 _DTYPES = ("float32", "int32", "bool")
 
@@ -157,7 +166,10 @@ class _Reader:
             key = spec["array"]
             if not isinstance(key, str) or key not in self.npz.files:
                 raise self.fail(f"truncated or damaged model file (array {key} of {where} missing)")
-            return self.npz[key]
+            arr = self.npz[key]
+            if arr.dtype.kind == "f" and np.isnan(arr).any():  # training writes none; a NaN tracks nothing
+                raise self.fail(f"field {where} holds NaN: a damaged model file (retrain it)")
+            return arr
         if "value" in spec:
             return self.value(spec["value"], alts, where)
         if "tuple" in spec:
@@ -231,6 +243,13 @@ def _check(node: _Node, sizes: dict[str, int], path: Path) -> None:
     local = {**{n: c.most_common(1)[0][0] for n, c in votes.items()}, **sizes}
     for name, v in node.fields.items():
         where = _join(node.where, name)
+        if (node.cls, name) in _RANGES:
+            lo, hi = _RANGES[node.cls, name]
+            if not lo <= v <= hi:
+                raise InputError(path, f"field {where} is {v}, outside the {lo}–{hi} a model can run with (a damaged "
+                                       "or edited model file)")
+        if (node.cls, name) == (Model, "angle_increment") and not math.isnan(v) and not (math.isfinite(v) and v > 0):
+            raise InputError(path, f"field {where} is {v}, expected a positive angle (rad)")
         if (node.cls, name) in _PER_CLASS and len(v) != sizes["classes"]:
             raise InputError(path, f"{where} has {len(v)} entries, expected {sizes['classes']} (one per class)")
         if name in leaves:
@@ -311,6 +330,9 @@ def read_header(path: str | os.PathLike) -> dict:
 def _open(path: Path):
     if not path.exists():
         raise InputError(path, "no such file")
+    if path.is_dir():
+        raise InputError(path, "is a directory, not a gtsjax model file")
+    check_npz(path)
     try:
         npz = np.load(path, allow_pickle=False)
         files = npz.files

@@ -95,7 +95,7 @@ class Site:
 
 def one_sensor(site: Site, name: str | None, where: object = "site") -> Site:
     """``site`` for the scans of one of its lasers (:meth:`Site.for_sensor`): the one named, or the
-    only one; a site with several and no name is one line asking for ``--sensor NAME``."""
+    only one; a site with several and no name is one line asking for ``--laser NAME``."""
     if name is not None:
         try:
             return site.for_sensor(name)
@@ -104,7 +104,7 @@ def one_sensor(site: Site, name: str | None, where: object = "site") -> Site:
     if len(site.sensor_list) > 1:
         names = ", ".join(sen.name for sen in site.sensor_list)
         raise InputError(where, f"has {len(site.sensor_list)} sensors ({names}): name the one the scans are from "
-                                "with --sensor NAME")
+                                "with --laser NAME")
     return site.for_sensor(site.sensor_list[0].name)
 
 
