@@ -191,3 +191,81 @@ def test_the_shipped_model_by_name_and_the_version(capsys):
     assert out.startswith(str(DEMO_MODEL)) and "gtsjax model" in out, out
     assert main(["--version"]) == 0
     assert capsys.readouterr().out.startswith("gtsjax ")
+
+
+def _site_text(inputs):
+    return (inputs / "site.json").read_text()
+
+
+MORE_BAD = {
+    "a site coordinate of 400 digits": (
+        lambda d, f: f.write_text(_site_text(d).replace('"sensor_pose": [', '"sensor_pose": [' + "1" * 400 + ", ", 1)),
+        ["info", "{f}"], "three finite numbers"),
+    "a site of 5000 digits": (
+        lambda d, f: f.write_text(_site_text(d).replace('"sensor_pose": [', '"sensor_pose": [' + "9" * 5000 + ", ", 1)),
+        ["info", "{f}"], "a number too long to read"),
+    "a site nested 200 000 deep": (lambda d, f: f.write_text("[" * 200_000 + "]" * 200_000), ["info", "{f}"],
+                                   "nested deeper"),
+    "run --udp to port 99999": (None, ["run", "--port", "/dev/null", "--site", "{d}/site.json", "--model", "demo",
+                                       "--out", "{o}/o.csv", "--udp", "127.0.0.1:99999"], "PORT in 1–65535"),
+    "plot --out a text file": (None, ["plot", "{d}/gtd.csv", "--site", "{d}/site.json", "--out", "{o}/p.txt"],
+                               "must name a figure file"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(MORE_BAD))
+def test_more_bad_inputs_are_one_line(inputs, tmp_path_factory, tmp_path, capsys, case):
+    make, args, fragment = MORE_BAD[case]
+    f = tmp_path_factory.mktemp("bad") / "bad.json"
+    if make is not None:
+        make(inputs, f)
+    capsys.readouterr()
+    code = main([a.format(d=inputs, f=f, o=tmp_path) for a in args])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2, err
+    assert len(err) == 1 and err[0].startswith("gtsjax: ") and fragment in err[0], err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_journal_header_without_its_angles_is_one_line(tmp_path, capsys):
+    import struct
+
+    from gtsjax.io.record import MAGIC
+
+    head = json.dumps({"n_beams": 10, "angle_increment": 0.01, "intensities": False}).encode()
+    j = tmp_path / "raw.npz.journal"
+    j.write_bytes(MAGIC + struct.pack("<I", len(head)) + head + b"\0" * 100)
+    capsys.readouterr()
+    assert main(["recover", str(j)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "missing 'angle_min'" in err[0], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["raw.npz.journal"]
+
+
+def test_an_empty_journal_does_not_block_the_next_recording(tmp_path):
+    """A recording killed before its first scan reached the disk leaves a 0-byte journal: the next
+    recording to that file removes it (nothing to recover) with a warning, and records."""
+    from gtsjax.errors import InputWarning
+    from gtsjax.io.record import Recorder, journal_path
+    from gtsjax.sensors import URG_04LX
+
+    raw = tmp_path / "raw.npz"
+    journal_path(raw).write_bytes(b"")
+    with pytest.warns(InputWarning, match="held no scan"):
+        rec = Recorder(raw, URG_04LX)
+    rec.append(np.full(URG_04LX.n_beams, 1.5, np.float32), 10.0)
+    rec.close()
+    assert np.load(raw)["ranges"].shape == (1, URG_04LX.n_beams)
+
+
+@pytest.mark.parametrize("args", [["emulate", "spl-eval", "--checksum-errors", "2.5"],
+                                  ["emulate", "spl-eval", "--stalls", "-1"],
+                                  ["emulate", "spl-eval", "--disconnects", "nan"],
+                                  ["train", "{d}/log.npz", "--site", "{d}/site.json", "--out", "{o}/m.npz",
+                                   "--max-pose", "-5"]])
+def test_settings_out_of_range_are_refused_before_any_work(inputs, tmp_path, capsys, args):
+    """Click's usage error (exit 2, the option named) before a scene is served or a log read."""
+    capsys.readouterr()
+    assert main([a.format(d=inputs, o=tmp_path) for a in args]) == 2
+    assert args[-2] in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []

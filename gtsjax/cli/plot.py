@@ -69,6 +69,16 @@ def truth_errors(rows: list[TrackRow], log, radius: float, where: object):
     return out
 
 
+def check_figure(out: Path) -> None:
+    """``--out`` of ``plot``: a file matplotlib can write, by its suffix, in a folder that can be written."""
+    from matplotlib.figure import Figure
+
+    formats = Figure().canvas.get_supported_filetypes()
+    if out.suffix.lower().lstrip(".") not in formats:
+        raise InputError(out, f"--out must name a figure file: {', '.join('.' + f for f in sorted(formats))}")
+    check_out_file(out)
+
+
 @app.command()
 def plot(
     gtd: Path | None = typer.Argument(None, help="Ground-truth CSV (from replay or run)."),
@@ -99,7 +109,7 @@ def plot(
     if gtd is None or site is None:
         raise InputError("plot", "needs GTD.csv and --site SITE.json (or --coverage SITE.json)")
     out = gtd.with_suffix(".png") if out is None else out
-    check_out_file(out)
+    check_figure(out)
     site_obj = load_site(site)
     rows = read_gtd(gtd)
     tracks, labels = {}, {}
@@ -149,7 +159,7 @@ def plot_coverage(path: Path, scanner: str, out: Path | None, console: Console) 
     from ..viz import coverage_figure, coverage_grid
 
     out = path.with_name(path.stem + "-coverage.png") if out is None else out
-    check_out_file(out)
+    check_figure(out)
     site_obj = load_site(path)
     try:
         models = [get_model(sen.model or scanner) for sen in site_obj.sensor_list]

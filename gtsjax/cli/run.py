@@ -55,6 +55,10 @@ def run_cmd(
                                         "for one more step per frame)."),
 ):
     """Track robots live from a sensor: GTD CSV, optional JSON lines / UDP, optional raw recording."""
+    if udp is not None:
+        from ..drivers.live import udp_address
+
+        udp_address(udp)
     distinct_paths({"--site": site, "--model": models},
                    {"--out": out, "--record": record, "--out-bag": out_bag, "--view-save": view_save,
                     "--summary": summary})
@@ -104,12 +108,12 @@ def emulate_cmd(
     sensor: str | None = typer.Option(None, "--scanner", help="Scanner model to emulate: URG-04LX, UTM-30LX "
                                                                 "(default: the scenario's)."),
     seed: int = typer.Option(0, help="Scenario seed."),
-    checksum_errors: float = typer.Option(0.0, help="Probability of a bad checksum per data block."),
-    line_errors: float = typer.Option(0.0, help="Probability of a bad checksum per data line (several per block)."),
-    drop_bytes: float = typer.Option(0.0, help="Probability of dropped bytes per data block."),
-    stalls: float = typer.Option(0.0, help="Probability of a stall per data block."),
+    checksum_errors: float = typer.Option(0.0, min=0.0, max=1.0, help="Probability of a bad checksum per data block."),
+    line_errors: float = typer.Option(0.0, min=0.0, max=1.0, help="Probability of a bad checksum per data line (several per block)."),
+    drop_bytes: float = typer.Option(0.0, min=0.0, max=1.0, help="Probability of dropped bytes per data block."),
+    stalls: float = typer.Option(0.0, min=0.0, max=1.0, help="Probability of a stall per data block."),
     stall_seconds: float = typer.Option(0.5, min=0.0, help="How long a stall lasts."),
-    disconnects: float = typer.Option(0.0, help="Probability of an unplug (and re-plug) per data block."),
+    disconnects: float = typer.Option(0.0, min=0.0, max=1.0, help="Probability of an unplug (and re-plug) per data block."),
     robots: int = typer.Option(10, "--robots", min=1, max=14, help="spl-match-*: robots on the field."),
     seconds: float = typer.Option(60.0, "--seconds", min=0.1, help="spl-match-*: length of the looped scene."),
     referee: bool = typer.Option(True, "--referee/--no-referee", help="spl-match-*: a referee walking about."),

@@ -31,23 +31,23 @@ def train_cmd(
     sensor: str | None = typer.Option(None, "--laser", help="With a site of several lasers: the one the scans are "
                                                           "from (its name in the site's sensors list)."),
     out: Path = typer.Option(..., "--out", help="Model file to write."),
-    max_per_class: int = typer.Option(TrainConfig.max_per_class, help="Classifier examples per class (balanced)."),
-    max_pose: int = typer.Option(TrainConfig.max_pose_examples,
+    max_per_class: int = typer.Option(TrainConfig.max_per_class, min=2, help="Classifier examples per class (balanced)."),
+    max_pose: int = typer.Option(TrainConfig.max_pose_examples, min=2,
                                  help="Pose-GP examples per mobile class (the GPs' posterior; the step's cost grows "
                                       "with it)."),
-    max_pose_fit: int = typer.Option(TrainConfig.max_pose_fit,
+    max_pose_fit: int = typer.Option(TrainConfig.max_pose_fit, min=2,
                                      help="Of those, how many the pose GPs' hyperparameters are fitted on (the "
                                           "fit's cost grows with its cube)."),
-    max_landmark: int = typer.Option(TrainConfig.max_landmark_examples, help="Position-GP examples per landmark class."),
-    inducing: int = typer.Option(TrainConfig.n_inducing,
+    max_landmark: int = typer.Option(TrainConfig.max_landmark_examples, min=2, help="Position-GP examples per landmark class."),
+    inducing: int = typer.Option(TrainConfig.n_inducing, min=1,
                                  help="Inducing points of the mobile classes' pose GPs (exact mean up to this size)."),
-    inducing_class: int = typer.Option(TrainConfig.n_inducing_class,
+    inducing_class: int = typer.Option(TrainConfig.n_inducing_class, min=1,
                                        help="Inducing points of the classifier's and landmark GPs."),
     pose_kernels: int = typer.Option(TrainConfig.pose_kernels, "--pose-kernels", min=1, max=4,
                                      help="Kernels of a tracked class's four pose GPs (x, y, sin θ, cos θ): 2 = one for "
                                           "the position, one for the heading (two kernel rows per candidate in the "
                                           "step), 1 = one for all, 4 = each its own. 3 is not a layout."),
-    restarts: int = typer.Option(TrainConfig.restarts, help="Optimiser starts per GP fit."),
+    restarts: int = typer.Option(TrainConfig.restarts, min=1, help="Optimiser starts per GP fit."),
     max_tracks: int = typer.Option(TrainConfig.max_tracks, "--max-tracks", min=1, max=MAX_TRACKS_LIMIT,
                                    help="Track slots of the model (and robots given a pose per scan): at least as many "
                                         "as robots on the field, a few more for look-alikes; run, replay and evaluate "
@@ -61,9 +61,9 @@ def train_cmd(
              "logs; a wider field of view is cropped. Several may follow one --background."),
     background_topic: str | None = typer.Option(None, "--background-topic",
                                                 help="LaserScan topic of background ROS bags with several."),
-    max_background: int | None = typer.Option(None, help="Classifier examples of the background class (default: "
+    max_background: int | None = typer.Option(None, min=1, help="Classifier examples of the background class (default: "
                                                          "--max-per-class, or twelve times it with --background)."),
-    max_mobile: int | None = typer.Option(None, help="Classifier examples of each tracked class (default: "
+    max_mobile: int | None = typer.Option(None, min=1, help="Classifier examples of each tracked class (default: "
                                                      "--max-per-class, or four times it with --background)."),
     max_speed: list[str] = typer.Option([], "--max-speed", metavar="CLASS=M_PER_S",
                                         help="A class's maximum speed (default: from its labelled motion, else "

@@ -288,6 +288,19 @@ def check_sensor(model: Model, sensor: SensorModel, where: str, *, intensity: bo
     fit_to_model(probe, model, f"{where} ({sensor.name})", crop=False)
 
 
+def udp_address(udp: str) -> tuple[str, int]:
+    """``HOST:PORT`` of ``--udp`` as a socket address, checked: a port in 1–65535 and a host that
+    resolves (a mistake is one line, before the sensor is opened)."""
+    host, _, port = udp.rpartition(":")
+    if not host or not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise InputError(udp, "UDP address must be HOST:PORT, PORT in 1–65535")
+    try:
+        socket.getaddrinfo(host, int(port), socket.AF_INET, socket.SOCK_DGRAM)
+    except OSError as err:
+        raise InputError(udp, f"cannot resolve the host {host!r} ({err.strerror or err})") from None
+    return host, int(port)
+
+
 class Outputs:
     """Where each scan's rows go besides the CSV: JSON lines on stdout and/or a UDP address."""
 
@@ -296,10 +309,7 @@ class Outputs:
         self.sock = None
         self.addr = None
         if udp:
-            host, _, port = udp.rpartition(":")
-            if not host or not port.isdigit():
-                raise InputError(udp, "UDP address must be HOST:PORT")
-            self.addr = (host, int(port))
+            self.addr = udp_address(udp)
             self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
 
     def send(self, rows, stamp, **extra) -> None:

@@ -23,17 +23,19 @@ intensities[n_beams]], uint32 crc32`` (the CRC covers the bytes of the record be
 """
 
 import json
+import math
 import os
 import struct
 import sys
 import threading
 import time
+import warnings
 import zlib
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, InputWarning
 from ..sensors import SensorModel
 from .logs import DEFAULT_RANGE_MAX, DEFAULT_RANGE_MIN, ScanLog, _validate, load_log
 
@@ -89,11 +91,17 @@ class Recorder:
             sensor_model = model.name if sensor_model is None else sensor_model
         if n_beams is None or angle_min is None or angle_increment is None:
             raise InputError(self.path, "a recorder needs a sensor model or n_beams, angle_min and angle_increment")
+        if self.journal.exists() and _holds_no_scan(self.journal):
+            # An earlier recording stopped before its first scan (or its header) reached the disk:
+            # nothing to recover, and it must not block this one.
+            warnings.warn(InputWarning(self.journal, "an earlier recording's journal held no scan: removed"),
+                          stacklevel=2)
+            self.journal.unlink()
         if self.journal.exists():
             raise InputError(
                 self.journal,
                 "a journal from an earlier recording is here; recover it first "
-                f"(python -m gtsjax.io.record {self.journal} OUT.npz) or remove it",
+                f"(gtsjax recover {self.journal} OUT.npz) or remove it",
             )
         self.header = {
             "n_beams": int(n_beams),
@@ -234,6 +242,38 @@ class Recorder:
         self.close()
 
 
+def _holds_no_scan(path: Path) -> bool:
+    """Whether a journal holds not one whole scan record: empty, a torn header, or a header alone."""
+    try:
+        size = path.stat().st_size
+        if size < len(MAGIC) + 4:
+            return True
+        n = _open_journal(path)[3]
+    except InputError:
+        return False  # damaged: the user decides
+    return n == 0
+
+
+def _check_header(header, path: Path) -> None:
+    """A journal header holds what a log needs: the beam count, the angles, whether there are
+    intensities; anything else (a header edited, or written by something else) is one line."""
+    def finite(v) -> bool:
+        return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+    if not isinstance(header, dict):
+        raise InputError(path, "journal header is damaged (not a JSON object)")
+    missing = [k for k in ("n_beams", "angle_min", "angle_increment", "intensities") if k not in header]
+    if missing:
+        raise InputError(path, f"journal header is missing {', '.join(map(repr, missing))}")
+    n = header["n_beams"]
+    if not (isinstance(n, int) and not isinstance(n, bool) and 1 <= n <= 1_000_000):
+        raise InputError(path, f"journal header's n_beams is {n!r}, expected 1–1000000")
+    if not (finite(header["angle_min"]) and finite(header["angle_increment"]) and header["angle_increment"] > 0):
+        raise InputError(path, "journal header's angle_min and angle_increment must be finite, the increment positive")
+    if not isinstance(header["intensities"], bool):
+        raise InputError(path, "journal header's intensities must be true or false")
+
+
 def read_journal(path: "str | os.PathLike") -> tuple[ScanLog, dict]:
     """The scan log held by a journal, and a report: ``records``, ``torn_bytes``, ``bad_crc``."""
     path = Path(path)
@@ -247,8 +287,11 @@ def read_journal(path: "str | os.PathLike") -> tuple[ScanLog, dict]:
     start = len(MAGIC) + 4 + hlen
     try:
         header = json.loads(raw[len(MAGIC) + 4 : start].decode())
+        _check_header(header, path)
         n_beams = int(header["n_beams"])
         has_inten = bool(header["intensities"])
+    except InputError:
+        raise
     except (ValueError, KeyError, TypeError, UnicodeDecodeError):
         raise InputError(path, "journal header is damaged") from None
     dtype = _record_dtype(n_beams, has_inten)
@@ -295,7 +338,10 @@ def _open_journal(path: Path):
         raise InputError(path, f"cannot read the journal ({err.strerror or err})") from None
     try:
         header = json.loads(header_bytes.decode())
+        _check_header(header, path)
         dtype = _record_dtype(int(header["n_beams"]), bool(header["intensities"]))
+    except InputError:
+        raise
     except (ValueError, KeyError, TypeError, UnicodeDecodeError):
         raise InputError(path, "journal header is damaged") from None
     start = len(MAGIC) + 4 + hlen

@@ -123,6 +123,10 @@ def load_site(path: str | os.PathLike) -> Site:
         doc = json.loads(path.read_bytes().decode("utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as err:
         raise InputError(path, f"not a JSON site file ({type(err).__name__}: {err})") from None
+    except RecursionError:
+        raise InputError(path, "not a site file: JSON nested deeper than Python reads") from None
+    except ValueError as err:  # an integer of thousands of digits
+        raise InputError(path, f"not a site file: a number too long to read ({str(err).split(':')[0]})") from None
     except IsADirectoryError:
         raise InputError(path, "is a directory, not a JSON site file") from None
     return parse_site(doc, path)
@@ -149,7 +153,12 @@ MAX_COORD = 1e4
 
 
 def _is_num(v: object) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+    if not isinstance(v, (int, float)) or isinstance(v, bool):
+        return False
+    try:
+        return math.isfinite(v)
+    except OverflowError:  # an integer beyond any float
+        return False
 
 
 def _check_size(bad, values, names, where: str) -> None:
