@@ -263,6 +263,33 @@ def test_run_record_killed_with_sigkill_then_recovered(field, tmp_path):
     assert rec.sensor_model == "URG-04LX" and rec.n_beams == URG_04LX.n_beams
 
 
+def test_run_ends_in_one_line_when_the_sensor_is_gone(field, tmp_path):
+    """The sensor's pty vanishes mid-stream (the emulator closed: a scanner unplugged for good): ``run``
+    retries for ``--reconnect-timeout`` seconds, then ends with one line naming the port, exit 2, its
+    CSV holding the rows it reported and its recording a log of the frames it took."""
+    log, site = field
+    raw = tmp_path / "raw.npz"
+    with open(tmp_path / "stderr.txt", "w") as err:
+        with SensorEmulator(URG_04LX, log) as emu:
+            port = emu.path
+            proc = popen_cli("run", "--port", port, "--site", site, "--model", DEMO_MODEL, "--out",
+                             tmp_path / "gtd.csv", "--record", raw, "--json", "--quiet", "--reconnect-timeout", "2",
+                             stderr=err)
+            lines = read_lines(proc, 10, PATIENCE_S)
+        try:  # the emulator is gone, and its pty with it
+            proc.wait(timeout=60)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+            proc.stdout.close()
+    errs = (tmp_path / "stderr.txt").read_text().strip().splitlines()
+    assert len(lines) == 10, errs
+    assert proc.returncode == 2, errs
+    assert errs[-1].startswith(f"gtsjax: {port}: the sensor has been gone for") and "stopped after" in errs[-1], errs
+    assert [e for e in errs if e.startswith("Traceback")] == []
+    assert len(read_gtd(tmp_path / "gtd.csv")) > 0 and load_log(raw).n_scans >= 10
+
+
 # ------------------------------------------------------------------------------------------ emulate
 
 

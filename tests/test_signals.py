@@ -64,13 +64,15 @@ def test_emulate_removes_its_link(tmp_path, sig):
     path = re.search(r" on (\S+) \(pty", first[-1])[1]
     assert os.path.lexists(path)
     out, err = _stopped(proc, sig)
-    assert proc.returncode == 0, (out, err)  # as after Ctrl-C: the emulator's normal end
+    # Its normal end, but stopped by a signal all the same: the status and line of a stopped command.
+    assert proc.returncode == 128 + sig and err.strip().splitlines()[-1].startswith("gtsjax: stopped by"), (out, err)
     assert not os.path.lexists(path) and not os.path.exists(os.path.dirname(path))
 
 
 def test_run_stops_cleanly_on_sigterm(tmp_path):
     """``run --record`` stopped by SIGTERM: QT reaches the sensor (its laser is off), the summary is
-    printed, the CSV holds every row the JSON lines reported, the recording is finalised (no journal)."""
+    printed, the CSV holds every row the JSON lines reported, the recording is finalised (no journal);
+    it ends with the line and status of a stopped command (128 + 15), as it does while compiling."""
     log, site = simulate("spl-trajectory", seed=41, n_scans=150)
     save_site(site, tmp_path / "site.json")
     raw, out = tmp_path / "raw.npz", tmp_path / "gtd.csv"
@@ -84,7 +86,8 @@ def test_run_stops_cleanly_on_sigterm(tmp_path):
         assert len(lines) >= 15, proc.stderr.read() if proc.poll() is not None else "no JSON lines"
         rest, err = _stopped(proc, signal.SIGTERM)
         laser_on = emu._laser  # the emulator's own state: BM turns it on, QT off
-    assert proc.returncode == 0, err
+    assert proc.returncode == 128 + signal.SIGTERM, err
+    assert err.strip().splitlines()[-1] == "gtsjax: stopped by SIGTERM", err
     assert not laser_on
     assert re.search(r"\d+ frames, \d+ rows -> ", err), err
     reported = [json.loads(ln) for ln in lines + rest.splitlines() if ln.strip()]

@@ -205,11 +205,14 @@ def main(argv: list[str] | None = None) -> int:
         return _interrupted(stopped)
     except SystemExit as exc:
         code = exc.code
-        if code == _TYPER_INTERRUPTED:
+        if code == _TYPER_INTERRUPTED or (stopped and code in (0, None)):
             return _interrupted(stopped)
         return code if isinstance(code, int) else (0 if code is None else 2)
     finally:
         while _restore:
             signal.signal(*_restore.pop())
         warnings.showwarning = shown
-    return 0
+    # A command that stops itself cleanly on SIGTERM or SIGHUP (``run`` closes its files and returns)
+    # still says so, with the status a stopped command has (128 + the signal), as it would have had the
+    # signal come a moment earlier, while it compiled.
+    return _interrupted(stopped) if stopped else 0

@@ -61,7 +61,7 @@ def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Pa
                frames: int | None = None, intensity: bool = True, view: bool = True, console: Console | None = None,
                confirm_scans: int | None = None, sensor: str | None = None, max_tracks: int | None = None,
                out_bag: Path | None = None, rerun_view: str | None = None, view_save: Path | None = None,
-               keep_warm: bool = True):
+               keep_warm: bool = True, reconnect_timeout: float | None = None):
     """Open the sensor, run the live loop, show the view (the terminal's table; with ``rerun_view`` or
     ``view_save``, Rerun's: :mod:`gtsjax.viewer`); returns (live stats, link stats)."""
     from ..drivers.live import Outputs, check_sensor, run_live, warm_up
@@ -97,13 +97,13 @@ def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Pa
                 stats = run_live(link, model, out, record=record, outputs=Outputs(json_lines, udp),
                                  duration=duration, on_scan=on_scan, with_intensity=intensity,
                                  compiled=compiled, max_frames=frames, out_bag=out_bag, view=shown,
-                                 keep_warm=keep_warm)
+                                 keep_warm=keep_warm, reconnect_timeout=reconnect_timeout)
             if not console.is_terminal:  # rich ends the last view with a newline only on a terminal
                 console.line()
         else:
             stats = run_live(link, model, out, record=record, outputs=Outputs(json_lines, udp), duration=duration,
                              with_intensity=intensity, compiled=compiled, max_frames=frames, out_bag=out_bag,
-                             view=shown, keep_warm=keep_warm)
+                             view=shown, keep_warm=keep_warm, reconnect_timeout=reconnect_timeout)
     finally:
         link.stop()
     return stats, link.stats

@@ -49,6 +49,9 @@ def run_cmd(
     summary: Path | None = typer.Option(None, "--summary", help="Write the run's counters (frames, rows, latency, "
                                         "link faults by cause, the diagnosis of what it reported) as JSON here when "
                                         "it stops."),
+    reconnect_timeout: float = typer.Option(10.0, "--reconnect-timeout", min=0.5, metavar="SECONDS",
+                                            help="A sensor gone this long (unplugged, its port vanished) ends the "
+                                                 "run with one line; what was written is kept (default 10 s)."),
     keep_warm: bool = typer.Option(True, "--keep-warm/--no-keep-warm",
                                    help="Shortly before each frame is due, run the step once on the last frame and "
                                         "throw the result away, so the frame finds it in the caches (lower latency "
@@ -84,7 +87,8 @@ def run_cmd(
     stats, link_stats = track_live(port, model, site, out, record=record, json_lines=json_lines, udp=udp,
                                    duration=duration, frames=frames, intensity=intensity, view=not quiet,
                                    confirm_scans=confirm_scans, sensor=sensor, max_tracks=max_tracks,
-                                   out_bag=out_bag, rerun_view=view, view_save=view_save, keep_warm=keep_warm)
+                                   out_bag=out_bag, rerun_view=view, view_save=view_save, keep_warm=keep_warm,
+                                   reconnect_timeout=reconnect_timeout)
     med, p99 = stats.latency()
     Console(stderr=True).print(
         f"{stats.frames} frames, {stats.rows} rows -> {out}; latency median {med:.2f} ms, p99 {p99:.2f} ms; "

@@ -342,7 +342,8 @@ def warm_up(model: Model, sensor: SensorModel):
 def run_live(link, model: Model, out: Path, *, record: Path | None = None, outputs: Outputs | None = None,
              duration: float | None = None, stop: threading.Event | None = None, on_scan=None,
              with_intensity: bool = False, compiled=None, max_frames: int | None = None,
-             out_bag: Path | None = None, view=None, keep_warm: bool = True) -> LiveStats:
+             out_bag: Path | None = None, view=None, keep_warm: bool = True,
+             reconnect_timeout: float | None = None) -> LiveStats:
     """Track from a started :class:`~gtsjax.io.serial.Link` until ``duration`` seconds, ``max_frames``
     frames processed, ``stop`` set, or Ctrl-C; then stop the link (QT) and finalise the recording.
     ``on_scan(stats, output, stamp)`` is called after each scan (the live view; ``output`` is the
@@ -350,7 +351,9 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
     ``compiled``: ``(step, state)`` from :func:`warm_up`, done before the link started streaming.
     ``out_bag``: also a ROS 2 bag of the frames, laser poses and tracks (:mod:`gtsjax.io.bag_out`),
     written after each frame's latency is taken; ``view``: a :class:`~gtsjax.viewer.View` shown each
-    frame (after the latency is taken; closed at the end).
+    frame (after the latency is taken; closed at the end). ``reconnect_timeout``: a link that has been
+    reconnecting this many seconds (the sensor unplugged, its pty gone) ends the run with one line
+    (:class:`InputError`) after what was written is closed, instead of retrying for ever.
 
     ``keep_warm``: a few milliseconds before each frame is due (the last one's arrival plus the
     sensor's period), if it has not come, the step runs once on the last frame and its result is
@@ -383,7 +386,7 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
     period_ms = sensor.period * 1000.0
     due, warm_lead, step_ms, last = None, 0.0, deque(maxlen=50), None
     sample = decoder_sample(link) if keep_warm else None
-    failed = None
+    failed = gone = None
     try:
         with GTDWriter(out) as writer:
             while (not (stop is not None and stop.is_set()) and (t_end is None or time.monotonic() < t_end)
@@ -401,6 +404,13 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
                 if lf is None:
                     lf = link.get(timeout=0.2)
                 if lf is None:
+                    lost = link.lost_for() if hasattr(link, "lost_for") else 0.0
+                    if reconnect_timeout is not None and lost > reconnect_timeout:
+                        gone = InputError(str(getattr(link, "port", "sensor")),
+                                            f"the sensor has been gone for {lost:.0f} s and did not come back "
+                                            f"({getattr(link, 'last_error', None) or 'no frames'}; "
+                                            "--reconnect-timeout waits longer)")
+                        break
                     continue
                 dt = frame_dt(lf.stamp, prev_stamp)
                 prev_stamp = lf.stamp
@@ -456,6 +466,10 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
         kept = (f"; the raw scans are in {recorder.journal} (gtsjax recover it when there is room)"
                 if recorder is not None and failed.where != str(recorder.journal) else "")
         raise InputError(failed.where, f"{failed.problem}; stopped after {stats.frames} frames{kept}")
+    if gone is not None:
+        kept = f" and the raw scans in {record}" if recorder is not None else ""
+        raise InputError(gone.where, f"{gone.problem}; stopped after {stats.frames} frames, their rows kept in "
+                                     f"{out}{kept}")
     return stats
 
 

@@ -182,6 +182,7 @@ class Link:
         self._thread: threading.Thread | None = None
         self._seq = 0
         self._last_frame = 0.0
+        self._lost_at: float | None = None  # monotonic time the connection was lost; None while connected
 
     # ------------------------------------------------------------------ public
 
@@ -334,10 +335,23 @@ class Link:
 
     # ------------------------------------------------------------------ reader thread
 
+    def lost_for(self) -> float:
+        """Seconds since the connection was lost and not yet re-established (0 while connected): how
+        long the reader has been trying to reconnect, for a caller that gives up after a while."""
+        lost = self._lost_at
+        return 0.0 if lost is None else time.monotonic() - lost
+
+    @property
+    def last_error(self) -> str | None:
+        with self._lock:
+            return self._stats.last_error
+
     def _run(self) -> None:
         backoff = self.backoff_s
         while not self._stop.is_set():
             if self._ser is None:
+                if self._lost_at is None:
+                    self._lost_at = time.monotonic()
                 try:
                     self._connect()
                 except (serial.SerialException, OSError, LinkError) as err:
@@ -348,6 +362,7 @@ class Link:
                     backoff = min(backoff * 2.0, self.backoff_max_s)
                     continue
                 backoff = self.backoff_s
+                self._lost_at = None
                 with self._lock:
                     self._stats.reconnects += 1
             try:
