@@ -19,7 +19,7 @@ from . import replay as _replay  # noqa: E402,F401
 from . import run as _run  # noqa: E402,F401
 from . import simulate as _simulate  # noqa: E402,F401
 from . import train as _train  # noqa: E402,F401
-from ._app import app
+from ._app import app, command
 
 # Options that take several values in a row (``--background A B C``), as argparse's ``nargs="+"``: Click's
 # options take one value each, so the values after the first are given their own option.
@@ -197,7 +197,7 @@ def main(argv: list[str] | None = None) -> int:
 
     warnings.showwarning = show
     try:
-        app(args=_spread(_vocabulary(sys.argv[1:] if argv is None else list(argv))), prog_name="gtsjax")
+        command()(args=_spread(_vocabulary(sys.argv[1:] if argv is None else list(argv))), prog_name="gtsjax")
     except InputError as err:
         print(f"gtsjax: {err}", file=sys.stderr)
         return 2

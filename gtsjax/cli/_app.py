@@ -35,6 +35,27 @@ def _root(version: bool = typer.Option(False, "--version", is_eager=True, callba
     Example, a live ground truth of a simulated robot: gtsjax demo"""
 
 
+def _metavar(param) -> str:
+    """A readable placeholder for an option or argument's value, in place of Typer's Python type
+    (``<list[Path]>``, ``<bool>`` on a flag): nothing for a flag, FILE, N, NUMBER or TEXT."""
+    if getattr(param, "is_flag", False):
+        return ""
+    d = param.type_descriptor
+    bare = param.bare_type().removeprefix("list[").removesuffix("]")
+    name = "FILE" if "Path" in bare else {"int": "N", "float": "NUMBER"}.get(bare, "TEXT")
+    return name + ("..." if d.is_list else "")
+
+
+def command():
+    """The Click command of :data:`app`, every parameter given a readable placeholder."""
+    cmd = typer.main.get_command(app)
+    for sub in getattr(cmd, "commands", {}).values():
+        for param in sub.params:
+            if param.metavar is None:
+                param.metavar = _metavar(param)
+    return cmd
+
+
 def fail(where: object, problem: str) -> "typer.Exit":
     """Print ``gtsjax: <where>: <problem>`` on stderr; return the exit (status 2) to raise."""
     print(f"gtsjax: {InputError(where, problem)}", file=sys.stderr)
