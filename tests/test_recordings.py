@@ -30,8 +30,11 @@ CASES = {
                                                                clutter=False, seconds=100.0),
     "turned on the spot, hall, 40 Hz, box, clutter": dict(site="hall", style="turn", rate_hz=40.0, outline="box",
                                                           clutter=True, seconds=None),
+    # With the small settings' 100 examples a class, a fifth of the held-out placements' views are taken for
+    # background (79 %), and training says so; the static and walking scenes are tracked all the same.
     "put down for seconds per pose, hall, 10 Hz, box": dict(site="hall", style="hold", rate_hz=None, outline="box",
-                                                            clutter=False, seconds=200.0),
+                                                            clutter=False, seconds=200.0,
+                                                            training_says="detected in only"),
     # A walk sees the robot side-on: training warns so, and position suffers from the heading misreads.
     "walking, SPL field, 10 Hz, Nao, clutter": dict(site="spl", style="walk", rate_hz=None, outline="nao",
                                                     clutter=True, seconds=120.0,

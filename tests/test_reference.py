@@ -167,6 +167,7 @@ def test_reference_refines_what_the_model_refines(tiny, precision):
         kept = np.asarray(p.kept)  # the reference's candidates are the kept ones, in beam order
         np.testing.assert_array_equal(np.asarray(p.cls)[kept], r.cls)
         np.testing.assert_array_equal(np.asarray(p.ok)[kept], r.ok)
+        np.testing.assert_array_equal(np.asarray(p.guess)[kept], r.guess)
         done = np.asarray(p.refined)[kept]
         np.testing.assert_array_equal(done, r.sides.refined)
         np.testing.assert_array_equal(np.asarray(p.vague)[kept], r.vague)

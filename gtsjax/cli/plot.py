@@ -73,6 +73,8 @@ def check_figure(out: Path) -> None:
     """``--out`` of ``plot``: a file matplotlib can write, by its suffix, in a folder that can be written."""
     from matplotlib.figure import Figure
 
+    if out.is_dir():
+        check_out_file(out)  # "is a directory", before the suffix's complaint
     formats = Figure().canvas.get_supported_filetypes()
     if out.suffix.lower().lstrip(".") not in formats:
         raise InputError(out, f"--out must name a figure file: {', '.join('.' + f for f in sorted(formats))}")

@@ -34,6 +34,25 @@ class Classifier:
             out[i] = np.all((q >= lo[:, b]) & (q <= hi[:, b]), axis=1)
         return out
 
+    def like(self, x, k) -> np.ndarray:
+        """Whether each candidate passes class ``k``'s open-set test."""
+        examples, mean, inv, thr = self.support[k]
+        if not np.isfinite(thr):
+            return np.ones(len(x), bool)
+        if len(examples) == 0:
+            return np.zeros(len(x), bool)
+        u = (x - mean) * inv
+        return np.array([float(np.min(np.sum((examples - ui) ** 2, axis=1))) <= thr for ui in u], bool)
+
+    def guesses(self, x, envelope, ok, scores, tracked):
+        """Which candidates that are not ok could be a tracked class (within its envelope, like its
+        examples), and the best scoring such class: ``(guess, guess_cls)``."""
+        could = np.zeros(scores.shape, bool)
+        for k in np.flatnonzero(tracked):
+            could[:, k] = envelope[:, k] & self.like(x, k)
+        guess_cls = np.where(could, scores, -np.inf).argmax(axis=1)
+        return ~ok & could.any(axis=1), guess_cls
+
     def classify(self, x, allowed):
         """Class of each candidate (the best score among the classes its envelope allows, and
         background) and whether it survives: not background, score ≥ threshold, and like the training

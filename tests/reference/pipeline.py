@@ -27,6 +27,7 @@ class Perceived:
     pose_s: np.ndarray  # [n, 3] after e′
     cov_s: np.ndarray  # [n, 3, 3] after e′
     sides: Sides  # e′: side hypotheses (in S) and which candidates were refined
+    guess: np.ndarray  # [n] not ok, but posed and refined as the tracked class ``cls``
 
 
 @dataclasses.dataclass
@@ -105,9 +106,16 @@ class ReferencePipeline:
         angles = float(angle_min) + np.arange(ranges.shape[0]) * float(angle_increment)
         x, origin, heading, shape, occluded = self.candidates(ranges, intensities, valid, angles)
         clf = self.classifier
-        cls, ok, scores = clf.classify(x, clf.in_envelope(shape, np.hypot(origin[:, 0], origin[:, 1])))
+        envelope = clf.in_envelope(shape, np.hypot(origin[:, 0], origin[:, 1]))
+        cls, ok, scores = clf.classify(x, envelope)
+        # Guesses: candidates that are not ok but could be a tracked class are posed as it, after the
+        # candidates classified as it (the cap takes the highest scores first).
+        guess, guess_cls = (clf.guesses(x, envelope, ok, scores, self.tracker.tracked) if len(x)
+                            else (np.zeros(0, bool), np.zeros(0, int)))
+        cls = np.where(guess, guess_cls, cls)
         partial = occluded & clf.whole[cls]  # occluded views of a class seen whole
-        rel, var, ok = self.pose.regress(x, cls, ok, scores)
+        rel, var, posed = self.pose.regress(x, cls, ok | guess, scores)
+        ok, guess = ok & posed, guess & posed
         vague = self.pose.vague(var, cls)
         # ORS -> S (eq. 16 with the ORS in place of O)
         c, s = np.cos(heading), np.sin(heading)
@@ -126,21 +134,23 @@ class ReferencePipeline:
         cov_s[:, 2, 2] = var[:, 2]
         # e′: the outline refinement of the tracked classes' posed candidates, and every candidate's sides
         pts, mask = self.windows(ranges, valid, angles, heading)
-        sides = refine_candidates(self.outline, self.max_objects, cls, ok & self.tracker.tracked[cls], scores, pts,
-                                  mask, pose_s, cov_s)
-        return Perceived(cls, ok, partial, vague & ~sides.refined, sides.pose, sides.cov, sides)
+        sides = refine_candidates(self.outline, self.max_objects, cls, (ok | guess) & self.tracker.tracked[cls],
+                                  scores, pts, mask, pose_s, cov_s)
+        # a guess is kept only where its outline fit succeeded
+        return Perceived(cls, ok, partial, vague & ~sides.refined, sides.pose, sides.cov, sides, guess & sides.refined)
 
     def step(self, ranges, intensities, valid, angle_min, angle_increment, dt) -> RefOutput:
         """The whole pipeline for one scan (NumPy arrays of the padded scan, as gtsjax's ``Scan``)."""
         p = self.perceive(ranges, intensities, valid, angle_min, angle_increment)
         ranges, valid = _f(ranges), np.asarray(valid, bool)
         cls, ok, partial, vague, pose_s, cov_s, sides = p.cls, p.ok, p.partial, p.vague, p.pose_s, p.cov_s, p.sides
+        guess = p.guess
         lm = ok & self.landmark_mask[cls]
         tf = self.transform
         degraded = not self.update_transform(pose_s[lm, :2], cls[lm])
         tf.supported = not degraded
         # S -> O (eq. 10) and tracking of the mobile classes inside the bounds.
-        trk = ok & self.tracker.tracked[cls]
+        trk = (ok | guess) & self.tracker.tracked[cls]
         ps, cs, kc = pose_s[trk], cov_s[trk], cls[trk]
         xy = tf.to_o(ps[:, :2])
         theta = wrap(ps[:, 2] + tf.rotation)
@@ -158,12 +168,13 @@ class ReferencePipeline:
         # Every other candidate kept by the filters (stage c) counts against the confirmation of a
         # tentative track it lies near: background, rejected, landmarks, objects outside the bounds
         # or without a pose, at its pose in O (its ORS origin where it got none: rel = 0).
-        det_idx = np.flatnonzero(trk)[inside]
+        # (a guess is one of them: it counts against a tentative track as it did when it was background)
+        det_idx = np.flatnonzero(trk)[inside & ~guess[trk]]
         is_other = np.ones(len(cls), bool)
         is_other[det_idx] = False
         other_xy = tf.to_o(pose_s[is_other, :2])
         self.tracker.step(z, cov_o[inside], kc[inside], float(dt), other_xy, partial[trk][inside], vague[trk][inside],
-                          side_heading[inside], side_logp[inside])
+                          side_heading[inside], side_logp[inside], guess=guess[trk][inside])
         b = self.bounds
         tracks = [
             t
@@ -183,7 +194,7 @@ class ReferencePipeline:
             mu_s=tf.mu_s.copy(),
             mu_o=tf.mu_o.copy(),
             degraded=degraded,
-            n_detections=int(len(z)),
+            n_detections=int(np.sum(~guess[trk][inside])),
             n_refined=int(np.sum(sides.refined)),
         )
 
