@@ -19,7 +19,8 @@ from . import replay as _replay  # noqa: E402,F401
 from . import run as _run  # noqa: E402,F401
 from . import simulate as _simulate  # noqa: E402,F401
 from . import train as _train  # noqa: E402,F401
-from ._app import app, command
+from ._app import app as app  # the Typer application, for those who extend it
+from ._app import command
 
 # Options that take several values in a row (``--background A B C``), as argparse's ``nargs="+"``: Click's
 # options take one value each, so the values after the first are given their own option.
@@ -55,13 +56,12 @@ def _vocabulary(argv: list[str]) -> list[str]:
                 warnings.warn(InputWarning(name, f"is now {new} (the old name goes in a later release)"), stacklevel=2)
                 said.add(name)
             a = new + eq + value
-        prev = out[-1] if out else None
-        model_arg = (prev == "--model" and a == SHIPPED) or (cmd == "info" and a == SHIPPED and i > 0
-                                                              and not (prev or "").startswith("-"))
-        if model_arg and not Path(SHIPPED).exists():
-            a = str(demo_model_path())
-        elif a == f"--model={SHIPPED}" and not Path(SHIPPED).exists():
-            a = f"--model={demo_model_path()}"
+        prev = out[-1] if out else ""
+        if not Path(SHIPPED).exists():
+            if a == SHIPPED and (prev == "--model" or (cmd == "info" and i > 0 and not prev.startswith("-"))):
+                a = str(demo_model_path())
+            elif a == f"--model={SHIPPED}":
+                a = f"--model={demo_model_path()}"
         out.append(a)
     return out
 

@@ -144,7 +144,8 @@ def _same_place(a: Path, b: Path) -> bool:
         return False
 
 
-def distinct_paths(inputs: dict[str, "Path | list[Path] | None"], outputs: dict[str, "Path | list[Path] | None"]) -> None:
+def distinct_paths(inputs: dict[str, "Path | list[Path] | None"],
+                   outputs: dict[str, "Path | list[Path] | None"]) -> None:
     """Before any work, for every command that writes: no output is one of the command's inputs (the
     input would be replaced by what the command writes) and no two outputs are one file (the second
     would replace the first). Keys are the options as the user wrote them (``--out``, ``LOG``); a
@@ -152,8 +153,7 @@ def distinct_paths(inputs: dict[str, "Path | list[Path] | None"], outputs: dict[
     def flat(d):
         for option, v in d.items():
             for p in ([] if v is None else v if isinstance(v, list | tuple) else [v]):
-                if p is not None:
-                    yield option, Path(p)
+                yield option, Path(p)
 
     ins, outs = list(flat(inputs)), list(flat(outputs))
     for i, (o_opt, o) in enumerate(outs):

@@ -159,9 +159,10 @@ def classify(
     scan of the recording, the classifier learns that view as background, and a robot walking past
     side-on is lost for seconds. Shape cannot settle it; where the robot is can. So a kept candidate
     that is not ok but lies within the shape envelope of a ``tracked`` class and passes that class's
-    open-set test is a *guess* of that class: it gets a pose (after the candidates the classifier
-    took for the class, ``e_pose.regress``) and may update a confirmed track whose gate it falls in,
-    never start or confirm one (``g_track``)."""
+    open-set test is a *guess* of that class: it gets a pose and the outline refinement (after the
+    candidates the classifier took for the class), is kept where the outline fit succeeds, and may
+    update a confirmed track close to its prediction, never start or confirm one
+    (``g_track.GUESS_RADIUS``)."""
     if bucket:
         scores, nearest = _kept_only(clf, vectors, keep, axis_name)
     else:

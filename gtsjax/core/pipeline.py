@@ -142,9 +142,9 @@ def perceive(model: Model, scan: Scan, *, bucket: bool | None = None, axis_name=
                               bucket, axis_name)
     pose_s, cov_s = to_sensor_frame(f.origin, f.heading, rel, var)
     c = fe.candidates
-    sides = refine_candidates(model.outline, model.max_objects, cls, (ok | dec.guess) & posed & model.tracker.tracked[cls],
-                              scores,
-                              c.xy, c.mask, pose_s, cov_s, bucket, axis_name)
+    to_refine = (ok | dec.guess) & posed & model.tracker.tracked[cls]
+    sides = refine_candidates(model.outline, model.max_objects, cls, to_refine, scores, c.xy, c.mask, pose_s, cov_s,
+                              bucket, axis_name)
     d = fe.diagnostics
     unposed = jnp.sum(ok & ~posed, dtype=jnp.int32)
     count = lambda m: jnp.sum(m, dtype=jnp.int32)
@@ -153,9 +153,9 @@ def perceive(model: Model, scan: Scan, *, bucket: bool | None = None, axis_name=
     reason = jnp.where(ok & posed, 6, jnp.where(ok, 5, jnp.where(dec.unlike, 3, jnp.where(
         dec.off_envelope, 4, jnp.where(fe.keep, 2, jnp.where(c.live, 1, 0)))))).astype(jnp.int32)
     return Perception(cls, ok & posed, fe.keep, partial, vague & ~sides.refined, scores, sides.pose, sides.cov,
-                      sides.side_pose, sides.side_logp, sides.refined, dec.guess & posed & sides.refined, f.origin, reason, d.n_segments, d.n_kept,
-                      d.n_overflow,
-                      d.n_too_long, unposed, count(dec.unlike), count(dec.off_envelope))
+                      sides.side_pose, sides.side_logp, sides.refined, dec.guess & posed & sides.refined, f.origin,
+                      reason, d.n_segments, d.n_kept, d.n_overflow, d.n_too_long, unposed, count(dec.unlike),
+                      count(dec.off_envelope))
 
 
 def _inside(site, pose: Float[Array, "n 3"]) -> Bool[Array, " n"]:
