@@ -56,12 +56,33 @@ def tentative_line(model, output) -> str:
         f"{c} {len(h)} ({', '.join(f'{w} {h.count(w)}' for w in dict.fromkeys(h))})" for c, h in sorted(per.items()))
 
 
+def check_ports(ports: list[str]) -> None:
+    """A port that cannot be a scanner, one line before the model is loaded and the step compiled (seconds
+    of waiting for nothing): a plain path with nothing there, or a URL of a scheme pyserial does not know.
+    A port that exists but does not answer (busy, not yet up) is the reconnect logic's."""
+    import os
+
+    import serial
+
+    from ..errors import InputError
+
+    for p in ports:
+        if "://" in p:  # socket://, rfc2217://, loop://: pyserial's URL handlers, checked without connecting
+            try:
+                serial.serial_for_url(p, do_not_open=True)
+            except ValueError as err:
+                raise InputError("--port", f"{p}: {err}") from None
+        elif not os.path.exists(p):
+            raise InputError(p, "no such serial port (nothing at this path): is the scanner plugged in? "
+                                "(ls /dev/ttyACM* /dev/ttyUSB*)")
+
+
 def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Path | None = None,
                json_lines: bool = False, udp: str | None = None, duration: float | None = None,
                frames: int | None = None, intensity: bool = True, view: bool = True, console: Console | None = None,
                confirm_scans: int | None = None, sensor: str | None = None, max_tracks: int | None = None,
                out_bag: Path | None = None, rerun_view: str | None = None, view_save: Path | None = None,
-               keep_warm: bool = True, reconnect_timeout: float | None = None):
+               keep_warm: bool = True, reconnect_timeout: float | None = None, csv_units: bool = False):
     """Open the sensor, run the live loop, show the view (the terminal's table; with ``rerun_view`` or
     ``view_save``, Rerun's: :mod:`gtsjax.viewer`); returns (live stats, link stats)."""
     from ..drivers.live import Outputs, check_sensor, run_live, warm_up
@@ -72,6 +93,7 @@ def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Pa
 
     console = console or Console(stderr=True)
     site_obj = one_sensor(load_site(site), sensor, site)
+    check_ports([port])  # before seconds of loading and compiling
     model = load_model(model_path).with_site(site_obj, where=str(site)).with_confirmation(
         confirm_scans).with_capacity(max_tracks)
     # Compile before the sensor streams, when the model names a known scanner (else after connecting).
@@ -94,14 +116,14 @@ def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Pa
                         last["t"] = now
                         live.update(live_view(model, link, stats, o, stamp))
 
-                stats = run_live(link, model, out, record=record, outputs=Outputs(json_lines, udp),
+                stats = run_live(link, model, out, record=record, outputs=Outputs(json_lines, udp, csv_units),
                                  duration=duration, on_scan=on_scan, with_intensity=intensity,
                                  compiled=compiled, max_frames=frames, out_bag=out_bag, view=shown,
                                  keep_warm=keep_warm, reconnect_timeout=reconnect_timeout)
             if not console.is_terminal:  # rich ends the last view with a newline only on a terminal
                 console.line()
         else:
-            stats = run_live(link, model, out, record=record, outputs=Outputs(json_lines, udp), duration=duration,
+            stats = run_live(link, model, out, record=record, outputs=Outputs(json_lines, udp, csv_units), duration=duration,
                              with_intensity=intensity, compiled=compiled, max_frames=frames, out_bag=out_bag,
                              view=shown, keep_warm=keep_warm, reconnect_timeout=reconnect_timeout)
     finally:
@@ -112,7 +134,8 @@ def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Pa
 def track_live_several(lasers: "dict[str, str]", model_paths: "list[Path]", site: Path, out: Path, *, record: Path | None,
                        json_lines: bool, udp: str | None, duration: float | None, frames: int | None,
                        intensity: bool, view: bool, confirm_scans: int | None, summary: Path | None,
-                       console: Console | None = None, max_tracks: int | None = None, keep_warm: bool = True):
+                       console: Console | None = None, max_tracks: int | None = None, keep_warm: bool = True,
+                       csv_units: bool = False):
     """``run --port NAME=PORT ...``: every laser's link, one track table (see
     :mod:`gtsjax.drivers.live_several`); per-laser status when it stops, and in ``summary``. One
     model for every laser, or one per scanner model (each laser gets the one for the scanner the
@@ -131,6 +154,7 @@ def track_live_several(lasers: "dict[str, str]", model_paths: "list[Path]", site
     console = console or Console(stderr=True)
     site_obj = load_site(site)
     names = list(lasers)
+    check_ports(list(lasers.values()))  # before seconds of loading and compiling
     models, kinds = models_for_lasers(load_for_lasers(model_paths, site, site_obj, confirm_scans, max_tracks),
                                       site_obj, names)
     poses = site_poses(site_obj, names)
@@ -155,7 +179,7 @@ def track_live_several(lasers: "dict[str, str]", model_paths: "list[Path]", site
                               f"p99 {p99:.2f} ms  tracks {int(np.sum(np.asarray(o.track_mask)))}")
 
         stats, per, out_of_order = run_live_several(
-            links, models, poses, out, record=record_paths, kinds=kinds, outputs=Outputs(json_lines, udp), duration=duration,
+            links, models, poses, out, record=record_paths, kinds=kinds, outputs=Outputs(json_lines, udp, csv_units), duration=duration,
             on_scan=on_scan, with_intensity=intensity, compiled=compiled, max_frames=frames,
             warn=lambda msg: console.print(f"warning: {msg}", soft_wrap=True), keep_warm=keep_warm)
     finally:
