@@ -1,4 +1,5 @@
-"""``gtsjax info FILE...``: validate scan logs, site files and model files and summarise them;
+"""``gtsjax info FILE...``: validate scan logs (a ROS bag's topics listed), site files, model files and
+ground-truth CSVs and summarise them;
 ``gtsjax sensors``: the sensor models gtsjax knows."""
 
 import zipfile
@@ -13,7 +14,8 @@ from rich.table import Table
 from ..errors import InputError
 from ..io import load_site
 from ..io.gtd import HEADER as GTD_HEADER
-from ..io.importers import detect_format, format_name
+from ..io.gtd import read_gtd, tracks_of
+from ..io.importers import bag_topics, detect_format, format_name
 from ..io.modelfile import is_model_file, load_model, read_header
 from ..sensors import MODELS
 from ._app import app
@@ -22,11 +24,13 @@ from ._common import TOPIC_HELP, describe, load_input, source_of
 
 @app.command()
 def info(
-    files: list[Path] = typer.Argument(..., help="Scan logs (.npz, or any input gtsjax convert takes), site "
-                                                 "files (.json) and model files (.npz) to check."),
+    files: list[Path] = typer.Argument(..., help="Scan logs (.npz, or any input gtsjax convert takes; a ROS bag's "
+                                                 "topics are listed), site files (.json), model files (.npz) and "
+                                                 "ground-truth CSVs to check."),
     topic: str | None = typer.Option(None, "--topic", help=TOPIC_HELP),
 ):
-    """Check scan logs, site files and model files against their format and print what they hold."""
+    """Check scan logs, ROS bags, site files, model files and ground-truth CSVs against their format and
+    print what they hold."""
     console = Console(soft_wrap=True)
     for path in files:
         if is_model_file(path):
@@ -51,10 +55,25 @@ def info(
                 x, y, th = site.sensor_pose
                 console.print(f"  sensor pose guess: x={x:.3f} m  y={y:.3f} m  θ={np.degrees(th):.1f}°"
                               f"   bounds: {site.bounds if site.bounds is not None else 'none'}")
+        elif _is_gtd(path):
+            for line in describe_gtd(path):
+                console.print(escape(line))
         else:
             if (what := _not_a_log(path)) is not None:
                 raise InputError(path, f"{what}, not a scan log, site file or model file")
             is_bag = detect_format(path) in ("ros1", "ros2")
+            if is_bag:
+                lines, scans = describe_bag(path)
+                for line in lines:
+                    console.print(escape(line))
+                if topic is None and len(scans) != 1:
+                    if not scans:
+                        raise InputError(path, "has no sensor_msgs/LaserScan topic (its topics are listed above): "
+                                               "no scans to read")
+                    console.print(escape(f"  {len(scans)} LaserScan topics: pick one with --topic T, as convert, "
+                                         f"replay and train --background-topic take it (gtsjax info {path} --topic "
+                                         f"{scans[0]})"))
+                    continue
             log = load_input(path, topic if is_bag else None, Console(stderr=True))
             kind = "" if detect_format(path) == "npz" else f" ({format_name(path)})"
             console.print(f"{path}{kind}: {describe(log)}")
@@ -67,6 +86,66 @@ def info(
                 console.print(f"  labelled objects: {labels}")
             if extra := sorted(k for k in log.extra if k != "source"):
                 console.print(f"  extra keys: {', '.join(extra)}")
+
+
+def describe_bag(path: Path) -> tuple[list[str], list[str]]:
+    """A ROS bag's topics, one line each (type, messages, and a LaserScan topic's geometry), so that a
+    user sees which one to pick with ``--topic``; and the names of its LaserScan topics."""
+    kind, span, topics = bag_topics(path)
+    lines = [f"{path} (a {kind}): {len(topics)} topic{'s' * (len(topics) != 1)}, "
+             f"{sum(t.count for t in topics)} messages recorded over {span:.1f} s"]
+    for t in topics:
+        line = f"  topic {t.name}: {t.msgtype}, {t.count} messages"
+        if t.geometry is not None:
+            n, amin, inc, rmin, rmax, inten = t.geometry
+            last = amin + (n - 1) * inc
+            line += (f", {n} beams from {np.degrees(amin):.1f}° to {np.degrees(last):.1f}° by "
+                     f"{np.degrees(inc):.3f}°, returns in [{rmin:g}, {rmax:g}] m, intensities {'yes' if inten else 'no'}")
+        lines.append(line)
+    return lines, [t.name for t in topics if t.is_scan]
+
+
+def _is_gtd(path: Path) -> bool:
+    """Whether ``info`` reads ``path`` as a ground-truth CSV: named ``.csv``, or a file of another name
+    whose first line is a header of one (``stamp…,track_id,…``); the GTD reader then says what is
+    wrong with it, a header that is not the format's included."""
+    if not path.is_file():
+        return False  # a folder, a socket: the log reader says what it is
+    if path.suffix.lower() == ".csv":
+        return True
+    if detect_format(path) != "npz":
+        return False
+    try:
+        with open(path, "rb") as f:
+            first = f.readline(4096).decode("utf-8", "replace").split(",")
+    except OSError:
+        return False
+    return len(first) > 2 and first[0].strip() in ("stamp", "stamp_s") and first[1].strip() == "track_id"
+
+
+def describe_gtd(path: Path) -> list[str]:
+    """A ground-truth CSV, read as ``plot`` and ``export-tum`` read it, in a few lines: rows, time span,
+    tracks per class, and each track's rows and first and last stamp."""
+    rows = read_gtd(path)
+    with open(path, encoding="utf-8") as f:
+        header = f.readline().strip()
+    form = "" if header == ",".join(GTD_HEADER) else f" (header {header})"
+    if not rows:
+        return [f"{path}: ground-truth CSV{form}, no rows (no track was confirmed)"]
+    stamps = [r.stamp for r in rows]
+    tracks = list(tracks_of(rows))
+    first, last = min(stamps), max(stamps)
+    plural = lambda n, word: f"{n} {word}{'s' * (n != 1)}"  # noqa: E731
+    lines = [f"{path}: ground-truth CSV{form}, {plural(len(rows), 'row')} in {plural(len(set(stamps)), 'scan')}, "
+             f"{first:.3f} … {last:.3f} s ({last - first:.1f} s), {plural(len(tracks), 'track')}"]
+    per: dict[str, list[int]] = {}
+    for tid, cls, _ in tracks:
+        per.setdefault(cls, []).append(tid)
+    for cls, ids in sorted(per.items()):
+        lines.append(f"  {cls}: {plural(len(ids), 'track')}, id{'s' * (len(ids) != 1)} {', '.join(map(str, ids))}")
+    for tid, cls, arr in tracks:
+        lines.append(f"  track {tid} ({cls}): {plural(len(arr), 'row')}, {arr[0, 0]:.3f} … {arr[-1, 0]:.3f} s")
+    return lines
 
 
 def _not_a_log(path: Path) -> str | None:
@@ -91,8 +170,6 @@ def _not_a_log(path: Path) -> str | None:
     if "\x00" in text:
         return None
     first = next((line.strip() for line in text.splitlines() if line.strip()), "")
-    if first == ",".join(GTD_HEADER):
-        return "a ground-truth CSV (as replay and run write)"
     if first.startswith(("{", "[")):
         return "a JSON file (a site file is read as one when its name ends in .json)"
     return "a CSV file" if "," in first else "a text file"
@@ -134,7 +211,9 @@ def describe_model(path: Path) -> list[str]:
 def sensors():
     """List the sensor models gtsjax knows (as their PP reply would describe them)."""
     table = Table(title="sensor models")
-    for col in ("model", "beams", "steps", "front", "fov [°]", "range [m]", "rate [Hz]", "intensity", "noise σ"):
+    # The model's name is what a user copies into --scanner: never cut (at 80 columns the others wrap).
+    table.add_column("model", no_wrap=True, min_width=max(len(n) for n in MODELS))
+    for col in ("beams", "steps", "front", "fov [°]", "range [m]", "rate [Hz]", "intensity", "noise σ"):
         table.add_column(escape(col))  # units in [] are not Rich markup
     for m in MODELS.values():
         n = m.noise

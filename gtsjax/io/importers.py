@@ -21,6 +21,8 @@ where its scans, angles and stamps came from, and what was repaired: real logs' 
 now and then, which the format forbids (see :data:`MAX_STAMP_STEP_BACK`).
 """
 
+import contextlib
+import dataclasses
 import gzip
 import math
 import os
@@ -88,6 +90,9 @@ def import_log(path: str | os.PathLike, *, topic: str | None = None, progress: P
     if fmt == "npz":
         if path.is_dir():
             raise InputError(path, "is a directory without a metadata.yaml: neither a ROS 2 bag nor a scan log")
+        if path.suffix.lower() in (".db3", ".mcap") and path.is_file():
+            raise InputError(path, "is a ROS 2 bag's storage file without the bag's metadata.yaml beside it; give the "
+                                   "bag's folder, as ros2 bag record writes it")
         return load_log(path)
     if fmt in ("ros1", "ros2"):
         return read_rosbag(path, topic=topic, progress=progress)
@@ -153,81 +158,125 @@ def read_rosbag(path: str | os.PathLike, *, topic: str | None = None, progress: 
     All messages must share one geometry (beams, angles, range window); the first that does not is
     an error naming its index.
     """
+    with _open_bag(path) as (reader, where, label):
+        return _read_rosbag(reader, where, label, topic, progress)
+
+
+@contextlib.contextmanager
+def _open_bag(path: str | os.PathLike):
+    """A ROS bag open in ``rosbags.highlevel.AnyReader``: (reader, the path to name in errors, the bag's
+    name for ``source``). A ROS 1 bag found by its magic under another name is read through a link
+    with the ``.bag`` suffix AnyReader tells ROS 1 from ROS 2 by; a bag that cannot be opened is one
+    :class:`InputError`."""
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
     path = Path(path)
-    where = path
-    bag = path
+    where = bag = path
     if not path.is_dir() and (path.name == "metadata.yaml" or path.suffix.lower() in (".db3", ".mcap")):
         bag = path.parent
     if not path.exists():
         raise InputError(path, "no such file")
     with tempfile.TemporaryDirectory(prefix="gtsjax-bag-") as tmp:
         if not bag.is_dir() and bag.suffix != ".bag":
-            # AnyReader tells ROS 1 from ROS 2 by the ".bag" suffix; a ROS 1 bag found by its magic
-            # bytes under another name is read through a link that has it.
             link = Path(tmp) / (bag.name + ".bag")
             link.symlink_to(bag.resolve())
             bag = link
         label = bag.name if bag.is_dir() else where.name
-        return _read_rosbag(AnyReader, get_typestore(Stores.LATEST), bag, where, label, topic, progress)
-
-
-def _read_rosbag(AnyReader, typestore, bag: Path, where: Path, label: str, topic: str | None,
-                 progress: Progress | None):
-    try:
-        reader = AnyReader([bag], default_typestore=typestore)
-        reader.open()
-    except Exception as err:  # rosbags raises its own and builtin errors for damaged bags
-        raise InputError(where, f"cannot be read as a ROS bag: {_err_text(err)}") from None
-    try:
-        conns, name = _pick_topic(reader, topic, where)
-        total = sum(c.msgcount for c in conns)
-        if total == 0:
-            raise InputError(where, f"topic {name} has no messages")
-        ranges, inten, hdr, rec = [], [], [], []
-        geom = None
-        with_inten = None
-        k = -1
         try:
-            for k, (conn, t_rec, raw) in enumerate(reader.messages(connections=conns)):
-                msg = reader.deserialize(raw, conn.msgtype)
-                r = np.asarray(msg.ranges, dtype=np.float32)
-                g = (r.shape[0], float(msg.angle_min), float(msg.angle_increment), float(msg.range_min),
-                     float(msg.range_max))
-                if geom is None:
-                    geom = g
-                    if g[0] == 0:
-                        raise InputError(where, f"message 0 on {name} has no ranges")
-                    if g[2] == 0 or not math.isfinite(g[2]):
-                        raise InputError(where, f"message 0 on {name} has angle_increment {g[2]}")
-                elif g != geom:
-                    raise InputError(where, f"message {k} on {name} changes the scan geometry "
-                                            f"({_geom_text(geom)} -> {_geom_text(g)}); a log holds one geometry")
-                i = np.asarray(msg.intensities, dtype=np.float32)
-                has_i = i.shape[0] > 0
-                if has_i and i.shape[0] != r.shape[0]:
-                    raise InputError(where, f"message {k} on {name} has {i.shape[0]} intensities for "
-                                            f"{r.shape[0]} ranges")
-                if with_inten is None:
-                    with_inten = has_i
-                elif has_i != with_inten:
-                    raise InputError(where, f"message {k} on {name} {'has' if has_i else 'lacks'} intensities, "
-                                            f"unlike the messages before it")
-                ranges.append(r)
-                if has_i:
-                    inten.append(i)
-                hdr.append(msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec)
-                rec.append(t_rec * 1e-9)
-                if progress is not None and (k + 1) % 256 == 0:
-                    progress(k + 1, total)
-        except InputError:
-            raise
-        except Exception as err:
-            raise InputError(where, f"message {k + 1} on {name} cannot be read: {_err_text(err)}") from None
-    finally:
-        reader.close()
+            reader = AnyReader([bag], default_typestore=get_typestore(Stores.LATEST))
+            reader.open()
+        except Exception as err:  # rosbags raises its own and builtin errors for damaged bags
+            raise InputError(where, f"cannot be read as a ROS bag: {_err_text(err)}") from None
+        try:
+            yield reader, where, label
+        finally:
+            reader.close()
+
+
+@dataclasses.dataclass(frozen=True)
+class BagTopic:
+    """One topic of a ROS bag as :func:`bag_topics` lists it; a LaserScan topic also has its first
+    message's geometry: beams, ``angle_min``, ``angle_increment`` (as the message has it: negative for a
+    scanner that turns clockwise), range window, whether it carries intensities."""
+
+    name: str
+    msgtype: str
+    count: int
+    geometry: tuple[int, float, float, float, float, bool] | None = None
+
+    @property
+    def is_scan(self) -> bool:
+        return self.msgtype == LASERSCAN
+
+
+def bag_topics(path: str | os.PathLike) -> tuple[str, float, list[BagTopic]]:
+    """What a ROS bag holds, without reading its messages (only each LaserScan topic's first, for its
+    geometry), so that a user can pick the topic ``--topic`` names: ``"ROS 1 bag"`` or ``"ROS 2 bag"``,
+    the seconds between its first and last message, and its topics by name."""
+    with _open_bag(path) as (reader, where, _):
+        topics = []
+        for name, info in sorted(reader.topics.items()):
+            geom = None
+            if info.msgtype == LASERSCAN and info.msgcount:
+                conns = [c for c in reader.connections if c.topic == name]
+                try:
+                    _, _, raw = next(iter(reader.messages(connections=conns)))
+                    msg = reader.deserialize(raw, info.msgtype)
+                    geom = (len(msg.ranges), float(msg.angle_min), float(msg.angle_increment), float(msg.range_min),
+                            float(msg.range_max), len(msg.intensities) > 0)
+                except Exception as err:  # a damaged message: rosbags' own and builtin errors
+                    raise InputError(where, f"message 0 on {name} cannot be read: {_err_text(err)}") from None
+            topics.append(BagTopic(name, info.msgtype, int(info.msgcount), geom))
+        span = reader.duration * 1e-9 if reader.message_count else 0.0
+        return ("ROS 2 bag" if reader.is2 else "ROS 1 bag"), span, topics
+
+
+def _read_rosbag(reader, where: Path, label: str, topic: str | None, progress: Progress | None):
+    conns, name = _pick_topic(reader, topic, where)
+    total = sum(c.msgcount for c in conns)
+    if total == 0:
+        raise InputError(where, f"topic {name} has no messages")
+    ranges, inten, hdr, rec = [], [], [], []
+    geom = None
+    with_inten = None
+    k = -1
+    try:
+        for k, (conn, t_rec, raw) in enumerate(reader.messages(connections=conns)):
+            msg = reader.deserialize(raw, conn.msgtype)
+            r = np.asarray(msg.ranges, dtype=np.float32)
+            g = (r.shape[0], float(msg.angle_min), float(msg.angle_increment), float(msg.range_min),
+                 float(msg.range_max))
+            if geom is None:
+                geom = g
+                if g[0] == 0:
+                    raise InputError(where, f"message 0 on {name} has no ranges")
+                if g[2] == 0 or not math.isfinite(g[2]):
+                    raise InputError(where, f"message 0 on {name} has angle_increment {g[2]}")
+            elif g != geom:
+                raise InputError(where, f"message {k} on {name} changes the scan geometry "
+                                        f"({_geom_text(geom)} -> {_geom_text(g)}); a log holds one geometry")
+            i = np.asarray(msg.intensities, dtype=np.float32)
+            has_i = i.shape[0] > 0
+            if has_i and i.shape[0] != r.shape[0]:
+                raise InputError(where, f"message {k} on {name} has {i.shape[0]} intensities for "
+                                        f"{r.shape[0]} ranges")
+            if with_inten is None:
+                with_inten = has_i
+            elif has_i != with_inten:
+                raise InputError(where, f"message {k} on {name} {'has' if has_i else 'lacks'} intensities, "
+                                        f"unlike the messages before it")
+            ranges.append(r)
+            if has_i:
+                inten.append(i)
+            hdr.append(msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec)
+            rec.append(t_rec * 1e-9)
+            if progress is not None and (k + 1) % 256 == 0:
+                progress(k + 1, total)
+    except InputError:
+        raise
+    except Exception as err:
+        raise InputError(where, f"message {k + 1} on {name} cannot be read: {_err_text(err)}") from None
     if progress is not None:
         progress(len(ranges), total)
 
@@ -520,6 +569,8 @@ def _text_lines(path: Path, cut: _CutLine | None = None):
     except (EOFError, gzip.BadGzipFile, zlib.error) as err:
         raise InputError(path, f"damaged or truncated gzip stream after line {lineno} "
                                f"({type(err).__name__})") from None
+    except OSError as err:  # no permission to read it, a socket, a device that fails
+        raise InputError(path, f"cannot be read ({err.strerror or err})") from None
 
 
 def _gzip_looks_like_carmen(path: Path) -> bool:
