@@ -140,7 +140,12 @@ def load_log(path: str | os.PathLike) -> ScanLog:
     except InputError:
         raise
     except (zipfile.BadZipFile, ValueError, OSError, EOFError) as err:
-        raise InputError(path, f"not a NumPy .npz archive ({type(err).__name__})") from None
+        if isinstance(err, OSError) and err.errno is not None:  # no permission, a socket: the file, not its format
+            raise InputError(path, f"cannot be read ({err.strerror})") from None
+        what = type(err).__name__
+        if isinstance(err, zipfile.BadZipFile):  # what zipfile found: "Bad CRC-32 for file 'ranges.npy'", ...
+            what += ": " + " ".join(str(err).split())[:120]
+        raise InputError(path, f"not a NumPy .npz archive ({what})") from None
     if not isinstance(data, dict) or not data:
         raise InputError(path, "empty archive, not a scan log")
     _validate(data, path)

@@ -79,6 +79,9 @@ _RANGES = {
     (FrontEndConfig, "max_candidates"): (1, 4096), (FrontEndConfig, "window"): (2, 65536),
     (FrontEndConfig, "n_dist"): (1, 1024), (FrontEndConfig, "n_intensity"): (0, 1024),
 }
+# The leaves where ±inf is a value (no bound: an envelope open on one side, a class without an
+# open-set threshold); anywhere else it is damage, which the step would turn into NaN and no rows.
+_UNBOUNDED = {(Envelope, "lo"), (Envelope, "hi"), (Support, "threshold")}
 # The dtype the float32 step expects of each jaxtyping kind.
 _DTYPES = ("float32", "int32", "bool")
 
@@ -259,6 +262,8 @@ def _check(node: _Node, sizes: dict[str, int], path: Path) -> None:
                 raise InputError(path, f"leaf {where} has shape {_shape(arr.shape)}, expected {_shape(want)}")
             if arr.dtype != (dtype := _expected_dtype(ann)):
                 raise InputError(path, f"leaf {where} has dtype {arr.dtype}, expected {dtype}")
+            if arr.dtype.kind == "f" and (node.cls, name) not in _UNBOUNDED and np.isinf(arr).any():
+                raise InputError(path, f"leaf {where} holds an infinite value: a damaged model file (retrain it)")
         for child in v if isinstance(v, tuple) else (v,):
             if isinstance(child, _Node):
                 _check(child, sizes, path)
@@ -336,7 +341,9 @@ def _open(path: Path):
     try:
         npz = np.load(path, allow_pickle=False)
         files = npz.files
-    except (zipfile.BadZipFile, ValueError, OSError, EOFError):
+    except (zipfile.BadZipFile, ValueError, OSError, EOFError) as err:
+        if isinstance(err, OSError) and err.errno is not None:  # no permission, a socket: the file, not its format
+            raise InputError(path, f"cannot be read ({err.strerror})") from None
         raise InputError(path, "not a gtsjax model file (not an .npz archive)") from None
     try:
         if _HEADER_KEY not in files:
@@ -345,6 +352,8 @@ def _open(path: Path):
             header = json.loads(str(npz[_HEADER_KEY]))
         except (ValueError, zipfile.BadZipFile, OSError, EOFError):
             raise InputError(path, "damaged model header") from None
+        except RecursionError:
+            raise InputError(path, "damaged model header (JSON nested deeper than Python reads)") from None
         _check_header(header, path)
     except InputError:
         npz.close()

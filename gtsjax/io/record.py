@@ -272,6 +272,11 @@ def _check_header(header, path: Path) -> None:
         raise InputError(path, "journal header's angle_min and angle_increment must be finite, the increment positive")
     if not isinstance(header["intensities"], bool):
         raise InputError(path, "journal header's intensities must be true or false")
+    for key in ("range_min", "range_max"):
+        if key in header and not finite(header[key]):
+            raise InputError(path, f"journal header's {key} is {header[key]!r}, expected a finite number (m)")
+    if not isinstance(header.get("sensor_model"), str | None):
+        raise InputError(path, f"journal header's sensor_model is {header['sensor_model']!r}, expected a name or null")
 
 
 def read_journal(path: "str | os.PathLike") -> tuple[ScanLog, dict]:
@@ -379,9 +384,11 @@ def journal_to_log(journal: "str | os.PathLike", out_path: "str | os.PathLike") 
     if header.get("sensor_model") is not None:
         small["sensor_model"] = np.asarray(header["sensor_model"], dtype=np.str_)
     # The format's rules, checked with a stand-in for the ranges of their shape (no memory; the
-    # intensities' values are checked block by block as they are written).
+    # intensities' values are checked block by block as they are written). What breaks one is in the
+    # journal: it is the file named.
     _validate({**small, "ranges": np.lib.stride_tricks.as_strided(np.zeros(1, np.float32), (idx.size, n_beams),
-                                                                  (0, 0))}, out_path)
+                                                                  (0, 0))}, journal)
+    _out_folder(out_path)
     tmp = out_path.with_name(out_path.name + ".part")
     try:
         with open(tmp, "wb") as f, zipfile.ZipFile(f, "w", zipfile.ZIP_STORED, allowZip64=True) as zf:
@@ -392,20 +399,38 @@ def journal_to_log(journal: "str | os.PathLike", out_path: "str | os.PathLike") 
                     for a in range(0, idx.size, BLOCK_RECORDS):
                         block = np.ascontiguousarray(recs[field][idx[a:a + BLOCK_RECORDS]], dtype="<f4")
                         if field == "intensities" and not (np.all(np.isfinite(block)) and np.all(block >= 0)):
-                            raise InputError(out_path, "'intensities' must be finite and >= 0")
+                            raise InputError(journal, "'intensities' must be finite and >= 0")
                         entry.write(block.tobytes())
             for key, value in small.items():
                 with zf.open(f"{key}.npy", "w", force_zip64=True) as entry:
                     np.lib.format.write_array(entry, np.asarray(value), allow_pickle=False)
             f.flush()
             os.fsync(f.fileno())
+        os.replace(tmp, out_path)
     except BaseException:
-        tmp.unlink(missing_ok=True)
+        try:
+            tmp.unlink(missing_ok=True)  # no half-written .part left behind
+        except OSError:
+            pass
         raise
     finally:
         del recs
-    os.replace(tmp, out_path)
     return report
+
+
+def _out_folder(out_path: Path) -> None:
+    """The folder of the log :func:`journal_to_log` writes, made if missing (as every command makes its
+    outputs' folders), once the journal is known to hold a log: a folder in the log's place, or a
+    file in a folder's, is one line."""
+    if out_path.is_dir():
+        raise InputError(out_path, "is a directory; give the scan log (.npz) to write")
+    existing = next((p for p in out_path.parents if p.exists()), None)
+    if existing is not None and not existing.is_dir():
+        raise InputError(existing, f"is a file, not a folder, so {out_path} cannot be written")
+    try:
+        out_path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise InputError(out_path.parent, f"cannot create the folder ({err.strerror})") from None
 
 
 def recover(journal: "str | os.PathLike", out_path: "str | os.PathLike | None" = None) -> ScanLog:
@@ -424,8 +449,10 @@ def _recover(journal: "str | os.PathLike", out_path: "str | os.PathLike | None")
         if not journal.name.endswith(JOURNAL_SUFFIX):
             raise InputError(journal, f"name does not end in {JOURNAL_SUFFIX}; give the output path")
         out_path = journal.with_name(journal.name[: -len(JOURNAL_SUFFIX)])
-    report = journal_to_log(journal, out_path)
-    return report
+    try:
+        return journal_to_log(journal, out_path)
+    except OSError as err:  # a full disk, a folder without write permission
+        raise InputError(out_path, f"cannot write the scan log ({err.strerror or err})") from None
 
 
 def _fsync_dir(path: Path) -> None:

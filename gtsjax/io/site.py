@@ -120,7 +120,7 @@ def load_site(path: str | os.PathLike) -> Site:
     if not path.exists():
         raise InputError(path, "no such file")
     try:
-        doc = json.loads(path.read_bytes().decode("utf-8"))
+        doc = json.loads(path.read_bytes().decode("utf-8-sig"))  # a byte-order mark, as Windows editors write, is no content
     except (UnicodeDecodeError, json.JSONDecodeError) as err:
         raise InputError(path, f"not a JSON site file ({type(err).__name__}: {err})") from None
     except RecursionError:
@@ -129,6 +129,8 @@ def load_site(path: str | os.PathLike) -> Site:
         raise InputError(path, f"not a site file: a number too long to read ({str(err).split(':')[0]})") from None
     except IsADirectoryError:
         raise InputError(path, "is a directory, not a JSON site file") from None
+    except OSError as err:  # no permission to read it, a socket, a device that fails
+        raise InputError(path, f"cannot be read ({err.strerror or err})") from None
     return parse_site(doc, path)
 
 
