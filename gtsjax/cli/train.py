@@ -1,15 +1,22 @@
 """``gtsjax train LOG.npz ... --site SITE.json [--background LOG ...] --out MODEL``: learn the classifier,
 its open-set test, the shape envelopes, the pose regressors and the motion limits from labelled logs
 (and background logs: any log ``convert`` reads, recorded with no robot in view), with progress per
-GP fit and summary tables."""
+GP fit and summary tables.
+
+Its GP fits take most of its minutes, one at a time, and one may take several: on a terminal a bar
+(:class:`FitProgress`) says which fit of how many runs, for how long, and about how long the fits
+left will take; a line per fit (above the bar) keeps each one's result, in a log too."""
 
 import dataclasses
 import json
+import time
 from pathlib import Path
 
 import typer
 from rich.console import Console
+from rich.progress import BarColumn, Progress, ProgressColumn, TextColumn, TimeElapsedColumn
 from rich.table import Table
+from rich.text import Text
 
 from ..errors import InputError
 from ..io import load_log, load_site
@@ -80,6 +87,9 @@ def train_cmd(
     strict: bool = typer.Option(False, "--strict",
                                 help="Exit 1 (the model still written) when that check finds a tracked class "
                                      "reported in fewer than 90 % of the held-out scans in which it was detected."),
+    quiet: bool = typer.Option(False, "--quiet",
+                               help="No progress on stderr: no bar, no line per GP fit (the tables on stdout list "
+                                    "the fits)."),
 ):
     """Train a model from labelled logs (training and held-out evaluation)."""
     console = Console(stderr=True)
@@ -113,13 +123,11 @@ def train_cmd(
     if loaded and loaded[0].labelled:  # every input checked before the minutes of fitting
         bg = fit_background(loaded[0], bg, [str(p) for p in background])
 
-    def progress(info):
-        console.print(f"  fitted GP {info['gp']:<22} n={info['n']:<5} LML={info['lml']:10.1f}  {info['seconds']:6.1f} s")
-
     console.print(f"training on {sum(log.n_scans for log in loaded)} scans from {len(loaded)} log(s)"
                   + (f" and {sum(b.n_scans for b in bg)} background scans from {len(bg)} log(s)" if bg else ""))
-    model, rep = train(loaded, sites, cfg, progress=progress, names=[str(p) for p in logs],
-                       background=bg, background_names=[str(p) for p in background])
+    with FitProgress(console, bar=not quiet and console.is_terminal, lines=not quiet) as shown:
+        model, rep = train(loaded, sites, cfg, progress=shown.fitted, stages=shown.stage, names=[str(p) for p in logs],
+                           background=bg, background_names=[str(p) for p in background])
     save_model(model, out, summary=rep)
     _summary(Console(), rep, out)
     if model.outline is not None:
@@ -141,6 +149,98 @@ def train_cmd(
     if strict and rep.get("pipeline_problems"):
         console.print(f"train --strict: {out} was written, but fails the pipeline check (above)", soft_wrap=True)
         raise typer.Exit(1)
+
+
+class FitProgress:
+    """``train``'s progress on stderr, fed by :func:`~gtsjax.train.train`'s ``stages`` and ``progress``
+    callbacks: with ``bar``, a bar of the GP fits with the stage, "fit k of N" and the fit's name and
+    size, the time elapsed and about how long the fits left will take; with ``lines``, a line per fit as
+    it ends (printed above the bar). The estimate weighs each fit by its size
+    (:func:`~gtsjax.train.fit_cost`) at the seconds per unit of weight the fits done so far took, and
+    counts the running fit's time against it; fits of one size differ several-fold in their optimiser's
+    steps, so it is "about". ``done`` and ``total`` are k and N."""
+
+    def __init__(self, console: Console, *, bar: bool = True, lines: bool = True):
+        self.console, self.lines = console, lines
+        self.total: int | None = None
+        self.done = 0
+        self.plan: list[dict] = []
+        self.stage_name = ""
+        self.done_weight = self.done_seconds = 0.0
+        self.started: float | None = None  # when the running fit began; None between fits
+        self.bar = Progress(TextColumn("{task.description}", markup=False), BarColumn(bar_width=20), TimeElapsedColumn(),
+                            _Left(self), console=console, transient=True, disable=not bar)
+        self.task = self.bar.add_task("training", total=None)
+
+    def __enter__(self):
+        self.bar.__enter__()
+        return self
+
+    def __exit__(self, *exc):
+        return self.bar.__exit__(*exc)
+
+    def stage(self, name: str, fits: list[dict]) -> None:
+        """Training entered stage ``name``; ``fits``: the GP fits still to come (the first call: all)."""
+        if self.total is None:
+            self.total = len(fits)
+            self.bar.update(self.task, total=sum(f["weight"] for f in fits) or 1.0, completed=0.0)
+        self.stage_name, self.plan = name, list(fits)
+        self._next()
+
+    def fitted(self, info: dict) -> None:
+        """A GP fit ended (its summary, a line of the report's ``fits``)."""
+        self.done += 1
+        entry = self.plan.pop(0) if self.plan else {"weight": 0.0}
+        self.done_weight += entry["weight"]
+        self.done_seconds += info["seconds"]
+        if self.lines:
+            left = self.seconds_left(after_fit=True)
+            self.console.print(f"  fitted GP {info['gp']:<22} n={info['n']:<5} LML={info['lml']:10.1f}  "
+                               f"{info['seconds']:6.1f} s  (fit {self.done} of {self.total}"
+                               + (f"; about {_clock(left)} of fitting left)" if left else ")"),
+                               markup=False, highlight=False, soft_wrap=True)
+        self._next()
+
+    def _next(self) -> None:
+        fitting = bool(self.plan) and self.plan[0]["stage"] == self.stage_name
+        self.started = time.monotonic() if fitting else None
+        if fitting:
+            f = self.plan[0]
+            size = f"{f['n']} examples" + (f", fitted on {f['n_fit']}" if f["n_fit"] < f["n"] else "")
+            what = f"fit {self.done + 1} of {self.total}: {f['gp']} ({size})"
+        else:
+            what = f"{self.stage_name} ({self.done} of {self.total} GP fits done)"
+        self.bar.update(self.task, description=what, completed=self.done_weight)
+
+    def seconds_left(self, after_fit: bool = False) -> float | None:
+        """About how long the fits left will take (None before the first ends, or with none left)."""
+        if not self.plan or self.done_weight <= 0:
+            return None
+        rate = self.done_seconds / self.done_weight
+        rest = rate * sum(f["weight"] for f in self.plan)
+        if self.started is None or after_fit:
+            return rest
+        running = time.monotonic() - self.started
+        return max(rest - running, rate * sum(f["weight"] for f in self.plan[1:]))
+
+
+class _Left(ProgressColumn):
+    """The bar's estimate of the fitting time left (:meth:`FitProgress.seconds_left`; none once the
+    fits are done: the stages after them, the tracking check, are not estimated)."""
+
+    def __init__(self, shown: FitProgress):
+        super().__init__()
+        self.shown = shown
+
+    def render(self, task) -> Text:
+        left = self.shown.seconds_left()
+        return Text(f"about {_clock(left)} left" if left else "", style="progress.remaining")
+
+
+def _clock(seconds: float) -> str:
+    """``m:ss`` (``h:mm:ss`` past an hour)."""
+    s = int(round(seconds))
+    return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}" if s >= 3600 else f"{s // 60}:{s % 60:02d}"
 
 
 def outline_path(model_path: Path) -> Path:

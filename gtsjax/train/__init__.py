@@ -14,6 +14,10 @@ One module per step, in the order :func:`train` takes them (the paper's stages i
 - :mod:`.motion`: each tracked class's motion limits and the scanner's rate (g).
 - :mod:`.report`: held-out classification as the step decides it, and pose errors.
 - :mod:`.config`: :class:`TrainConfig`.
+
+A caller follows the run through two callbacks of :func:`train`: ``stages`` as each stage begins, with
+the GP fits still to come (:func:`planned_fits`: the first call, before any work, lists them all, so
+that a display can say "fit k of N" and weigh what is left), and ``progress`` as each fit ends.
 """
 
 import dataclasses
@@ -55,8 +59,78 @@ from .labels import run_front_end as run_front_end
 from .motion import confirmation_entry, scan_rate_entry, tracker_limits
 from .motion import motion_limits as motion_limits
 from .outline import fit_outlines
-from .pose import fit_landmark_positions, fit_pose_regressors
+from .pose import POSE_GROUPS, fit_landmark_positions, fit_pose_regressors
 from .report import evaluate_examples as evaluate_examples
+
+#: The stages of :func:`train`, in the order it takes them, as its ``stages`` callback names them.
+STAGES = ("labelling", "landmark positions", "labelling, second pass", "classifier", "pose regressors",
+          "outlines and motion limits", "held-out evaluation", "tracking check")
+
+# The GP library's cap on a fit's rows when the caller sets none (``gp.fit``'s ``max_points``), and its
+# screening of the starts on a subsample (``screen_points``): what a fit of n examples costs.
+_GP_MAX_POINTS, _GP_SCREEN_POINTS = 3000, 500
+
+
+def fit_cost(n: int, n_fit: int, restarts: int, outputs: int = 1) -> float:
+    """A GP fit's cost relative to others, for an estimate of the time left (not a prediction in
+    seconds): BFGS on ``n_fit`` rows, each step an O(n_fit³) factorisation per output, for every start
+    (or, past the screening size, every start on the screening subsample and about two starts on all the
+    rows); the conditioning on all ``n`` (its O(n³) factorisations, weighed as a tenth of a step's, so
+    that the SPL match's pose GPs, 6 000 examples fitted on 2 000, weigh 5 times its classifier's on
+    1 500: they took 4–8 times as long, the classifier's three 25–117 s); and a fixed part for what
+    does not grow with n (a new shape's compilation, the host's work), as much as a fit of about 600
+    rows."""
+    n_fit = min(n_fit, n)
+    if restarts > 1 and n_fit > _GP_SCREEN_POINTS:
+        steps = 2.0 * n_fit**3 + restarts * _GP_SCREEN_POINTS**3
+    else:
+        steps = restarts * float(n_fit) ** 3
+    return outputs * (steps + 0.1 * float(n) ** 3) + 2e8
+
+
+def planned_fits(classes: Sequence[str], landmarks: Sequence[str], mobiles: Sequence[str], cfg: TrainConfig, *,
+                 background_logs: bool = False, available: dict[str, int] | None = None) -> list[dict]:
+    """The GP fits :func:`train` makes, in the order it makes them: one entry per line of its report's
+    ``fits`` (``gp``, the ``stage`` that fits it, ``n`` examples, ``n_fit`` of them its hyperparameters
+    are fitted on, ``weight``: :func:`fit_cost`, carried by the first output of a fit of several with one
+    shared kernel, the others 0). ``n`` is each fit's cap on its class's training examples
+    (``available``, per class, where known: then as many as the fit will take; ``background_logs``: the
+    classifier's caps with background logs)."""
+    available = available or {}
+    out = []
+
+    def add(stage, labels, n, n_fit):
+        n_fit = min(n, n_fit)
+        w = fit_cost(n, n_fit, cfg.restarts, len(labels))
+        out.extend({"gp": g, "stage": stage, "n": int(n), "n_fit": int(n_fit), "weight": w if j == 0 else 0.0}
+                   for j, g in enumerate(labels))
+
+    def capped(name, cap):
+        return min(available.get(name, cap), cap)
+
+    for name in landmarks:
+        n = min(capped(name, cfg.max_landmark_examples), _GP_MAX_POINTS)
+        for comp in ("x", "y"):
+            add("landmark positions", [f"{name}.{comp}"], n, n)
+    # fit_classifier's caps: balanced classes, more background and mobile examples with background logs
+    n_bg = cfg.max_per_class if not background_logs else (cfg.max_background or 12 * cfg.max_per_class)
+    n_mobile = cfg.max_per_class if not background_logs else (cfg.max_mobile or 4 * cfg.max_per_class)
+    n_cls = capped(classes[0], n_bg) + sum(capped(c, n_mobile if c in mobiles else cfg.max_per_class)
+                                           for c in classes[1:])
+    n_cls = n_cls if cfg.max_class_fit else min(n_cls, _GP_MAX_POINTS)
+    for name in classes:
+        add("classifier", [f"class.{name}"], n_cls, cfg.max_class_fit or n_cls)
+    groups = POSE_GROUPS.get(cfg.pose_kernels, tuple((c,) for c in ("x", "y", "sin", "cos")))
+    for name in mobiles:
+        for group in groups:
+            add("pose regressors", [f"{name}.{c}" for c in group], capped(name, cfg.max_pose_examples),
+                cfg.max_pose_fit)
+    return out
+
+
+def _available(ex: Examples, is_held: np.ndarray, classes: Sequence[str]) -> dict[str, int]:
+    """Training (not held-out) examples per class."""
+    return {c: int(np.sum((ex.cls == k) & ~is_held)) for k, c in enumerate(classes)}
 
 
 @exact_products
@@ -74,14 +148,18 @@ def _without_intensities_it_cannot_have(log: ScanLog, name: str) -> ScanLog:
 
 def train(logs: Sequence[ScanLog], site: "Site | Sequence[Site]", cfg: TrainConfig = TrainConfig(), *,
           progress: Callable[[dict], None] | None = None, names: Sequence[str] | None = None,
-          background: Sequence[ScanLog] = (), background_names: Sequence[str] | None = None) -> tuple[Model, dict]:
+          background: Sequence[ScanLog] = (), background_names: Sequence[str] | None = None,
+          stages: Callable[[str, list[dict]], None] | None = None) -> tuple[Model, dict]:
     """Train a model from labelled logs of one site, and optional background logs (recorded anywhere,
     with no robot in view: every candidate in them is a background example; their beams are checked
     against the labelled logs' scanner and cropped to its field of view). Returns the model (float32
     predictors, bounded cost) and a report: examples per class, GP fits, shape envelopes, open-set
     thresholds, motion limits, held-out accuracy and pose errors, and warnings. ``progress`` is called
-    with each GP fit's summary as it ends. ``site``: the site of every log, or one per log (each the
-    site as one laser of a field of several sees it, :meth:`~gtsjax.io.site.Site.for_sensor`)."""
+    with each GP fit's summary as it ends; ``stages(name, fits)`` as each of the :data:`STAGES` begins,
+    with the GP fits still to come from there on (:func:`planned_fits`, their sizes as far as known
+    then): its first call, before any work, lists every fit, one per summary ``progress`` will get.
+    ``site``: the site of every log, or one per log (each the site as one laser of a field of several
+    sees it, :meth:`~gtsjax.io.site.Site.for_sensor`)."""
     names = list(names) if names is not None else [f"log {i}" for i in range(len(logs))]
     bg_names = list(background_names) if background_names is not None else [
         f"background log {i}" for i in range(len(background))]
@@ -98,6 +176,13 @@ def train(logs: Sequence[ScanLog], site: "Site | Sequence[Site]", cfg: TrainConf
     rng = np.random.default_rng(cfg.seed)  # examples, the held-out split, the open-set supports
     gps = GPFits(cfg, progress)  # the GP fits' keys, and their summaries
 
+    def stage(name: str, available: dict[str, int] | None = None) -> None:
+        if stages is not None:
+            plan = planned_fits(classes, landmarks, mobiles, cfg, background_logs=bool(background), available=available)
+            stages(name, plan[len(gps.fits):])
+
+    stage("labelling")
+
     # Labels, pass 1 (transforms from raw ORS origins); background logs' examples; the held-out split;
     # the landmark classes' position GPs; pass 2 (landmark candidates at their predicted centres).
     per_log, columns = front_end_logs(logs, cfg.frontend, n_beams)
@@ -105,8 +190,10 @@ def train(logs: Sequence[ScanLog], site: "Site | Sequence[Site]", cfg: TrainConf
     bg_ex, bg_info = background_examples(background, bg_names, cfg, n_beams, columns, offset)
     held = holdout_groups(rng, np.concatenate([ex1.group, bg_ex.group]), cfg.holdout)
     pose = [None] * len(classes)
+    stage("landmark positions", _available(ex1, np.isin(ex1.group, held), classes))
     for k, reg in fit_landmark_positions(ex1, held, classes, landmarks, cfg, rng, gps).items():
         pose[k] = reg
+    stage("labelling, second pass")
     ex_lab, degraded, n_scans = second_pass(logs, per_log, cls_slots, pose, site, classes, landmarks, cfg)
 
     # Shape envelopes and open-set supports from the labelled classes; then the background logs'
@@ -123,11 +210,14 @@ def train(logs: Sequence[ScanLog], site: "Site | Sequence[Site]", cfg: TrainConf
                              np.repeat(np.arange(len(bg_info)), [i["candidates"] for i in bg_info])[~lookalike]])
     is_held = np.isin(ex.group, held)
 
+    stage("classifier", _available(ex, is_held, classes))
     classifier, train_idx, warnings = fit_classifier(ex, is_held, source, len(bg_info), support, classes, mobiles,
                                                      cfg, rng, gps)
+    stage("pose regressors", _available(ex, is_held, classes))
     mobile_pose, calibration = fit_pose_regressors(ex, is_held, classes, mobiles, cfg, rng, gps)
     for k, reg in mobile_pose.items():
         pose[k] = reg
+    stage("outlines and motion limits")
     outline, outline_report = fit_outlines(logs, ex, is_held, classes, mobiles, pose, cfg.frontend.window, rng)
     rate_hz, rate_row = scan_rate_entry(logs, cfg.scan_rate_hz)
     speed, turn, motion, motion_rows = tracker_limits(logs, classes, mobiles, cfg, period=1.0 / rate_hz)
@@ -160,6 +250,7 @@ def train(logs: Sequence[ScanLog], site: "Site | Sequence[Site]", cfg: TrainConf
         range_max=float(first.range_max),
         outline=outline,
     ).with_common_pose_inputs()  # as a model file loads
+    stage("held-out evaluation")
     report = {
         "classes": list(classes),
         "examples": {c: int(np.sum(ex.cls == k)) for k, c in enumerate(classes)},
@@ -181,6 +272,7 @@ def train(logs: Sequence[ScanLog], site: "Site | Sequence[Site]", cfg: TrainConf
     report["coverage"], where = coverage(logs, per_log_sites(site, len(logs)), mobiles)
     report["warnings"] = report["warnings"] + where
     if cfg.check_pipeline:
+        stage("tracking check")
         held_scans = [held_mask(log, i, ex_lab.where, ex_lab.group, held) for i, log in enumerate(logs)]
         report["pipeline"] = check_pipeline(model, logs, per_log_sites(site, len(logs)), held_scans, mobiles)
         report["pipeline_simulated"] = simulated_checks(model, report["heldout"], mobiles, rate_hz, cfg.seed)
