@@ -2,6 +2,7 @@
 loop, the GTD CSV with the robot tracked; and the raw recording it writes alongside."""
 
 import time
+from fractions import Fraction
 
 import numpy as np
 
@@ -62,13 +63,13 @@ def test_run_tracks_the_emulated_robot(tmp_path):
     raw = load_log(tmp_path / "raw.npz")
     assert raw.n_scans >= len({r.stamp for r in rows}) and raw.n_beams == URG_04LX.n_beams
     assert injected > 0  # frames with bad sums were sent, their good lines kept, and survived
-    # --out-bag: every frame processed is a LaserScan, every row a pose on its track's topic (read back
-    # with the mcap library)
+    # --out-bag: every frame processed is a LaserScan, every row an Odometry of its track's frame at its
+    # stamp to the nanosecond (read back with the mcap library; the float64 stamp's exact value)
     msgs = read_mcap(next((tmp_path / "gt").glob("*.mcap")))
     assert sum(m.channel.topic == "/scan" for m in msgs) == 60
-    poses = sorted((m.log_time_ns, m.channel.topic, m.ros_msg.pose.pose.position.x)
-                   for m in msgs if m.channel.topic.startswith("/gtsjax/robot_"))
-    want = sorted((round(r.stamp * 1e9), f"/gtsjax/robot_{r.track_id}", r.x) for r in rows)
+    poses = sorted((m.log_time_ns, m.ros_msg.child_frame_id, m.ros_msg.pose.pose.position.x)
+                   for m in msgs if m.channel.topic == "/gtsjax/track_odom")
+    want = sorted((round(Fraction(r.stamp) * 10**9), f"robot_{r.track_id}", r.x) for r in rows)
     assert [p[:2] for p in poses] == [w[:2] for w in want]
     np.testing.assert_allclose([p[2] for p in poses], [w[2] for w in want], atol=1e-6)  # the CSV's 6 decimals
 

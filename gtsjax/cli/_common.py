@@ -80,9 +80,10 @@ def load_for_run(model_path: Path, site_path: Path, sensor: str | None = None):
 VIEW_HELP = ("Show the run in Rerun: --view opens the native viewer, --view web serves Rerun's web viewer on "
              "localhost (its address printed; no internet needed). Needs the viewer extra: "
              'pip install "gtsjax\\[viewer]".')  # (an escaped bracket: the help is rich markup)
-OUT_BAG_HELP = ("Also write a ROS 2 bag (MCAP storage) to this new folder: the scans (sensor_msgs/LaserScan), the "
-                "laser pose (/tf), the tracks (a PoseArray per scan, and one PoseWithCovarianceStamped topic per "
-                "track). One laser.")
+OUT_BAG_HELP = ("Also write a ROS 2 bag (MCAP storage) to this new folder: the scans (sensor_msgs/LaserScan on "
+                "/scan, or /NAME/scan per laser of several), /tf (field to each laser and to each track's CLASS_ID "
+                "frame), the tracks (/gtsjax/tracks PoseArray, /gtsjax/markers MarkerArray with ids, "
+                "/gtsjax/track_odom nav_msgs/Odometry with covariance, child_frame_id CLASS_ID).")
 VIEW_SAVE_HELP = "Record the view to this .rrd file (Rerun's viewer reopens it); needs the viewer extra."
 
 

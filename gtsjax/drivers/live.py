@@ -365,7 +365,7 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
     1.82–1.96 in three interleaved runs, ``scripts/ab_keep_warm.py``); the host's then took the
     reader thread's decoding from 0.24 to 0.16 ms and the frame's NumPy calls before the step from
     0.15 to 0.02 ms (median). The cost is one more step per frame, a few per cent of a core."""
-    from ..io.bag_out import BagOut
+    from ..io.bag_out import LASER, BagOut, LaserGeometry
     from ..io.record import Recorder
 
     sensor = link.model
@@ -378,9 +378,7 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
         stats.stale += 1
     outputs = outputs or Outputs()
     recorder = Recorder(record, model=sensor, intensities=with_intensity and sensor.has_intensity) if record else None
-    bag = (BagOut(out_bag, angle_min=sensor.angle_min, angle_increment=sensor.angle_increment,
-                  range_min=sensor.range_min, range_max=sensor.range_max, scan_time=sensor.period)
-           if out_bag is not None else None)
+    bag = BagOut(out_bag, {LASER: LaserGeometry.of_sensor(sensor)}) if out_bag is not None else None
     t_end = None if duration is None else time.monotonic() + duration
     prev_stamp = None
     period_ms = sensor.period * 1000.0

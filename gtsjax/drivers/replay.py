@@ -201,15 +201,13 @@ def process_logs(model: Model, scans: "list[Scan | None]", *, chunk: int = 256,
 
 
 def bag_for(log, path: Path | None):
-    """A :class:`~gtsjax.io.bag_out.BagOut` at ``path`` for ``log``'s scans (``None`` without a path)."""
+    """A :class:`~gtsjax.io.bag_out.BagOut` at ``path`` for ``log``'s scans, one laser (``None``
+    without a path); the scanner's timing as the log names it (:meth:`~gtsjax.io.bag_out.LaserGeometry.of_log`)."""
     if path is None:
         return None
-    from ..io.bag_out import BagOut
-    from ..sensors import MODELS
+    from ..io.bag_out import LASER, BagOut, LaserGeometry
 
-    known = MODELS.get(log.sensor_model or "")
-    return BagOut(path, angle_min=log.angle_min, angle_increment=log.angle_increment, range_min=log.range_min,
-                  range_max=log.range_max, scan_time=known.period if known is not None else 0.0)
+    return BagOut(path, {LASER: LaserGeometry.of_log(log)})
 
 
 class _Sink:
