@@ -1,7 +1,15 @@
-"""The run as Rerun shows it (issue 19): ``--view`` (the native viewer), ``--view web`` (Rerun's web
-viewer served on localhost, no internet needed; ports 9090 for the page and 9876 for the data, or
-``$GTSJAX_VIEW_WEB_PORT`` and ``$GTSJAX_VIEW_GRPC_PORT``) and ``--view-save FILE.rrd`` on ``run``,
-``replay`` and ``demo``. ``rerun-sdk`` is an optional extra (``pip install "gtsjax[viewer]"``).
+"""The run as Rerun shows it (issues 19 and 39): ``--view`` (the native viewer), ``--view web`` (Rerun's
+web viewer, no internet needed) and ``--view-save FILE.rrd`` on ``run``, ``replay`` and ``demo``, for
+one laser or several. ``rerun-sdk`` is an optional extra (``pip install "gtsjax[viewer]"``).
+
+``--view web`` serves the page (port 9090, ``$GTSJAX_VIEW_WEB_PORT``) and the recording it shows
+(Rerun's gRPC proxy, port 9876, ``$GTSJAX_VIEW_GRPC_PORT``) on one address, ``$GTSJAX_VIEW_HOST``,
+by default 127.0.0.1 (this machine only; ``0.0.0.0`` for a tablet at the field, the URL then naming
+this machine), and the URL printed names that address for both. Both come from Rerun's own
+executable (``rerun --serve-web --bind HOST``, started beside the command and stopped when it ends):
+the SDK's ``serve_web_viewer`` binds its page to every interface with no way to narrow it
+(rerun-io/rerun#5882), so that the page was reachable from the field's network while its data was
+not.
 
 What it shows, in the field frame O (entity ``field``), on the timeline ``stamp`` (the scans'
 stamps, so a replayed log can be scrubbed):
@@ -15,22 +23,31 @@ stamps, so a replayed log can be scrubbed):
   class, the others faint, each labelled with its class or what became of it (filtered, background,
   unlike its class's examples, off its class's envelope, beyond its class's cap:
   :data:`~gtsjax.core.pipeline.REASONS`; hover for the label);
+* with several lasers, those four per laser under ``field/lasers/NAME/`` (``field/lasers/north/scan``,
+  each laser's returns in a colour of its own), so that one laser's scan does not replace another's;
 * ``field/tracks/CLASS_ID``: each confirmed track: an arrow along its heading, its 2-σ position
-  ellipse and its trail, labelled ``CLASS ID``; a track that ended is cleared;
+  ellipse (with the x–y covariance: tilted where the error is) and its trail, labelled ``CLASS ID``;
+  a track that ended is cleared;
 * ``stats/latency_ms`` (live), ``stats/tracks``, ``stats/landmark_residual_cm``, ``stats/dropped``
-  (live: frames the link dropped): time series.
+  (live: frames the link dropped): time series; the last two per laser with several
+  (``stats/landmark_residual_cm/NAME``).
 """
-
+import atexit
 import collections
 import math
 import os
+import socket
+import subprocess
 import sys
+import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
 
 from .core.pipeline import REASONS
 from .errors import InputError
+from .io.bag_out import TRACK_COLOURS, track_colour
 
 OBJECT = REASONS.index("object")
 
@@ -46,8 +63,10 @@ LASER_COLOUR = (230, 150, 0)
 Y_UP = [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0]]
 CLASS_COLOURS = [(150, 150, 150), (40, 40, 40), (30, 90, 220), (200, 60, 200), (20, 160, 160)]  # by class index
 FAINT = (170, 170, 170, 90)  # candidates that are not objects
-_COLOURS = [(230, 25, 75), (60, 180, 75), (0, 130, 200), (245, 130, 48), (145, 30, 180), (70, 240, 240),
-            (240, 50, 230), (128, 128, 0), (0, 128, 128), (170, 110, 40)]
+_COLOURS = TRACK_COLOURS  # by track id, as the ROS bag's markers (:func:`~gtsjax.io.bag_out.track_colour`)
+# Each laser's returns, by the order the lasers are first seen (the first as with one laser).
+SCAN_COLOURS = [(120, 120, 120), (70, 120, 190), (190, 110, 60), (120, 160, 60), (150, 90, 170)]
+WEB_HOST = "127.0.0.1"  # where --view web serves the page and the data unless $GTSJAX_VIEW_HOST says
 
 
 def rerun_available() -> bool:
@@ -67,37 +86,108 @@ def _rr():
     return rr
 
 
-def _colour(track_id: int) -> tuple[int, int, int]:
-    return _COLOURS[int(track_id) % len(_COLOURS)]
+_colour = track_colour
 
 
-def ellipse(x: float, y: float, var_x: float, var_y: float, n_sigma: float = 2.0, n: int = 32) -> np.ndarray:
-    """The ``n_sigma`` ellipse of an axis-aligned position variance, as a closed line strip."""
+def ellipse(x: float, y: float, var_x: float, var_y: float, n_sigma: float = 2.0, n: int = 32,
+            cov_xy: float = 0.0) -> np.ndarray:
+    """The ``n_sigma`` ellipse of a position covariance (``cov_xy`` tilts it), as a closed line strip:
+    the unit circle through a square root of the covariance."""
+    w, v = np.linalg.eigh(np.array([[var_x, cov_xy], [cov_xy, var_y]], np.float64))
+    root = v * np.sqrt(np.maximum(w, 0.0))
     t = np.linspace(0.0, 2 * np.pi, n + 1)
-    return np.stack([x + n_sigma * math.sqrt(max(var_x, 0.0)) * np.cos(t),
-                     y + n_sigma * math.sqrt(max(var_y, 0.0)) * np.sin(t)], axis=1)
+    return np.array([x, y]) + n_sigma * np.stack([np.cos(t), np.sin(t)], axis=1) @ root.T
+
+
+def _url_host(host: str) -> str:
+    """How a URL names the address ``host`` is bound to: this machine's name for every interface (a
+    tablet on the field's network reaches it so), an IPv6 address in brackets."""
+    if host in ("0.0.0.0", "::"):
+        return socket.gethostname()
+    return f"[{host}]" if ":" in host else host
+
+
+def _viewer_executable() -> str:
+    """Rerun's own executable, which the wheel ships in ``rerun_cli`` (``.venv/bin/rerun`` is a
+    Python wrapper around it: stopping the wrapper would leave the server running)."""
+    try:
+        import rerun_cli
+    except ImportError:
+        rerun_cli = None
+    exe = None if rerun_cli is None else Path(rerun_cli.__file__).with_name("rerun")
+    if exe is None or not exe.is_file():
+        raise InputError("--view", f"web needs Rerun's executable, which comes with the viewer extra: {VIEWER_EXTRA}")
+    return str(exe)
+
+
+def _listening(host: str, port: int) -> bool:
+    try:
+        with socket.create_connection(("127.0.0.1" if host in ("0.0.0.0", "::") else host, port), timeout=0.5):
+            return True
+    except OSError:
+        return False
+
+
+def serve_web(host: str, web_port: int, grpc_port: int, timeout: float = 20.0) -> subprocess.Popen:
+    """Rerun's web viewer (its page on ``web_port``) and gRPC proxy (``grpc_port``), both bound to
+    ``host``, as a process of its own, returned once both listen. It is stopped when this process
+    exits (not by the terminal's Ctrl-C, which would take the data away before the command flushed it)."""
+    for port in (web_port, grpc_port):
+        if _listening(host, port):
+            raise InputError("--view", f"web: port {port} on {host} is taken; $GTSJAX_VIEW_WEB_PORT and "
+                                       "$GTSJAX_VIEW_GRPC_PORT choose others")
+    err = tempfile.TemporaryFile()
+    proc = subprocess.Popen([_viewer_executable(), "--serve-web", "--bind", host, "--port", str(grpc_port),
+                             "--web-viewer-port", str(web_port)], stdin=subprocess.DEVNULL,
+                            stdout=subprocess.DEVNULL, stderr=err, start_new_session=True)
+    atexit.register(_stop, proc)
+    t_end = time.monotonic() + timeout
+    while not (_listening(host, grpc_port) and _listening(host, web_port)):
+        if proc.poll() is not None or time.monotonic() > t_end:
+            _stop(proc)
+            err.seek(0)
+            lines = [ln for ln in err.read().decode(errors="replace").splitlines() if ln.strip()]
+            why = lines[-1].strip() if lines else f"not listening after {timeout:g} s"
+            raise InputError("--view", f"web: Rerun's web viewer did not start on {host} ports {web_port} and "
+                                       f"{grpc_port} ({why}); $GTSJAX_VIEW_WEB_PORT and $GTSJAX_VIEW_GRPC_PORT "
+                                       "choose others")
+        time.sleep(0.1)
+    err.close()
+    return proc
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        proc.terminate()
+        try:
+            proc.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            proc.kill()
 
 
 class View:
     """A Rerun recording of one run. ``mode``: ``"native"`` (spawn the viewer), ``"web"`` (serve the
-    web viewer on localhost: :attr:`url` is the page) or ``None``; ``save``: also write an ``.rrd``."""
+    web viewer on ``host``, by default ``$GTSJAX_VIEW_HOST`` or :data:`WEB_HOST`: :attr:`url` is the
+    page) or ``None``; ``save``: also write an ``.rrd``."""
 
     def __init__(self, model, *, mode: str | None = None, save: Path | None = None, web_port: int | None = None,
-                 grpc_port: int | None = None, name: str = "gtsjax"):
+                 grpc_port: int | None = None, name: str = "gtsjax", host: str | None = None):
         rr = _rr()
         if mode not in (None, "native", "web"):
             raise InputError("--view", f"{mode!r}: give --view (the native viewer) or --view web")
         self.rr, self.model = rr, model
         self.rec = rr.RecordingStream(name)
-        self.url = None
+        self.url = self.server = None
         sinks = [rr.FileSink(str(save))] if save is not None else []
-        if mode == "web":  # a gRPC server buffers the recording; the web viewer's page connects to it
+        if mode == "web":  # Rerun's gRPC proxy buffers the recording; the web viewer's page connects to it
+            host = host or os.environ.get("GTSJAX_VIEW_HOST") or WEB_HOST
             grpc_port = grpc_port or int(os.environ.get("GTSJAX_VIEW_GRPC_PORT", "9876"))
-            server = rr.GrpcServerSink(bind_ip="127.0.0.1", port=grpc_port)
-            sinks.append(server)
             port = web_port or int(os.environ.get("GTSJAX_VIEW_WEB_PORT", "9090"))
-            rr.serve_web_viewer(web_port=port, open_browser=False, connect_to=server.uri)
-            self.url = f"http://localhost:{port}/?url={server.uri}"
+            self.server = serve_web(host, port, grpc_port)
+            local = "127.0.0.1" if host in ("0.0.0.0", "::") else _url_host(host)
+            sinks.append(rr.GrpcSink(url=f"rerun+http://{local}:{grpc_port}/proxy"))
+            there = _url_host(host)
+            self.url = f"http://{there}:{port}/?url=rerun+http://{there}:{grpc_port}/proxy"
         elif mode == "native":
             if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
                 raise InputError("--view", "no display to open Rerun's viewer on: --view web serves it to a browser, "
@@ -116,6 +206,7 @@ class View:
         if sinks:
             self.rec.set_sinks(*sinks, default_blueprint=self._layout())
         self._trails: dict[str, collections.deque] = {}
+        self._lasers: list[str] = []  # the named lasers, in the order first seen (their scans' colours)
         self._static()
 
     def _layout(self):
@@ -142,25 +233,35 @@ class View:
                static=True, recording=self.rec)
 
     def scan(self, stamp: float, ranges, angle_min: float, angle_increment: float, out, rows, *,
-             latency_ms: float | None = None, dropped: int | None = None) -> None:
+             latency_ms: float | None = None, dropped: int | None = None, laser: str | None = None) -> None:
         """One scan: its returns (metres; 0 or non-finite: none), the step's output ``out`` (host or
-        device arrays of one scan), its GTD rows."""
+        device arrays of one scan), its GTD rows. ``laser``: the name of the laser that took it, with
+        several (its entities under ``field/lasers/NAME``); ``None`` for a one-laser run."""
         rr, rec = self.rr, self.rec
         rr.set_time("stamp", timestamp=float(stamp), recording=rec)
+        if laser is None:
+            base, colour, suffix = "field", SCAN_COLOURS[0], ""
+        else:
+            if laser not in self._lasers:
+                self._lasers.append(laser)
+            part = rr.escape_entity_path_part(laser)  # a name with a "/" or a space is one part
+            base = f"field/lasers/{part}"
+            colour = SCAN_COLOURS[self._lasers.index(laser) % len(SCAN_COLOURS)]
+            suffix = f"/{part}"
         sx, sy, sth = (float(v) for v in np.asarray(out.sensor_pose))
-        rr.log("field/laser", rr.Arrows2D(origins=[(sx, sy)], vectors=[(0.3 * math.cos(sth), 0.3 * math.sin(sth))],
-                                          colors=[LASER_COLOUR], labels=["laser"]), recording=rec)
+        rr.log(f"{base}/laser", rr.Arrows2D(origins=[(sx, sy)], vectors=[(0.3 * math.cos(sth), 0.3 * math.sin(sth))],
+                                            colors=[LASER_COLOUR], labels=[laser or "laser"]), recording=rec)
         r = np.asarray(ranges, np.float64)
         ok = np.isfinite(r) & (r > 0)
         a = angle_min + angle_increment * np.arange(r.size) + sth
         pts = np.stack([sx + r[ok] * np.cos(a[ok]), sy + r[ok] * np.sin(a[ok])], axis=1)
-        rr.log("field/scan", rr.Points2D(pts, radii=0.012, colors=[(120, 120, 120)]), recording=rec)
+        rr.log(f"{base}/scan", rr.Points2D(pts, radii=0.012, colors=[colour]), recording=rec)
         seen = np.asarray(out.landmark_seen, bool)
         res = np.asarray(out.landmark_residual, np.float64)
         lm = np.asarray(self.model.site.landmark_xy, np.float64)
         err_cm = np.linalg.norm(res[seen], axis=1) * 100 if seen.any() else np.zeros(0)
-        rr.log("field/landmarks_seen", rr.Points2D(lm[seen] + res[seen], radii=0.04, colors=[SEEN_COLOUR],
-                                                   labels=[f"{e:.1f} cm" for e in err_cm]), recording=rec)
+        rr.log(f"{base}/landmarks_seen", rr.Points2D(lm[seen] + res[seen], radii=0.04, colors=[SEEN_COLOUR],
+                                                     labels=[f"{e:.1f} cm" for e in err_cm]), recording=rec)
         # Every candidate of the scan: the objects by class, the rest faint, labelled with what became of them.
         reason = np.asarray(out.cand_reason)
         shown = reason > 0
@@ -170,8 +271,8 @@ class View:
         obj = why == OBJECT
         labels = [self.model.classes[int(c)] if o else REASONS[int(w)] for c, o, w in zip(cls, obj, why, strict=True)]
         colours = [CLASS_COLOURS[int(c) % len(CLASS_COLOURS)] if o else FAINT for c, o in zip(cls, obj, strict=True)]
-        rr.log("field/candidates", rr.Points2D(xy if xy.size else np.zeros((0, 2)), radii=0.04, colors=colours,
-                                               labels=labels, show_labels=False), recording=rec)
+        rr.log(f"{base}/candidates", rr.Points2D(xy if xy.size else np.zeros((0, 2)), radii=0.04, colors=colours,
+                                                 labels=labels, show_labels=False), recording=rec)
         present = set()
         for row in rows:
             key = f"{row.cls}_{row.track_id}"
@@ -182,19 +283,19 @@ class View:
             rr.log(f"field/tracks/{key}/pose", rr.Arrows2D(
                 origins=[(row.x, row.y)], vectors=[(0.25 * math.cos(row.theta), 0.25 * math.sin(row.theta))],
                 colors=[c], radii=0.015, labels=[f"{row.cls} {row.track_id}"]), recording=rec)
-            rr.log(f"field/tracks/{key}/ellipse", rr.LineStrips2D([ellipse(row.x, row.y, row.var_x, row.var_y)],
-                                                                  colors=[c], radii=0.005), recording=rec)
+            rr.log(f"field/tracks/{key}/ellipse", rr.LineStrips2D(
+                [ellipse(row.x, row.y, row.var_x, row.var_y, cov_xy=row.cov_xy)], colors=[c], radii=0.005), recording=rec)
             rr.log(f"field/tracks/{key}/trail", rr.LineStrips2D([list(trail)], colors=[c], radii=0.006), recording=rec)
         for key in [k for k in self._trails if k not in present]:  # a track that ended (or is not reported)
             rr.log(f"field/tracks/{key}", rr.Clear(recursive=True), recording=rec)
             del self._trails[key]
         rr.log("stats/tracks", rr.Scalars(float(len(rows))), recording=rec)
         if err_cm.size:
-            rr.log("stats/landmark_residual_cm", rr.Scalars(float(err_cm.max())), recording=rec)
+            rr.log(f"stats/landmark_residual_cm{suffix}", rr.Scalars(float(err_cm.max())), recording=rec)
         if latency_ms is not None:
             rr.log("stats/latency_ms", rr.Scalars(float(latency_ms)), recording=rec)
         if dropped is not None:
-            rr.log("stats/dropped", rr.Scalars(float(dropped)), recording=rec)
+            rr.log(f"stats/dropped{suffix}", rr.Scalars(float(dropped)), recording=rec)
 
     def close(self) -> None:
         """Everything logged sent on (the file written); a viewer that went away is said, not fatal."""

@@ -72,6 +72,52 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+def _listening() -> dict[int, str]:
+    """The IPv4 TCP ports listening on this machine and the address each is bound to, from the
+    kernel's table (``/proc/net/tcp``: little-endian hex address, state 0A = LISTEN)."""
+    found = {}
+    for line in Path("/proc/net/tcp").read_text().splitlines()[1:]:
+        local, state = line.split()[1], line.split()[3]
+        if state == "0A":
+            ip, port = local.split(":")
+            found[int(port, 16)] = socket.inet_ntoa(bytes.fromhex(ip)[::-1])
+    return found
+
+
+@pytest.mark.parametrize("host", [None, "0.0.0.0"])
+def test_view_web_serves_page_and_data_on_one_address_and_says_it(host, monkeypatch):
+    """``--view web`` binds the page and the recording's gRPC proxy to one address, 127.0.0.1 by
+    default or ``$GTSJAX_VIEW_HOST``, as the kernel's socket table shows, and its URL names that
+    address (this machine's name for every interface) for both; the server stops with the command."""
+    _rerun()
+    if not Path("/proc/net/tcp").exists():
+        pytest.skip("no /proc/net/tcp to read the bound addresses from")
+    from gtsjax import viewer
+    from gtsjax.cli.demo import demo_model_path
+    from gtsjax.io.modelfile import load_model
+    from gtsjax.sim import simulate
+
+    _, site = simulate("spl-trajectory", seed=3, n_scans=2)
+    model = load_model(demo_model_path()).with_site(site)
+    web, grpc = _free_port(), _free_port()
+    if host is None:
+        monkeypatch.delenv("GTSJAX_VIEW_HOST", raising=False)
+    else:
+        monkeypatch.setenv("GTSJAX_VIEW_HOST", host)
+    view = viewer.View(model, mode="web", web_port=web, grpc_port=grpc)
+    try:
+        bound = _listening()
+        want = host or "127.0.0.1"
+        assert (bound.get(web), bound.get(grpc)) == (want, want)
+        shown = socket.gethostname() if host == "0.0.0.0" else "127.0.0.1"
+        assert view.url == f"http://{shown}:{web}/?url=rerun+http://{shown}:{grpc}/proxy"
+        view.close()
+    finally:
+        viewer._stop(view.server)
+    bound = _listening()
+    assert web not in bound and grpc not in bound
+
+
 @pytest.mark.browser
 def test_replay_view_web_draws_in_headless_chromium(tmp_path):
     """``gtsjax replay --view web`` on a short simulated log serves Rerun's web viewer on localhost; headless

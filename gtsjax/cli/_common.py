@@ -78,7 +78,8 @@ def load_for_run(model_path: Path, site_path: Path, sensor: str | None = None):
 
 
 VIEW_HELP = ("Show the run in Rerun: --view opens the native viewer, --view web serves Rerun's web viewer on "
-             "localhost (its address printed; no internet needed). Needs the viewer extra: "
+             "127.0.0.1, page and data alike (GTSJAX_VIEW_HOST=0.0.0.0 for other machines; its address printed; no "
+             "internet needed). Needs the viewer extra: "
              'pip install "gtsjax\\[viewer]".')  # (an escaped bracket: the help is rich markup)
 OUT_BAG_HELP = ("Also write a ROS 2 bag (MCAP storage) to this new folder: the scans (sensor_msgs/LaserScan on "
                 "/scan, or /NAME/scan per laser of several), /tf (field to each laser and to each track's CLASS_ID "

@@ -226,6 +226,7 @@ class _Sink:
     def add(self, part, out_arrays) -> None:
         """The outputs of the scans ``part`` (a slice of the log) as stacked arrays."""
         totals = self.totals
+        valid = part.valid() if self.view is not None else None
         for i in range(part.n_scans):
             rows = rows_from_output(part.stamps[i], out_arrays.track_id[i], out_arrays.track_class[i],
                                     out_arrays.track_pose[i], out_arrays.track_var[i], out_arrays.track_mask[i],
@@ -236,7 +237,7 @@ class _Sink:
                                None if part.intensities is None else part.intensities[i], rows,
                                np.asarray(out_arrays.sensor_pose[i], np.float64))
             if self.view is not None:
-                self.view.scan(float(part.stamps[i]), np.where(part.valid()[i], part.ranges[i], 0.0), part.angle_min,
+                self.view.scan(float(part.stamps[i]), np.where(valid[i], part.ranges[i], 0.0), part.angle_min,
                                part.angle_increment, jax.tree.map(lambda a, i=i: a[i], out_arrays), rows)
             for row in rows:
                 totals["track_ids"].setdefault(row.cls, set()).add(row.track_id)
