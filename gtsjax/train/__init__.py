@@ -75,17 +75,17 @@ def fit_cost(n: int, n_fit: int, restarts: int, outputs: int = 1) -> float:
     """A GP fit's cost relative to others, for an estimate of the time left (not a prediction in
     seconds): BFGS on ``n_fit`` rows, each step an O(n_fit³) factorisation per output, for every start
     (or, past the screening size, every start on the screening subsample and about two starts on all the
-    rows); the conditioning on all ``n`` (its O(n³) factorisations, weighed as a tenth of a step's, so
-    that the SPL match's pose GPs, 6 000 examples fitted on 2 000, weigh 5 times its classifier's on
-    1 500: they took 4–8 times as long, the classifier's three 25–117 s); and a fixed part for what
-    does not grow with n (a new shape's compilation, the host's work), as much as a fit of about 600
-    rows."""
+    rows); the conditioning on all ``n`` (its O(n³) factorisations, weighed as a fiftieth of a step's,
+    so that the SPL match's pose GPs, 6 000 examples fitted on 2 000, weigh 2.8 times its classifier's
+    on 1 500: they took 1.5 times as long on 2 otherwise idle cores, 4 times with other programs
+    running); and a fixed part for what does not grow with n (a new shape's compilation, the host's
+    work), as much as a fit of about 600 rows."""
     n_fit = min(n_fit, n)
     if restarts > 1 and n_fit > _GP_SCREEN_POINTS:
         steps = 2.0 * n_fit**3 + restarts * _GP_SCREEN_POINTS**3
     else:
         steps = restarts * float(n_fit) ** 3
-    return outputs * (steps + 0.1 * float(n) ** 3) + 2e8
+    return outputs * (steps + 0.02 * float(n) ** 3) + 2e8
 
 
 def planned_fits(classes: Sequence[str], landmarks: Sequence[str], mobiles: Sequence[str], cfg: TrainConfig, *,
