@@ -4,6 +4,7 @@ CARMEN and BreezySLAM logs; ``export-tum`` read back by an independent TUM parse
 stderr naming the file, with nothing left half-written (the importers' own messages, one case each, are
 tested in ``test_importers.py``)."""
 
+import csv
 import math
 import os
 import subprocess
@@ -268,3 +269,24 @@ def test_plot_bad_truth_exit_2(labelled, tmp_path):
                      angle_increment=log.angle_increment), plain)
     one_line_exit_2(run("plot", gtd, "--site", d / "site.json", "--truth", plain), plain, "has no truth_poses")
     assert not (tmp_path / "gtd.png").exists()
+
+
+def test_replay_csv_units_is_the_same_rows_with_units_and_cov_xy(labelled, tmp_path):
+    """``replay --csv-units``: the spec's rows, column for column, under the header with units, and a
+    ``cov_xy_m2`` column that makes each 2×2 position covariance positive semi-definite (|cov_xy| at
+    most σx σy, the Cauchy–Schwarz bound), not all zero (the tracker's covariance is coupled)."""
+    from gtsjax.io.gtd import UNITS_HEADER
+
+    d, _ = labelled
+    common = ["replay", str(d / "truth.npz"), "--site", str(d / "site.json"), "--model", str(DEMO_MODEL)]
+    assert main([*common, "--out", str(tmp_path / "spec.csv")]) == 0
+    assert main([*common, "--out", str(tmp_path / "units.csv"), "--csv-units"]) == 0
+    with open(tmp_path / "spec.csv", newline="") as f:
+        spec = list(csv.reader(f))
+    with open(tmp_path / "units.csv", newline="") as f:
+        units = list(csv.reader(f))
+    assert tuple(units[0]) == UNITS_HEADER and len(units) == len(spec) > 20
+    assert [r[:9] for r in units[1:]] == spec[1:]
+    var_x, var_y, cov = (np.array([float(r[i]) for r in units[1:]]) for i in (6, 7, 9))
+    assert np.all(np.abs(cov) <= np.sqrt(var_x * var_y) * (1 + 1e-5))
+    assert np.any(cov != 0.0)

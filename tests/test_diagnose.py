@@ -175,6 +175,7 @@ def test_the_tally_fed_scan_by_scan_or_packed_equals_the_stacked_one():
         track_id=tid.astype(np.int32), track_class=np.full((T, 2), 2, np.int32), track_live=live, track_hold=hold,
         track_speed=speed, track_turn_rate=np.zeros((T, 2), np.float32), track_mask=live & (tid == 1) & (hold == 0),
         track_pose=np.zeros((T, 2, 3), np.float32), track_var=np.zeros((T, 2, 3), np.float32),
+        track_cov_xy=np.zeros((T, 2), np.float32),
         det_mask=det_mask, det_class=np.full((T, 3), 2, np.int32), degraded=np.arange(T) < 7,
         n_objects=np.zeros(T, np.int32), unlike=np.zeros(T, np.int32), off_envelope=np.zeros(T, np.int32))
     stacked = Tally(model)

@@ -85,3 +85,36 @@ def test_writer_text_is_what_csv_writer_writes(tmp_path):
     back = read_gtd(tmp_path / "h.csv")
     assert [(r.track_id, r.cls) for r in back] == [(r.track_id, r.cls) for r in plain]
     np.testing.assert_allclose([r.x for r in back], [r.x for r in plain], atol=1e-6)
+
+
+def test_units_form_is_what_csv_writer_writes_and_reads_back(tmp_path):
+    """``--csv-units``: the header with units and the ``cov_xy_m2`` column, each row what
+    ``csv.writer`` writes for the same fields; the reader takes it, the spec's header, and the spec's
+    header followed by ``cov_xy`` (a file another program extended), with the covariance back."""
+    import io
+
+    from gtsjax.io.gtd import UNITS_HEADER, TrackRow
+
+    rng = np.random.default_rng(4)
+    rows = [TrackRow(float(1.7e9 + k * 0.1), k % 3, "robot", *rng.normal(0, 3, 3).tolist(),
+                     *(10.0 ** rng.uniform(-6, -2, 3)).tolist(), float(rng.normal(0, 1e-4))) for k in range(20)]
+    want = io.StringIO()
+    w = csv.writer(want, lineterminator="\n")
+    w.writerow(UNITS_HEADER)
+    for r in rows:
+        w.writerow([repr(r.stamp), r.track_id, r.cls, f"{r.x:.6f}", f"{r.y:.6f}", f"{r.theta:.6f}",
+                    f"{r.var_x:.6e}", f"{r.var_y:.6e}", f"{r.var_theta:.6e}", f"{r.cov_xy:.6e}"])
+    with GTDWriter(tmp_path / "u.csv", units=True) as gw:
+        gw.write(rows)
+    assert (tmp_path / "u.csv").read_text() == want.getvalue()
+    back = read_gtd(tmp_path / "u.csv")
+    np.testing.assert_allclose([r.cov_xy for r in back], [r.cov_xy for r in rows], rtol=1e-6)
+    # The spec's header and a trailing cov_xy; and the spec's header alone reads cov_xy as 0.
+    lines = want.getvalue().splitlines()
+    (tmp_path / "x.csv").write_text("\n".join([",".join(HEADER) + ",cov_xy", *lines[1:]]) + "\n")
+    assert [r.cov_xy for r in read_gtd(tmp_path / "x.csv")] == [r.cov_xy for r in back]
+    (tmp_path / "s.csv").write_text("\n".join([",".join(HEADER), *(ln.rsplit(",", 1)[0] for ln in lines[1:])]) + "\n")
+    assert {r.cov_xy for r in read_gtd(tmp_path / "s.csv")} == {0.0}
+    (tmp_path / "bad.csv").write_text(",".join(UNITS_HEADER) + "\n" + lines[1].rsplit(",", 1)[0] + "\n")
+    with pytest.raises(InputError, match="line 2 has 9 fields, expected 10"):
+        read_gtd(tmp_path / "bad.csv")

@@ -206,18 +206,19 @@ def test_rows_from_packed_equal_rows_from_output():
     classes = ("robot", "post", "ball")
     for trial in range(200):
         m = int(rng.integers(1, 12))
-        packed = np.zeros((m + 1, 9), np.float32)
+        packed = np.zeros((m + 1, 10), np.float32)
         packed[:m, 0] = rng.permutation(np.arange(1, 3 * m + 1))[:m]
         packed[:m, 1] = rng.integers(0, len(classes), m)
         packed[:m, 2:5] = rng.normal(0.0, 3.0, (m, 3))
         packed[:m, 4] = np.where(rng.random(m) < 0.2, rng.choice([np.pi, -np.pi, 3 * np.pi, 0.0], m), packed[:m, 4])
         packed[:m, 5:8] = rng.random((m, 3)) * 1e-3
-        packed[:m, 8] = rng.random(m) < 0.6
+        packed[:m, 8] = rng.normal(0.0, 1e-4, m)
+        packed[:m, 9] = rng.random(m) < 0.6
         packed[m, :4] = rng.random(4)
         got = rows_from_packed(12.5 + trial, packed, classes)
         t = packed[:-1]
         want = rows_from_output(12.5 + trial, t[:, 0].astype(np.int64), t[:, 1].astype(np.int64), t[:, 2:5],
-                                t[:, 5:8], t[:, 8] > 0.5, classes)
+                                t[:, 5:8], t[:, 9] > 0.5, classes, t[:, 8])
         assert got == want
         assert rows_from_packed(12.5 + trial, packed.tolist(), classes) == want
     from gtsjax.core.geometry import wrap

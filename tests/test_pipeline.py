@@ -340,11 +340,12 @@ def test_live_step_rows_equal_the_replay_rows(tiny):
         s_live, _, packed = live(s_live, log.ranges[t], None, dts[t])
         got = rows_from_packed(log.stamps[t], np.asarray(packed), model.classes)
         want = rows_from_output(log.stamps[t], batch.track_id[t], batch.track_class[t], batch.track_pose[t],
-                                batch.track_var[t], batch.track_mask[t], model.classes)
+                                batch.track_var[t], batch.track_mask[t], model.classes, batch.track_cov_xy[t])
         assert [(r.track_id, r.cls) for r in got] == [(r.track_id, r.cls) for r in want]
         for a, b in zip(got, want, strict=True):
-            np.testing.assert_allclose([a.x, a.y, a.theta, a.var_x, a.var_y, a.var_theta],
-                                       [b.x, b.y, b.theta, b.var_x, b.var_y, b.var_theta], rtol=1e-4, atol=1e-5)
+            np.testing.assert_allclose([a.x, a.y, a.theta, a.var_x, a.var_y, a.var_theta, a.cov_xy],
+                                       [b.x, b.y, b.theta, b.var_x, b.var_y, b.var_theta, b.cov_xy], rtol=1e-4,
+                                       atol=1e-5)
         assert bool(np.asarray(packed)[-1, 0] > 0.5) == bool(batch.degraded[t])
         n_rows += len(got)
     assert n_rows > 20  # the robots were tracked, so rows were compared

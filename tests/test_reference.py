@@ -72,6 +72,7 @@ def test_reference_gives_the_same_tracks(spl):
     assert agree["track_scans_gtsjax"] == agree["track_scans_reference"] == agree["pairs_compared"]
     assert agree["max_pos_diff_m"] < 2e-3
     assert agree["max_heading_diff_deg"] < 0.2
+    assert agree["max_xy_correlation_diff"] < 0.02
     assert [bool(o.degraded) for o in ref] == [bool(d) for d in np.asarray(out.degraded)]
     # and the transforms agree too (both re-estimated every scan from the detected posts)
     a = np.stack([o.A for o in ref])

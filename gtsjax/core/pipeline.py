@@ -79,7 +79,8 @@ class Output(eqx.Module):
     track_id: Int[Array, " tracks"]
     track_class: Int[Array, " tracks"]
     track_pose: Float[Array, "tracks 3"]
-    track_var: Float[Array, "tracks 3"]
+    track_var: Float[Array, "tracks 3"]  # the marginal variances of x, y, θ
+    track_cov_xy: Float[Array, " tracks"]  # the x–y covariance
     track_mask: Bool[Array, " tracks"]
     track_live: Bool[Array, " tracks"]  # slot in use: a tentative or confirmed track
     track_hold: Int[Array, " tracks"]  # why a live slot is not confirmed: an index into ``g_track.HOLDS``
@@ -267,6 +268,7 @@ def update_view(model: Model, prev_tf: Transform, tracker: TrackerState, p: Perc
         track_class=ts.class_id,
         track_pose=ts.mean[:, :3],
         track_var=jnp.diagonal(ts.cov, axis1=1, axis2=2)[:, :3],
+        track_cov_xy=ts.cov[:, 0, 1],
         # Confirmed, recently observed, inside the site's bounds (a coasting track may leave them), and
         # if missed in this scan, not where the scan sees through.
         track_mask=reported(ts, model.tracker, watchers) & _inside(site, ts.mean[:, :3])

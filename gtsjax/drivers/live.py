@@ -107,14 +107,14 @@ def frame_arrays(ranges_m: np.ndarray, intensities: np.ndarray | None, sensor: S
 
 
 # Columns of :func:`pack_tracks`.
-PACKED = ("track_id", "class", "x", "y", "theta", "var_x", "var_y", "var_theta", "reported", "live", "hold", "speed",
-          "turn_rate")
+PACKED = ("track_id", "class", "x", "y", "theta", "var_x", "var_y", "var_theta", "cov_xy", "reported", "live", "hold",
+          "speed", "turn_rate")
 # Classes a status row's bit field of detected classes can hold (exact in float32 below 2^24).
 _CLASS_BITS = 24
 
 
 def pack_tracks(o: Output):
-    """The GTD rows' fields of one output as a single ``[M + 1, 13]`` float32 array (columns
+    """The GTD rows' fields of one output as a single ``[M + 1, 14]`` float32 array (columns
     :data:`PACKED`; track ids and classes are exact in float32 below 2^24), so that one transfer
     brings a scan's rows to the host, with what the run's diagnosis counts (each slot's live flag,
     hold and estimated motion: :mod:`gtsjax.drivers.diagnose`). The last row holds the scan's
@@ -124,8 +124,8 @@ def pack_tracks(o: Output):
     f32 = jnp.float32
     col = lambda a: a[:, None].astype(f32)  # noqa: E731
     tracks = jnp.concatenate([
-        col(o.track_id), col(o.track_class), o.track_pose.astype(f32), o.track_var.astype(f32), col(o.track_mask),
-        col(o.track_live), col(o.track_hold), col(o.track_speed), col(o.track_turn_rate)], axis=1)
+        col(o.track_id), col(o.track_class), o.track_pose.astype(f32), o.track_var.astype(f32), col(o.track_cov_xy),
+        col(o.track_mask), col(o.track_live), col(o.track_hold), col(o.track_speed), col(o.track_turn_rate)], axis=1)
     bit = jnp.arange(_CLASS_BITS, dtype=jnp.int32)
     seen = jnp.any(o.det_mask[:, None] & (o.det_class[:, None] == bit[None, :]), axis=0)
     detected = jnp.sum(jnp.where(seen, jnp.left_shift(1, bit), 0), dtype=jnp.int32)
@@ -302,10 +302,11 @@ def udp_address(udp: str) -> tuple[str, int]:
 
 
 class Outputs:
-    """Where each scan's rows go besides the CSV: JSON lines on stdout and/or a UDP address."""
+    """Where each scan's rows go besides the CSV: JSON lines on stdout and/or a UDP address; and the
+    CSV's form (``csv_units``: the optional header with units and ``cov_xy``, :mod:`gtsjax.io.gtd`)."""
 
-    def __init__(self, json_stdout: bool = False, udp: str | None = None):
-        self.json_stdout = json_stdout
+    def __init__(self, json_stdout: bool = False, udp: str | None = None, csv_units: bool = False):
+        self.json_stdout, self.csv_units = json_stdout, csv_units
         self.sock = None
         self.addr = None
         if udp:
@@ -386,7 +387,7 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
     sample = decoder_sample(link) if keep_warm else None
     failed = gone = None
     try:
-        with GTDWriter(out) as writer:
+        with GTDWriter(out, units=outputs.csv_units) as writer:
             while (not (stop is not None and stop.is_set()) and (t_end is None or time.monotonic() < t_end)
                    and (max_frames is None or stats.frames < max_frames)):
                 lf = None

@@ -215,9 +215,9 @@ class _Sink:
     sensor-pose rows, and the totals ``replay`` reports (with the run's ``diagnosis``:
     :mod:`gtsjax.drivers.diagnose`)."""
 
-    def __init__(self, model: Model, out: Path, sensor_out: Path | None, bag=None, view=None):
+    def __init__(self, model: Model, out: Path, sensor_out: Path | None, bag=None, view=None, csv_units: bool = False):
         self.model, self.sensor_out, self.bag, self.view = model, sensor_out, bag, view
-        self.writer = GTDWriter(out)
+        self.writer = GTDWriter(out, units=csv_units)
         self.tally = Tally(model)
         self.totals = {"scans": 0, "rows": 0, "degraded": 0, "n_overflow": 0, "n_too_long": 0, "unlike": 0,
                        "off_envelope": 0, "track_ids": {}}
@@ -230,7 +230,7 @@ class _Sink:
         for i in range(part.n_scans):
             rows = rows_from_output(part.stamps[i], out_arrays.track_id[i], out_arrays.track_class[i],
                                     out_arrays.track_pose[i], out_arrays.track_var[i], out_arrays.track_mask[i],
-                                    self.model.classes)
+                                    self.model.classes, out_arrays.track_cov_xy[i])
             self.writer.write(rows)
             if self.bag is not None:
                 self.bag.write(float(part.stamps[i]), part.ranges[i],
@@ -269,15 +269,16 @@ class _Sink:
 
 
 def replay_log(log, model, out: Path, *, chunk: int = 256, sensor_out: Path | None = None, progress=None,
-               vectorise: bool = True, out_bag: Path | None = None, view=None):
+               vectorise: bool = True, out_bag: Path | None = None, view=None, csv_units: bool = False):
     """Run ``log`` through ``model`` (site attached) and write the GTD CSV; returns stacked outputs'
     summary counters. The log is moved to the device a block at a time, so memory stays bounded.
     ``vectorise``: see :func:`process_chunk` (off: each scan's whole step in turn, what the live loop computes, to float32 round-off: the live loop's program is compiled apart, with the model closed over).
     ``out_bag``: also a ROS 2 bag of the scans, laser poses and tracks (:mod:`gtsjax.io.bag_out`);
-    ``view``: a :class:`~gtsjax.viewer.View` shown each scan (closed at the end)."""
+    ``view``: a :class:`~gtsjax.viewer.View` shown each scan (closed at the end); ``csv_units``: the
+    CSV's optional header with units and the ``cov_xy`` column (:mod:`gtsjax.io.gtd`)."""
     state = init_state(model)
     block = chunk * 16
-    sink = _Sink(model, out, sensor_out, bag_for(log, out_bag), view)
+    sink = _Sink(model, out, sensor_out, bag_for(log, out_bag), view, csv_units)
     try:
         for start in range(0, log.n_scans, block):
             part = log.slice(start, start + block)
@@ -291,7 +292,7 @@ def replay_log(log, model, out: Path, *, chunk: int = 256, sensor_out: Path | No
 
 
 def replay_logs(logs, model, outs: list[Path], *, chunk: int = 256, sensor_outs: list[Path | None] | None = None,
-                progress=None, vectorise: bool = True) -> list[dict]:
+                progress=None, vectorise: bool = True, csv_units: bool = False) -> list[dict]:
     """Several logs of one scanner through ``model`` side by side (:func:`process_logs`: independent
     trackers, one compiled program for all), each into its own GTD CSV (and sensor-pose CSV); returns
     each log's totals as :func:`replay_log` does. ``progress(n)``: scans done, all logs together."""
@@ -300,7 +301,7 @@ def replay_logs(logs, model, outs: list[Path], *, chunk: int = 256, sensor_outs:
     longest = max(lg.n_scans for lg in logs)
     chunk = chunk_for(longest, chunk)
     block = chunk * 16
-    sinks = [_Sink(model, o, so) for o, so in zip(outs, sensor_outs, strict=True)]
+    sinks = [_Sink(model, o, so, csv_units=csv_units) for o, so in zip(outs, sensor_outs, strict=True)]
     done = 0
     try:
         for start in range(0, longest, block):

@@ -4,6 +4,13 @@ JSON lines for streaming.
 CSV header ``stamp,track_id,class,x,y,theta,var_x,var_y,var_theta``; one row per confirmed track per
 processed scan, in scan order; ``theta`` wrapped to (−π, π]. The writer flushes every scan, so that
 a crash or Ctrl-C loses nothing already processed.
+
+The header is a contract other programs parse, so it stays the default. ``--csv-units`` writes the
+optional form :data:`UNITS_HEADER`: the same columns named with their units (``x_m``, ``theta_rad``,
+``var_x_m2``, …) and one more, ``cov_xy_m2``, the x–y covariance the marginal variances leave out
+(a robot seen end-on from a laser far away has an error ellipse at 45° to the axes, which the
+diagonal alone draws as a circle). The reader takes either header, and the spec header followed by
+``cov_xy``.
 """
 
 import csv
@@ -21,6 +28,11 @@ import numpy as np
 from ..errors import InputError
 
 HEADER = ("stamp", "track_id", "class", "x", "y", "theta", "var_x", "var_y", "var_theta")
+# The optional form (``--csv-units``): the spec's columns with their units, and the x–y covariance.
+UNITS_HEADER = ("stamp_s", "track_id", "class", "x_m", "y_m", "theta_rad", "var_x_m2", "var_y_m2", "var_theta_rad2",
+                "cov_xy_m2")
+# Headers the reader accepts, with whether their last column is ``cov_xy``.
+_HEADERS = {HEADER: False, HEADER + ("cov_xy",): True, UNITS_HEADER: True, UNITS_HEADER[:-1]: False}
 
 
 @dataclass(frozen=True)
@@ -34,6 +46,7 @@ class TrackRow:
     var_x: float
     var_y: float
     var_theta: float
+    cov_xy: float = 0.0  # the x–y covariance; 0 where a CSV without the column was read
 
     def as_dict(self) -> dict:
         return {
@@ -46,10 +59,12 @@ class TrackRow:
             "var_x": self.var_x,
             "var_y": self.var_y,
             "var_theta": self.var_theta,
+            "cov_xy": self.cov_xy,
         }
 
 
 _ROW = "%s,%s,%s,%.6f,%.6f,%.6f,%.6e,%.6e,%.6e\n"  # a GTD row as csv.writer writes the fields below
+_ROW_UNITS = _ROW[:-1] + ",%.6e\n"  # and with ``cov_xy``
 
 
 @functools.cache
@@ -60,8 +75,12 @@ def _csv_field(text: str) -> str:
     return buf.getvalue()[: -len(",x\n")]
 
 
-def format_rows(rows: list[TrackRow]) -> str:
-    """The GTD CSV lines of ``rows`` (:class:`GTDWriter`'s text for them)."""
+def format_rows(rows: list[TrackRow], units: bool = False) -> str:
+    """The GTD CSV lines of ``rows`` (:class:`GTDWriter`'s text for them), with the ``cov_xy``
+    column where ``units`` (the header :data:`UNITS_HEADER`)."""
+    if units:
+        return "".join([_ROW_UNITS % (repr(r.stamp), r.track_id, _csv_field(r.cls), r.x, r.y, r.theta, r.var_x,
+                                      r.var_y, r.var_theta, r.cov_xy) for r in rows])
     return "".join([_ROW % (repr(r.stamp), r.track_id, _csv_field(r.cls), r.x, r.y, r.theta, r.var_x, r.var_y,
                             r.var_theta) for r in rows])
 
@@ -74,20 +93,21 @@ def wrap_angle(a: float) -> float:
 
 def rows_from_table(stamp: float, table, class_names) -> list[TrackRow]:
     """Rows for one scan from its track slots as lists ``[id, class, x, y, θ, var_x, var_y, var_θ,
-    confirmed]`` (numbers; ``confirmed`` above 0.5 for a reported track), confirmed tracks only, in
-    id order. Plain Python: the live loop calls it right after the step, where each NumPy call costs
+    cov_xy, confirmed, ...]`` (numbers; ``confirmed`` above 0.5 for a reported track), confirmed
+    tracks only, in id order. Plain Python: the live loop calls it right after the step, where each NumPy call costs
     many times what it does in a tight loop (see :func:`gtsjax.drivers.live.rows_from_packed`)."""
-    rows = [TrackRow(float(stamp), int(r[0]), class_names[int(r[1])], r[2], r[3], wrap_angle(r[4]), r[5], r[6], r[7])
-            for r in table if r[8] > 0.5]
+    rows = [TrackRow(float(stamp), int(r[0]), class_names[int(r[1])], r[2], r[3], wrap_angle(r[4]), r[5], r[6], r[7],
+                     r[8]) for r in table if r[9] > 0.5]
     rows.sort(key=lambda row: row.track_id)
     return rows
 
 
-def rows_from_output(stamp: float, track_id, cls_index, pose, var, mask, class_names) -> list[TrackRow]:
+def rows_from_output(stamp: float, track_id, cls_index, pose, var, mask, class_names, cov_xy=None) -> list[TrackRow]:
     """Rows for one scan from the step's fixed-size track arrays (NumPy or JAX), confirmed tracks only
-    (:func:`rows_from_table` of the slots side by side, in float64)."""
+    (:func:`rows_from_table` of the slots side by side, in float64); ``cov_xy`` 0 where not given."""
     col = lambda a: np.asarray(a, np.float64).reshape(len(mask), -1)  # noqa: E731
-    table = np.concatenate([col(track_id), col(cls_index), col(pose), col(var), col(mask)], axis=1)
+    cov = np.zeros(len(mask)) if cov_xy is None else cov_xy
+    table = np.concatenate([col(track_id), col(cls_index), col(pose), col(var), col(cov), col(mask)], axis=1)
     return rows_from_table(stamp, table.tolist(), class_names)
 
 
@@ -97,14 +117,14 @@ class GTDWriter:
     so the file never ends in a torn row, and raised as one line (:class:`InputError`) naming the
     file, the error and the rows kept. Use as a context manager."""
 
-    def __init__(self, path: str | os.PathLike):
-        self.path = Path(path)
+    def __init__(self, path: str | os.PathLike, units: bool = False):
+        self.path, self.units = Path(path), units
         if self.path.parent and not self.path.parent.exists():
             self.path.parent.mkdir(parents=True, exist_ok=True)
         self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
         self._size = 0
         self.rows = 0
-        self._append(",".join(HEADER) + "\n")
+        self._append(",".join(UNITS_HEADER if units else HEADER) + "\n")
 
     def _append(self, text: str) -> None:
         data = text.encode()
@@ -128,7 +148,7 @@ class GTDWriter:
         ``StringIO`` took 115 µs there for a scan's rows)."""
         if not rows:
             return
-        self._append(format_rows(rows))
+        self._append(format_rows(rows, self.units))
         self.rows += len(rows)
 
     def close(self) -> None:
@@ -155,24 +175,30 @@ def json_line(rows: list[TrackRow], stamp: float, **extra) -> str:
 
 
 def read_gtd(path: str | os.PathLike) -> list[TrackRow]:
-    """Read a GTD CSV back; a file that does not follow the format is an :class:`InputError`."""
+    """Read a GTD CSV back (either header, :data:`HEADER` or :data:`UNITS_HEADER`, and the spec's
+    header followed by ``cov_xy``); a file that does not follow the format is an :class:`InputError`."""
     path = Path(path)
     if not path.exists():
         raise InputError(path, "no such file")
+    if path.is_dir():
+        raise InputError(path, "is a folder, not a ground-truth CSV")
     try:
         text = path.read_text()
     except UnicodeDecodeError:
         raise InputError(path, "not a text CSV file") from None
+    except OSError as err:  # a socket, a file without read permission
+        raise InputError(path, f"cannot be read ({err.strerror or err})") from None
     reader = csv.reader(io.StringIO(text))
     header = next(reader, None)
-    if header is None or tuple(h.strip() for h in header) != HEADER:
-        raise InputError(path, f"header must be {','.join(HEADER)}")
+    names = None if header is None else tuple(h.strip() for h in header)
+    if names not in _HEADERS:
+        raise InputError(path, f"header must be {','.join(HEADER)} (or, with units, {','.join(UNITS_HEADER)})")
     rows = []
     for n, rec in enumerate(reader, start=2):
         if not rec:
             continue
-        if len(rec) != len(HEADER):
-            raise InputError(path, f"line {n} has {len(rec)} fields, expected {len(HEADER)}")
+        if len(rec) != len(names):
+            raise InputError(path, f"line {n} has {len(rec)} fields, expected {len(names)}")
         try:
             vals = [float(rec[0]), int(rec[1]), rec[2]] + [float(v) for v in rec[3:]]
         except ValueError:

@@ -38,6 +38,7 @@ class RefOutput:
     track_class: np.ndarray  # [n]
     track_pose: np.ndarray  # [n, 3]
     track_var: np.ndarray  # [n, 3]
+    track_cov_xy: np.ndarray  # [n]
     A: np.ndarray
     mu_s: np.ndarray
     mu_o: np.ndarray
@@ -190,6 +191,7 @@ class ReferencePipeline:
             track_class=np.array([t.cls for t in tracks], int),
             track_pose=np.array([t.kf.x[:3, 0] for t in tracks]).reshape(-1, 3),
             track_var=np.array([np.diag(t.kf.P)[:3] for t in tracks]).reshape(-1, 3),
+            track_cov_xy=np.array([t.kf.P[0, 1] for t in tracks]).reshape(-1),
             A=tf.A.copy(),
             mu_s=tf.mu_s.copy(),
             mu_o=tf.mu_o.copy(),
@@ -231,19 +233,25 @@ def compare_tracks(outputs, ref: list[RefOutput]) -> dict:
     mask = np.asarray(outputs.track_mask)
     ids = np.asarray(outputs.track_id)
     pose = np.asarray(outputs.track_pose, np.float64)
+    var, cov_xy = np.asarray(outputs.track_var, np.float64), np.asarray(outputs.track_cov_xy, np.float64)
     n = len(ref)
     same_ids = 0
-    dpos, dth = [], []
+    dpos, dth, dcorr = [], [], []
     all_g, all_r = set(), set()
     for t in range(n):
         g = {int(i): pose[t, m] for m, i in enumerate(ids[t]) if mask[t, m]}
         r = {int(i): p for i, p in zip(ref[t].track_id, ref[t].track_pose, strict=True)}
+        # The x–y correlation coefficient (the covariance over the deviations' product: scale-free).
+        g_corr = {int(i): cov_xy[t, m] / np.sqrt(var[t, m, 0] * var[t, m, 1]) for m, i in enumerate(ids[t]) if mask[t, m]}
+        r_corr = {int(i): c / np.sqrt(v[0] * v[1])
+                  for i, c, v in zip(ref[t].track_id, ref[t].track_cov_xy, ref[t].track_var, strict=True)}
         all_g |= g.keys()
         all_r |= r.keys()
         same_ids += g.keys() == r.keys()
         for i in g.keys() & r.keys():
             dpos.append(float(np.hypot(*(g[i][:2] - r[i][:2]))))
             dth.append(abs(float(wrap(g[i][2] - r[i][2]))))
+            dcorr.append(abs(float(g_corr[i] - r_corr[i])))
     dpos, dth = np.asarray(dpos), np.asarray(dth)
     return {
         "scans": n,
@@ -256,5 +264,6 @@ def compare_tracks(outputs, ref: list[RefOutput]) -> dict:
         "max_pos_diff_m": float(dpos.max()) if dpos.size else 0.0,
         "p99_pos_diff_m": float(np.percentile(dpos, 99)) if dpos.size else 0.0,
         "max_heading_diff_deg": float(np.degrees(dth.max())) if dth.size else 0.0,
+        "max_xy_correlation_diff": max(dcorr, default=0.0),
         "degraded_scans_reference": int(sum(o.degraded for o in ref)),
     }
