@@ -4,11 +4,13 @@ robot give one track; a laser that stops leaves the other tracking; logs whose s
 unevenly are merged in time order; a laser's transform is its own."""
 
 import dataclasses
+import re
 import time
 
 import numpy as np
 import pytest
 
+from gtsjax.cli import main
 from gtsjax.cli.demo import demo_model_path
 from gtsjax.drivers.evaluation import evaluate_outputs
 from gtsjax.drivers.several import merge_logs, process_several, site_poses
@@ -247,14 +249,68 @@ def test_live_a_laser_unplugged_leaves_the_other_tracking(match, tmp_path):
         th = threading.Thread(target=unplug, daemon=True)
         th.start()
         t_start = time.time()
+        said = []
         stats, per, _ = run_live_several({"north": ln, "south": ls}, model, poses, tmp_path / "gtd.csv",
-                                         compiled=compiled, duration=5.0)
+                                         compiled=compiled, duration=5.0, reconnect_timeout=1.0, warn=said.append)
         th.join()
     rows = read_gtd(tmp_path / "gtd.csv")
     late = [r for r in rows if r.stamp > t_start + 3.0]
     assert per["north"].frames >= 35 and 5 <= per["south"].frames <= 30, (per["north"].frames, per["south"].frames)
     assert len(late) > 0  # rows after the unplugging, from the north laser
     assert stats.frames == per["north"].frames + per["south"].frames
+    # Gone past --reconnect-timeout: said once, naming the laser; the run went on to its end.
+    gone = [m for m in said if "gone for" in m]
+    assert len(gone) == 1 and gone[0].startswith(f"laser south ({south.path})") and per["south"].gone_warnings == 1
+
+
+class _GoneLink(_Link):
+    """A :class:`_Link` whose sensor is unplugged for good after its frames: ``lost_for`` counts from
+    when the last was handed over, as :class:`~gtsjax.io.serial.Link`'s counts from the lost
+    connection."""
+
+    def __init__(self, model, frames, at):
+        super().__init__(model, frames, at)
+        self.last_error = "read failed: [Errno 5] Input/output error"
+        self._lost_at = None
+
+    def get(self, timeout=None):
+        f = super().get(timeout)
+        if f is None and self._asked and not self._frames and self._lost_at is None:
+            self._lost_at = time.monotonic()
+        return f
+
+    def lost_for(self):
+        return 0.0 if self._lost_at is None else time.monotonic() - self._lost_at
+
+
+def test_live_every_laser_gone_ends_the_run_in_one_line_keeping_the_rows(match, tmp_path):
+    """Both lasers unplugged for good: past ``reconnect_timeout`` the run ends with one line naming
+    their ports, the rows written before kept in the CSV (read back whole), well before its duration."""
+    from gtsjax.drivers.live_several import run_live_several, warm_up_several
+    from gtsjax.errors import InputError
+    from gtsjax.io.gtd import read_gtd
+    from gtsjax.sensors import URG_04LX
+
+    logs, site, model = match
+    poses = site_poses(site, ["north", "south"])
+    compiled = warm_up_several(model, URG_04LX, poses)
+    n = 15
+    t0, wall0 = time.monotonic() + 0.05, time.time() + 0.05
+    links = {}
+    for name in ("north", "south"):
+        log = logs[name]
+        since = (log.stamps[:n] - logs["north"].stamps[0]) * 0.2
+        frames = [_Frame(np.where(log.valid()[i], log.ranges[i], 0.0).astype(np.float32), wall0 + since[i])
+                  for i in range(n)]
+        links[name] = _GoneLink(URG_04LX, frames, [t0 + t for t in since])
+    out = tmp_path / "gtd.csv"
+    t_start = time.monotonic()
+    with pytest.raises(InputError) as err:
+        run_live_several(links, model, poses, out, compiled=compiled, duration=60.0, reconnect_timeout=0.5)
+    assert time.monotonic() - t_start < 30.0
+    assert "every laser has been gone" in str(err.value) and f"stopped after {2 * n} frames" in str(err.value)
+    assert "\n" not in str(err.value) and str(out) in str(err.value)
+    assert len(read_gtd(out)) > 0
 
 
 def test_occluded_share_counts_robots_behind_robots():
@@ -493,3 +549,26 @@ def test_misses_of_lasers_of_different_rates_are_counted_on_one_clock(mixed):
             seconds = float(getattr(m.tracker, name)) * m.scan_period
             assert float(getattr(put, name)) * 0.025 == pytest.approx(seconds), (m.sensor_model, name)
     assert on_clock(urg, None) is urg
+
+
+def test_run_command_with_two_lasers_shows_the_one_laser_view(match, tmp_path, capsys):
+    """``gtsjax run --port north=PTY --port south=PTY``, two emulated lasers over real pseudo-terminals:
+    the live view is the one-laser run's (the tracks table, latency, the scanning laser's pose in O)
+    with a counters line per laser, and the rows go to the CSV."""
+    from gtsjax.io import save_site
+    from gtsjax.io.gtd import read_gtd
+    from gtsjax.sensors import URG_04LX
+    from gtsjax.sim.emulator import SensorEmulator
+
+    logs, site, _ = match
+    save_site(site, tmp_path / "site.json")
+    with SensorEmulator(URG_04LX, logs["north"]) as north, SensorEmulator(URG_04LX, logs["south"]) as south:
+        code = main(["run", "--port", f"north={north.path}", "--port", f"south={south.path}", "--site",
+                     str(tmp_path / "site.json"), "--model", str(demo_model_path()), "--out", str(tmp_path / "gtd.csv"),
+                     "--frames", "40", "--no-intensity"])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert "tracks" in err and "latency median" in err
+    assert re.search(r"(north|south) in O: x=", err), err
+    assert re.search(r"^north: dropped \d+", err, re.M) and re.search(r"^south: dropped \d+", err, re.M), err
+    assert len(read_gtd(tmp_path / "gtd.csv")) > 0

@@ -11,9 +11,10 @@ from rich.table import Table
 from ..core.geometry import wrap
 
 
-def live_view(model, link, stats, output, stamp) -> Group:
+def live_view(model, link, stats, output, stamp, laser: str | None = None) -> Group:
     """The terminal view: confirmed tracks, latency, the sensor pose as the map transformation sees it,
-    frame and fault counters."""
+    frame and fault counters. ``link``: the sensor's link, or with several lasers a dict of them by
+    name (a counters line each), ``laser`` naming the one whose scan ``output`` is."""
     t = Table(title="tracks", expand=False)
     for col in ("id", "class", "x [m]", "y [m]", "θ [°]", "σx [cm]", "σθ [°]"):
         t.add_column(col, justify="right")
@@ -25,19 +26,19 @@ def live_view(model, link, stats, output, stamp) -> Group:
                       f"{p[1]:.3f}", f"{np.degrees(wrap(p[2])):.1f}",
                       f"{100 * np.sqrt(v[0]):.1f}", f"{np.degrees(np.sqrt(v[2])):.1f}")
     med, p99 = stats.latency()
-    ls = link.stats
     lines = [f"frames {stats.frames}  rows {stats.rows}  latency median {med:.2f} ms  p99 {p99:.2f} ms  "
              f"late {stats.late}"]
     if output is not None and getattr(output, "track_hold", None) is not None:
         lines.append(tentative_line(model, output))
     if output is not None:
         tf, sp = output.transform, np.asarray(output.sensor_pose)
-        lines.append(f"sensor in O: x={sp[0]:.3f} m  y={sp[1]:.3f} m  θ={np.degrees(sp[2]):.2f}°"
+        lines.append(f"{laser or 'sensor'} in O: x={sp[0]:.3f} m  y={sp[1]:.3f} m  θ={np.degrees(sp[2]):.2f}°"
                      f"  landmarks {int(tf.n_landmarks)}  {'DEGRADED (kept last transform)' if bool(tf.degraded) else ''}")
-    lines.append(f"link: dropped {ls.dropped}  checksum {ls.checksum_errors}  salvaged {ls.salvaged}  "
-                 f"truncated {ls.truncated}  "
-                 f"malformed {ls.malformed}  garbage bytes {ls.garbage_bytes}  timeouts {ls.timeouts}  "
-                 f"reconnects {ls.reconnects}")
+    for name, one in (link.items() if isinstance(link, dict) else [("link", link)]):
+        ls = one.stats
+        lines.append(f"{name}: dropped {ls.dropped}  checksum {ls.checksum_errors}  salvaged {ls.salvaged}  "
+                     f"truncated {ls.truncated}  malformed {ls.malformed}  garbage bytes {ls.garbage_bytes}  "
+                     f"timeouts {ls.timeouts}  reconnects {ls.reconnects}")
     return Group(t, *lines)
 
 
@@ -135,11 +136,13 @@ def track_live_several(lasers: "dict[str, str]", model_paths: "list[Path]", site
                        json_lines: bool, udp: str | None, duration: float | None, frames: int | None,
                        intensity: bool, view: bool, confirm_scans: int | None, summary: Path | None,
                        console: Console | None = None, max_tracks: int | None = None, keep_warm: bool = True,
-                       csv_units: bool = False):
+                       csv_units: bool = False, reconnect_timeout: float | None = None, out_bag: Path | None = None,
+                       rerun_view: str | None = None, view_save: Path | None = None):
     """``run --port NAME=PORT ...``: every laser's link, one track table (see
     :mod:`gtsjax.drivers.live_several`); per-laser status when it stops, and in ``summary``. One
     model for every laser, or one per scanner model (each laser gets the one for the scanner the
-    site names for it)."""
+    site names for it). ``out_bag``, ``rerun_view``, ``view_save``: the bag and Rerun's view, each
+    laser's scans under its name."""
     import dataclasses
     import json
 
@@ -149,7 +152,7 @@ def track_live_several(lasers: "dict[str, str]", model_paths: "list[Path]", site
     from ..io.serial import Link
     from ..io.site import load_site
     from ..sensors import MODELS
-    from ._common import load_for_lasers
+    from ._common import load_for_lasers, open_view
 
     console = console or Console(stderr=True)
     site_obj = load_site(site)
@@ -160,6 +163,7 @@ def track_live_several(lasers: "dict[str, str]", model_paths: "list[Path]", site
     poses = site_poses(site_obj, names)
     compiled = (warm_up_several(models, tuple(MODELS[m.sensor_model] for m in models), poses, kinds)
                 if all(m.sensor_model in MODELS for m in models) else None)
+    shown = open_view(models[0], rerun_view, view_save, console)
     links = {}
     record_paths = ({n: record.with_name(f"{record.stem}-{n}{record.suffix or '.npz'}") for n in names}
                     if record is not None else None)
@@ -169,19 +173,29 @@ def track_live_several(lasers: "dict[str, str]", model_paths: "list[Path]", site
             links[n].start()
             console.print(f"{n}: connected to {links[n].model.name} on {lasers[n]}")
         last = {"t": 0.0}
+        live = Live(console=console, refresh_per_second=4, transient=False) if view else None
 
-        def on_scan(stats, o, stamp):
+        def on_scan(stats, o, stamp, laser):  # the one-laser view, a counters line per laser
             now = time.monotonic()
-            if view and now - last["t"] > 1.0:
+            if live is not None and now - last["t"] > 0.25:
                 last["t"] = now
-                med, p99 = stats.latency()
-                console.print(f"frames {stats.frames}  rows {stats.rows}  latency median {med:.2f} ms  "
-                              f"p99 {p99:.2f} ms  tracks {int(np.sum(np.asarray(o.track_mask)))}")
+                live.update(live_view(models[0], links, stats, o, stamp, laser))
 
-        stats, per, out_of_order = run_live_several(
-            links, models, poses, out, record=record_paths, kinds=kinds, outputs=Outputs(json_lines, udp, csv_units), duration=duration,
-            on_scan=on_scan, with_intensity=intensity, compiled=compiled, max_frames=frames,
-            warn=lambda msg: console.print(f"warning: {msg}", soft_wrap=True), keep_warm=keep_warm)
+        def warn(msg: str) -> None:
+            (live.console if live is not None else console).print(f"warning: {msg}", soft_wrap=True)
+
+        if live is not None:
+            live.start()
+        try:
+            stats, per, out_of_order = run_live_several(
+                links, models, poses, out, record=record_paths, kinds=kinds, outputs=Outputs(json_lines, udp, csv_units),
+                duration=duration, on_scan=on_scan, with_intensity=intensity, compiled=compiled, max_frames=frames,
+                warn=warn, keep_warm=keep_warm, reconnect_timeout=reconnect_timeout, out_bag=out_bag, view=shown)
+        finally:
+            if live is not None:
+                live.stop()
+                if not console.is_terminal:  # rich ends the last view with a newline only on a terminal
+                    console.line()
     finally:
         for link in links.values():
             link.stop()
@@ -200,7 +214,7 @@ def track_live_several(lasers: "dict[str, str]", model_paths: "list[Path]", site
         doc["lasers"][n] = {**link, "frames": p.frames, "degraded": p.degraded, "late": p.late,
                             "latency_ms_median": float(np.median(lat)), "latency_ms_p99": float(np.percentile(lat, 99)),
                             "disagreement_m_median": _finite(np.median(dis)), "disagreement_m_max": _finite(np.max(dis)),
-                            "moved_warnings": p.moved_warnings}
+                            "moved_warnings": p.moved_warnings, "gone_warnings": p.gone_warnings}
         console.print(f"  {n}: {p.frames} frames ({p.degraded} without a new map transformation), link: "
                       f"{ls.bad_frames} bad, {ls.salvaged} salvaged, {ls.dropped} dropped, {ls.reconnects} reconnects"
                       + (f"; calibration check: landmarks shared with another laser at most {p.disagreement_max_m * 100:.1f} cm "

@@ -21,8 +21,9 @@ from ..errors import InputError
 from ..io.bag_out import check_bag_dir
 from ..io.importers import detect_format, format_name
 from ..io.logs import fit_to_model
-from ._app import CONFIRM_HELP, MAX_TRACKS_HELP, app
+from ._app import CONFIRM_HELP, MAX_TRACKS_HELP, app, quiet
 from ._common import (
+    CSV_UNITS_HELP,
     INPUT_HELP,
     OUT_BAG_HELP,
     TOPIC_HELP,
@@ -74,6 +75,7 @@ def replay_cmd(
                                       help="Run each scan's whole step in turn, as the live loop does, instead of perceiving "
                                            "groups of scans at once (faster). Either equals the live loop's rows to float32 "
                                            "round-off, which can tip a near-tie of heading hypotheses."),
+    csv_units: bool = typer.Option(False, "--csv-units", help=CSV_UNITS_HELP),
     summary: Path | None = typer.Option(None, "--summary", help="Write the replay's counters (scans, rows, tracks, "
                                         "the diagnosis of what it reported) as JSON here; with several logs, one "
                                         "object per log."),
@@ -86,13 +88,15 @@ def replay_cmd(
                    {"--out": out, "--sensor-out": sensor_out, "--out-bag": out_bag, "--view-save": view_save,
                     "--summary": summary})
     if laser_logs:
-        if logs or sensor is not None or step_by_step or out_bag is not None or view or view_save:
-            raise InputError("replay", "--log NAME=LOG (several lasers) takes no positional logs, --laser, "
-                                       "--step-by-step, --out-bag or --view (not yet)")
+        if logs or sensor is not None or step_by_step:
+            raise InputError("replay", "--log NAME=LOG (several lasers) takes no positional logs, --laser or "
+                                       "--step-by-step")
         if summary is not None:
             check_out_file(summary, "--summary")
+        if out_bag is not None:
+            check_bag_dir(out_bag)
         _replay_lasers(laser_logs, site, models, out, chunk, topic, crop_fov, confirm_scans, console, sensor_out,
-                       max_tracks, summary)
+                       max_tracks, summary, csv_units=csv_units, out_bag=out_bag, view=view, view_save=view_save)
         return
     if not logs:
         raise InputError("replay", "give a log (or --log NAME=LOG per laser of a site with several)")
@@ -111,7 +115,7 @@ def replay_cmd(
     t0 = time.perf_counter()
     total = sum(lg.n_scans for lg in scan_logs)
     with Progress(TextColumn("replay"), BarColumn(), MofNCompleteColumn(), TextColumn("scans"),
-                  TimeRemainingColumn(), console=console, transient=True) as bar:
+                  TimeRemainingColumn(), console=console, transient=True, disable=quiet()) as bar:
         task = bar.add_task("replay", total=total)
 
         def done(n: int) -> None:
@@ -119,10 +123,11 @@ def replay_cmd(
 
         if len(scan_logs) == 1:
             results = [replay_log(scan_logs[0], m, outs[0], chunk=chunk, sensor_out=sensor_outs[0],
-                                  vectorise=not step_by_step, progress=done, out_bag=out_bag, view=shown)]
+                                  vectorise=not step_by_step, progress=done, out_bag=out_bag, view=shown,
+                                  csv_units=csv_units)]
         else:
             results = replay_logs(scan_logs, m, outs, chunk=chunk, sensor_outs=sensor_outs, vectorise=not step_by_step,
-                                  progress=done)
+                                  progress=done, csv_units=csv_units)
     dt = time.perf_counter() - t0
     if len(results) > 1:
         console.print(f"{len(results)} logs, {total} scans in {dt:.1f} s ({total / max(dt, 1e-9):.0f} scans/s, "
@@ -204,8 +209,10 @@ def _load_fitted(log: Path, topic: str | None, m, crop_fov: bool, console: Conso
 
 def _replay_lasers(specs: list[str], site_path: Path, model_paths: list[Path], out: Path, chunk: int, topic: str | None,
                    crop_fov: bool, confirm_scans: int | None, console: Console, sensor_out: Path | None,
-                   max_tracks: int | None = None, summary: Path | None = None) -> None:
-    """``replay --log NAME=LOG ...``: the lasers' logs merged by stamp into one track table."""
+                   max_tracks: int | None = None, summary: Path | None = None, *, csv_units: bool = False,
+                   out_bag: Path | None = None, view: str | None = None, view_save: Path | None = None) -> None:
+    """``replay --log NAME=LOG ...``: the lasers' logs merged by stamp into one track table (and the
+    bag and the view, each laser's scans under its name)."""
     from ..drivers.several import models_for_lasers, replay_several
     from ..io import load_site
 
@@ -231,13 +238,15 @@ def _replay_lasers(specs: list[str], site_path: Path, model_paths: list[Path], o
     models, kinds = models_for_lasers(loaded, site_obj, list(paths))
     logs = {name: _load_fitted(path, topic, models[kinds[i]], crop_fov, console)
             for i, (name, path) in enumerate(paths.items())}
+    shown = open_view(models[0], view, view_save, console)
     t0 = time.perf_counter()
     total = sum(lg.n_scans for lg in logs.values())
     with Progress(TextColumn("replay"), BarColumn(), MofNCompleteColumn(), TextColumn("scans"),
-                  TimeRemainingColumn(), console=console, transient=True) as bar:
+                  TimeRemainingColumn(), console=console, transient=True, disable=quiet()) as bar:
         task = bar.add_task("replay", total=total)
         totals = replay_several(logs, models, site_obj, out, kinds=kinds, chunk=chunk,
-                                progress=lambda n: bar.update(task, completed=n), sensor_out=sensor_out)
+                                progress=lambda n: bar.update(task, completed=n), sensor_out=sensor_out,
+                                csv_units=csv_units, out_bag=out_bag, view=shown)
     dt = time.perf_counter() - t0
     per = ", ".join(f"{n} {totals['scans_per_laser'][n]} scans ({totals['degraded'][n]} without a new map "
                     "transformation)" for n in logs)
@@ -247,3 +256,6 @@ def _replay_lasers(specs: list[str], site_path: Path, model_paths: list[Path], o
     print_warnings(console, totals["diagnosis"], models[0])
     if summary is not None:
         summary.write_text(json.dumps(totals) + "\n")
+    if view_save is not None:
+        console.print(f"view recorded to {view_save}")
+    serve_view(shown, console)

@@ -7,8 +7,9 @@ import typer
 from rich.console import Console
 
 from ..errors import InputError
-from ._app import CONFIRM_HELP, MAX_TRACKS_HELP, app
+from ._app import CONFIRM_HELP, MAX_TRACKS_HELP, QUIET_HELP, app
 from ._common import (
+    CSV_UNITS_HELP,
     OUT_BAG_HELP,
     VIEW_HELP,
     VIEW_SAVE_HELP,
@@ -40,18 +41,21 @@ def run_cmd(
     frames: int | None = typer.Option(None, "--frames", min=1, help="Stop after this many frames (default: until Ctrl-C)."),
     intensity: bool = typer.Option(True, "--intensity/--no-intensity",
                                    help="Stream intensities (ME) if the sensor has them (models trained with them need them)."),
-    quiet: bool = typer.Option(False, help="No live view."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help=QUIET_HELP),
     confirm_scans: int | None = typer.Option(None, "--confirm-scans", min=1, help=CONFIRM_HELP),
     max_tracks: int | None = typer.Option(None, "--max-tracks", min=1, help=MAX_TRACKS_HELP),
     out_bag: Path | None = typer.Option(None, "--out-bag", help=OUT_BAG_HELP),
     view: str | None = typer.Option(None, "--view", metavar="[web]", help=VIEW_HELP),
     view_save: Path | None = typer.Option(None, "--view-save", help=VIEW_SAVE_HELP),
+    csv_units: bool = typer.Option(False, "--csv-units", help=CSV_UNITS_HELP),
     summary: Path | None = typer.Option(None, "--summary", help="Write the run's counters (frames, rows, latency, "
                                         "link faults by cause, the diagnosis of what it reported) as JSON here when "
                                         "it stops."),
     reconnect_timeout: float = typer.Option(10.0, "--reconnect-timeout", min=0.5, metavar="SECONDS",
                                             help="A sensor gone this long (unplugged, its port vanished) ends the "
-                                                 "run with one line; what was written is kept (default 10 s)."),
+                                                 "run with one line; what was written is kept (default 10 s). With "
+                                                 "several lasers, one gone is a warning and the others go on; all "
+                                                 "gone ends the run."),
     keep_warm: bool = typer.Option(True, "--keep-warm/--no-keep-warm",
                                    help="Shortly before each frame is due, run the step once on the last frame and "
                                         "throw the result away, so the frame finds it in the caches (lower latency "
@@ -74,21 +78,20 @@ def run_cmd(
         check_bag_dir(out_bag)
     lasers = _laser_ports(port, site, sensor)
     if lasers is not None:
-        for given, option in ((out_bag, "--out-bag"), (view, "--view"), (view_save, "--view-save")):
-            if given is not None:
-                raise InputError(option, "is for one laser (not yet with --port NAME=PORT)")
         from ._live import track_live_several
 
         track_live_several(lasers, models, site, out, record=record, json_lines=json_lines, udp=udp,
                            duration=duration, frames=frames, intensity=intensity, view=not quiet,
-                           confirm_scans=confirm_scans, summary=summary, max_tracks=max_tracks, keep_warm=keep_warm)
+                           confirm_scans=confirm_scans, summary=summary, max_tracks=max_tracks, keep_warm=keep_warm,
+                           csv_units=csv_units, reconnect_timeout=reconnect_timeout, out_bag=out_bag,
+                           rerun_view=view, view_save=view_save)
         return
     port, model = port[0], one_model(models)
     stats, link_stats = track_live(port, model, site, out, record=record, json_lines=json_lines, udp=udp,
                                    duration=duration, frames=frames, intensity=intensity, view=not quiet,
                                    confirm_scans=confirm_scans, sensor=sensor, max_tracks=max_tracks,
                                    out_bag=out_bag, rerun_view=view, view_save=view_save, keep_warm=keep_warm,
-                                   reconnect_timeout=reconnect_timeout)
+                                   reconnect_timeout=reconnect_timeout, csv_units=csv_units)
     med, p99 = stats.latency()
     Console(stderr=True).print(
         f"{stats.frames} frames, {stats.rows} rows -> {out}; latency median {med:.2f} ms, p99 {p99:.2f} ms; "

@@ -43,6 +43,7 @@ class LaserStats:
     disagreement_m: collections.deque = dataclasses.field(default_factory=lambda: collections.deque(maxlen=2000))
     disagreement_max_m: float = 0.0
     moved_warnings: int = 0
+    gone_warnings: int = 0  # times its link was gone longer than the reconnect timeout
     above_since: float | None = None  # stamp of the first scan of the present spell above the limit
     warned: bool = False  # this spell has been warned about
 
@@ -106,7 +107,8 @@ def run_live_several(links: "dict[str, object]", model: "Model | tuple[Model, ..
                      record: "dict[str, Path] | None" = None, outputs: Outputs | None = None,
                      duration: float | None = None, stop=None, on_scan=None, with_intensity: bool = False,
                      compiled=None, max_frames: int | None = None, hold_s: float | None = None, warn=None,
-                     kinds: "tuple[int, ...] | None" = None, keep_warm: bool = True):
+                     kinds: "tuple[int, ...] | None" = None, keep_warm: bool = True,
+                     reconnect_timeout: float | None = None, out_bag: Path | None = None, view=None):
     """Track from started links (one per laser, ``poses`` their rough pose guesses in the same order)
     until ``duration``, ``max_frames`` frames (all lasers together), ``stop`` or Ctrl-C. ``model``:
     every laser's, or one per scanner model with ``kinds`` (each laser's index into them; see
@@ -117,7 +119,14 @@ def run_live_several(links: "dict[str, object]", model: "Model | tuple[Model, ..
     :data:`CALIBRATION_WARN_S`): a tripod bumped. ``keep_warm``: as :func:`~gtsjax.drivers.live.run_live`'s,
     per laser: shortly before a laser's next frame is due, while no frame waits, the step of its
     scanner runs once on its last frame and is thrown away, and so does the host's part
-    (:func:`~gtsjax.drivers.live.warm_host`); once per frame of each laser."""
+    (:func:`~gtsjax.drivers.live.warm_host`); once per frame of each laser. ``reconnect_timeout``: a
+    laser whose link has been reconnecting this long is said once through ``warn`` (the others go on,
+    and it rejoins if it comes back); when every laser has been gone this long the run ends with one
+    line (:class:`InputError`) after what was written is closed, as :func:`~gtsjax.drivers.live.run_live`'s.
+    ``out_bag``: also a ROS 2 bag, each laser's frames on its own topic and frame
+    (:mod:`gtsjax.io.bag_out`); ``view``: a :class:`~gtsjax.viewer.View` shown each frame, each
+    laser's under its name (closed at the end); both written after the frame's latency is taken."""
+    from ..io.bag_out import BagOut, LaserGeometry
     from ..io.record import Recorder
 
     names = list(links)
@@ -139,6 +148,8 @@ def run_live_several(links: "dict[str, object]", model: "Model | tuple[Model, ..
     hold = hold_s if hold_s is not None else 1.5 * max(s.period for s in sensors)
     period_ms = {n: s.period * 1000.0 for n, s in zip(names, sensors, strict=True)}
     outputs = outputs or Outputs()
+    bag = BagOut(out_bag, {n: LaserGeometry.of_sensor(s) for n, s in zip(names, sensors, strict=True)}
+                 ) if out_bag is not None else None
     recorders = ({n: Recorder(p, model=links[n].model, intensities=with_intensity and links[n].model.has_intensity)
                   for n, p in record.items()} if record else {})
     heads: dict[str, collections.deque] = {n: collections.deque() for n in names}
@@ -152,11 +163,29 @@ def run_live_several(links: "dict[str, object]", model: "Model | tuple[Model, ..
     samples = {n: decoder_sample(links[n]) for n in names} if keep_warm else {}
     lead = 0.0
     t_end = None if duration is None else time.monotonic() + duration
-    failed = None
+    failed = gone = None
+    lost_checked, said_gone = time.monotonic(), set()
     try:
-        with GTDWriter(out) as writer:
+        with GTDWriter(out, units=outputs.csv_units) as writer:
             while (not (stop is not None and stop.is_set()) and (t_end is None or time.monotonic() < t_end)
                    and (max_frames is None or stats.frames < max_frames)):
+                if reconnect_timeout is not None and time.monotonic() - lost_checked > 0.25:
+                    lost_checked = time.monotonic()
+                    lost = {n: links[n].lost_for() if hasattr(links[n], "lost_for") else 0.0 for n in names}
+                    said_gone &= {n for n in names if lost[n] > 0}  # back: it may be said again
+                    for n in names:
+                        if lost[n] > reconnect_timeout and n not in said_gone:
+                            said_gone.add(n)
+                            per[n].gone_warnings += 1
+                            if warn is not None and len(said_gone) < len(names):
+                                warn(f"laser {n} ({getattr(links[n], 'port', 'sensor')}): gone for {lost[n]:.0f} s "
+                                     f"({getattr(links[n], 'last_error', None) or 'no frames'}); the other lasers "
+                                     "go on, and it rejoins if it comes back")
+                    if len(said_gone) == len(names):
+                        gone = InputError(", ".join(str(getattr(links[n], "port", n)) for n in names),
+                                          f"every laser has been gone for over {reconnect_timeout:g} s and none came "
+                                          "back (--reconnect-timeout waits longer)")
+                        break
                 got = False
                 for n in names:
                     while (lf := links[n].get(timeout=0)) is not None:
@@ -222,13 +251,20 @@ def run_live_several(links: "dict[str, object]", model: "Model | tuple[Model, ..
                 p.degraded += int(degraded)
                 p.late += int(late)
                 p.latencies_ms.append(lat)
+                if bag is not None:
+                    bag.write(lf.stamp, lf.ranges_m, lf.intensities, rows, np.asarray(o.sensor_pose, np.float64),
+                              laser=n)
+                if view is not None:
+                    view.scan(lf.stamp, lf.ranges_m, sensors[k].angle_min, sensors[k].angle_increment, o, rows,
+                              latency_ms=lat, dropped=getattr(getattr(links[n], "stats", None), "dropped", None),
+                              laser=n)
                 d = check.update(k, o.landmark_residual, o.landmark_seen)
                 if p.watch(lf.stamp, d) and warn is not None:
                     warn(f"laser {n}: its map transformation and another laser's put landmarks both see "
                          f"{d * 100:.0f} cm apart for {CALIBRATION_WARN_S:g} s: a tripod moved? (check the "
                          "site's sensor poses, or restart once it stands still)")
                 if on_scan is not None:
-                    on_scan(stats, o, lf.stamp)
+                    on_scan(stats, o, lf.stamp, n)
     except KeyboardInterrupt:
         pass
     except InputError as err:  # a write failed (a full disk): stop; what is written stays
@@ -238,8 +274,14 @@ def run_live_several(links: "dict[str, object]", model: "Model | tuple[Model, ..
         for link in links.values():  # the lasers stop streaming with the loop (see ``run_live``)
             if hasattr(link, "stop"):
                 link.stop()
+        if bag is not None:
+            bag.close()
+        if view is not None:
+            view.close()
         for rec in recorders.values():
             rec.close(write_log=failed is None)
     if failed is not None:
         raise InputError(failed.where, f"{failed.problem}; stopped after {stats.frames} frames")
+    if gone is not None:
+        raise InputError(gone.where, f"{gone.problem}; stopped after {stats.frames} frames, their rows kept in {out}")
     return stats, per, out_of_order

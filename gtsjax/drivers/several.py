@@ -242,26 +242,51 @@ def site_poses(site: Site, names) -> np.ndarray:
 
 
 def replay_several(logs: "dict[str, ScanLog]", model: "Model | tuple[Model, ...]", site: Site, out: Path, *,
-                   kinds=None, chunk: int = 256, progress=None, sensor_out: Path | None = None) -> dict:
+                   kinds=None, chunk: int = 256, progress=None, sensor_out: Path | None = None,
+                   csv_units: bool = False, out_bag: Path | None = None, view=None) -> dict:
     """Replay several lasers' logs (names of the site's ``sensors``) into one GTD CSV; returns totals
     (scans, rows, tracks per class, degraded scans per laser, the run's ``diagnosis``:
     :mod:`gtsjax.drivers.diagnose`). ``sensor_out``: each scan's laser pose
     in O as its own transform places it (``stamp,laser,x,y,theta,degraded,n_landmarks``): a tripod
     bumped shows as a step in its laser's rows. ``model``: every laser's, or one per scanner model
-    with ``kinds`` (:func:`models_for_lasers`)."""
+    with ``kinds`` (:func:`models_for_lasers`). ``out_bag``: also a ROS 2 bag, each laser's scans on
+    its own topic and frame (:mod:`gtsjax.io.bag_out`); ``view``: a :class:`~gtsjax.viewer.View`
+    shown each scan, each laser's under its name (closed at the end)."""
+    from ..io.bag_out import BagOut, LaserGeometry
+
     mixed = isinstance(model, tuple) and len(model) > 1
     merged = merge_logs(logs, mixed=mixed)
     _, o = process_several(model, merged, site_poses(site, merged.names), kinds=kinds, chunk=chunk, callback=progress)
     model = model[0] if isinstance(model, tuple) else model
     rows_total, ids = 0, {}
-    with GTDWriter(out) as w:
-        for t in range(merged.log.n_scans):
-            rows = rows_from_output(float(merged.log.stamps[t]), o.track_id[t], o.track_class[t], o.track_pose[t],
-                                    o.track_var[t], o.track_mask[t], model.classes)
-            w.write(rows)
-            rows_total += len(rows)
-            for r in rows:
-                ids.setdefault(r.cls, set()).add(r.track_id)
+    # Each scan as its own laser took it (the merged log's beams are padded to the widest scanner's).
+    sources = [merged.sources[n] for n in merged.names]
+    valid = [src.valid() for src in sources] if view is not None else None
+    bag = BagOut(out_bag, {n: LaserGeometry.of_log(src) for n, src in zip(merged.names, sources, strict=True)}
+                 ) if out_bag is not None else None
+    try:
+        with GTDWriter(out, units=csv_units) as w:
+            for t in range(merged.log.n_scans):
+                stamp = float(merged.log.stamps[t])
+                rows = rows_from_output(stamp, o.track_id[t], o.track_class[t], o.track_pose[t], o.track_var[t],
+                                        o.track_mask[t], model.classes, o.track_cov_xy[t])
+                w.write(rows)
+                rows_total += len(rows)
+                for r in rows:
+                    ids.setdefault(r.cls, set()).add(r.track_id)
+                k, i = int(merged.laser[t]), int(merged.index[t])
+                src = sources[k]
+                if bag is not None:
+                    bag.write(stamp, src.ranges[i], None if src.intensities is None else src.intensities[i], rows,
+                              np.asarray(o.sensor_pose[t], np.float64), laser=merged.names[k])
+                if view is not None:
+                    view.scan(stamp, np.where(valid[k][i], src.ranges[i], 0.0), src.angle_min, src.angle_increment,
+                              jax.tree.map(lambda a, t=t: a[t], o), rows, laser=merged.names[k])
+    finally:
+        if bag is not None:
+            bag.close()
+        if view is not None:
+            view.close()
     if sensor_out is not None:
         sp = np.asarray(o.sensor_pose, np.float64)
         disagreement = cross_laser_disagreement(merged, o)
