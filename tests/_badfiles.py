@@ -750,30 +750,22 @@ def _path_cases(out: dict) -> None:
             "evaluate (model)": "model.npz", "evaluate (log)": "log.npz", "plot (csv)": "gtd.csv",
             "plot (site)": "site.json", "plot --truth": "log.npz", "run (site)": "site.json",
             "run (model)": "model.npz", "recover": "rec.npz.journal", "export-tum": "gtd.csv"}
-    gtd_reader = ("gtsjax.io.gtd.read_gtd lets the OSError of a folder or a file it cannot open through (a "
-                  "traceback): it needs the loaders' 'except OSError' (gtd.py is the lead's)")
-    click_path = ("Click's Path type (Typer's default readable=True) refuses a file it cannot read with its usage "
-                  "box, several lines, before the loaders' one line: every Path parameter needs readable=False "
-                  "(gtsjax/cli, the lead's)")
     for c, args in inputs.items():
         name = good[c]
-        lead = gtd_reader if c in ("plot (csv)", "export-tum") else ""
-        out[f"path: a folder for the {c} input"] = Case(args, empty_folder, name, xfail=lead)
+        out[f"path: a folder for the {c} input"] = Case(args, empty_folder, name)
         out[f"path: a missing {c} input"] = Case(args, None, name)
-        out[f"path: a socket for the {c} input"] = Case(args, socket_file, name, xfail=lead)
-        out[f"path: an unreadable {c} input"] = Case(args, unreadable(name), name, root=False, xfail=click_path)
+        out[f"path: a socket for the {c} input"] = Case(args, socket_file, name)
+        out[f"path: an unreadable {c} input"] = Case(args, unreadable(name), name, root=False)
     for name in ("gtd.csv", "site.json", "rec.npz.journal", "one.bag"):
         out[f"path: a socket named {name} [info]"] = Case(("info", "{f}"), socket_file, name)
         out[f"path: a folder named {name} [info]"] = Case(("info", "{f}"), empty_folder, name)
     # A bad input and an output in a folder not yet made: the folder must not be left behind.
-    early = ("check_out_file (gtsjax/cli/_common.py) makes an output's missing folder before the inputs are "
-             "read, and a bad input then leaves it behind, empty")
     for c, args in (("convert", ("convert", "{f}", "--out", "{o}/new/x.npz")),
                     ("train", ("train", "{f}", "--site", "{d}/site.json", "--out", "{o}/new/m.npz")),
                     ("recover", ("recover", "{f}", "{o}/new/x.npz"))):
         bad = raw(b"GTSJRNL1") if c == "recover" else raw(b"not a log")
         out[f"path: a bad input, {c} into a folder not yet made"] = Case(
-            args, bad, "raw.npz.journal" if c == "recover" else "bad.npz", xfail=early if c != "recover" else "")
+            args, bad, "raw.npz.journal" if c == "recover" else "bad.npz")
     # Outputs: a file where a folder must be, a folder where a file must be, a read-only folder; a
     # missing folder is made (the command succeeds).
     outs = {

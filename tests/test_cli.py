@@ -71,3 +71,37 @@ def test_sensors_lists_the_data_sheet_figures(capsys, monkeypatch):
         assert numbers[0] == pytest.approx(m.sigma * 1000), noise
         if m.knee != float("inf"):
             assert numbers[1:] == pytest.approx([m.knee, far]), noise
+
+
+def test_sensors_at_80_columns_names_every_model_in_full(capsys, monkeypatch):
+    """At a terminal's usual 80 columns the other columns wrap, but each model's name, what a user
+    types after --scanner, is printed whole."""
+    from gtsjax.sensors import MODELS
+
+    monkeypatch.setenv("COLUMNS", "80")
+    assert main(["sensors"]) == 0
+    out = capsys.readouterr().out
+    assert max(len(line) for line in out.splitlines()) <= 80
+    names = {line.split("│")[1].strip() for line in out.splitlines() if line.count("│") > 2}
+    assert set(MODELS) <= names, names
+
+
+def test_every_command_has_quiet_and_an_example_that_parses(capsys, monkeypatch):
+    """Every command takes ``--quiet`` and ends its help with an example, and each example is a
+    command line the command accepts (parsed by the command itself, after the vocabulary's aliases),
+    so the help cannot show an option that has gone."""
+    from gtsjax.cli import _spread, _vocabulary
+    from gtsjax.cli._app import EXAMPLES, command
+
+    monkeypatch.setenv("COLUMNS", "200")
+    cmd = command()
+    assert set(EXAMPLES) == set(cmd.commands)
+    for name, sub in cmd.commands.items():
+        assert any("--quiet" in p.opts for p in sub.params), name
+        assert main([name, "--help"]) == 0
+        help_text = capsys.readouterr().out
+        for example in EXAMPLES[name]:
+            assert example in " ".join(help_text.split()), (name, example)
+            args = _spread(_vocabulary(example.split()[1:]))
+            assert args[0] == name
+            sub.make_context(name, args[1:])  # a usage error (an option that is not there) raises

@@ -20,7 +20,8 @@ from . import run as _run  # noqa: E402,F401
 from . import simulate as _simulate  # noqa: E402,F401
 from . import train as _train  # noqa: E402,F401
 from ._app import app as app  # the Typer application, for those who extend it
-from ._app import command
+from ._app import command, set_quiet
+from ._common import forget_made_folders, remove_made_folders
 
 # Options that take several values in a row (``--background A B C``), as argparse's ``nargs="+"``: Click's
 # options take one value each, so the values after the first are given their own option.
@@ -196,6 +197,21 @@ def main(argv: list[str] | None = None) -> int:
             shown(message, category, filename, lineno, file, line)
 
     warnings.showwarning = show
+    set_quiet(False)
+    try:
+        code = _dispatch(stopped, argv)
+    finally:
+        while _restore:
+            signal.signal(*_restore.pop())
+        warnings.showwarning = shown
+        if sys.exc_info()[0] is not None or code != 0:
+            remove_made_folders()  # a failed command leaves no empty output folder of its own behind
+        forget_made_folders()
+    return code
+
+
+def _dispatch(stopped: list[int], argv: list[str] | None) -> int:
+    """The command's exit status (see :func:`main`)."""
     try:
         command()(args=_spread(_vocabulary(sys.argv[1:] if argv is None else list(argv))), prog_name="gtsjax")
     except InputError as err:
@@ -208,10 +224,6 @@ def main(argv: list[str] | None = None) -> int:
         if code == _TYPER_INTERRUPTED or (stopped and code in (0, None)):
             return _interrupted(stopped)
         return code if isinstance(code, int) else (0 if code is None else 2)
-    finally:
-        while _restore:
-            signal.signal(*_restore.pop())
-        warnings.showwarning = shown
     # A command that stops itself cleanly on SIGTERM or SIGHUP (``run`` closes its files and returns)
     # still says so, with the status a stopped command has (128 + the signal), as it would have had the
     # signal come a moment earlier, while it compiled.

@@ -14,6 +14,7 @@ from ..io import load_site
 from ..io.importers import detect_format, import_log
 from ..io.modelfile import load_model
 from ..io.site import one_sensor
+from ._app import quiet
 
 INPUT_HELP = ("Scan log: .npz, a ROS 1 bag (.bag), a ROS 2 bag (its directory), a CARMEN log (.log, .log.gz) "
               "or a BreezySLAM URG-04LX text log (.dat).")
@@ -27,7 +28,7 @@ def load_input(path: Path, topic: str | None, console: Console):
     if detect_format(path) not in ("ros1", "ros2"):
         return import_log(path, topic=topic)
     with Progress(TextColumn(f"reading {path.name}"), BarColumn(), MofNCompleteColumn(), TextColumn("messages"),
-                  console=console, transient=True, disable=not console.is_terminal) as bar:
+                  console=console, transient=True, disable=quiet() or not console.is_terminal) as bar:
         task = bar.add_task("read", total=None)
         return import_log(path, topic=topic, progress=lambda n, total: bar.update(task, completed=n, total=total))
 
@@ -85,6 +86,8 @@ OUT_BAG_HELP = ("Also write a ROS 2 bag (MCAP storage) to this new folder: the s
                 "/scan, or /NAME/scan per laser of several), /tf (field to each laser and to each track's CLASS_ID "
                 "frame), the tracks (/gtsjax/tracks PoseArray, /gtsjax/markers MarkerArray with ids, "
                 "/gtsjax/track_odom nav_msgs/Odometry with covariance, child_frame_id CLASS_ID).")
+CSV_UNITS_HELP = ("Write the CSV's optional header with units (stamp_s, x_m, theta_rad, var_x_m2, ...) and the x-y "
+                  "covariance column cov_xy_m2; gtsjax reads either form.")
 VIEW_SAVE_HELP = "Record the view to this .rrd file (Rerun's viewer reopens it); needs the viewer extra."
 
 
@@ -193,7 +196,15 @@ def check_out_dir(path: Path, option: str = "--out-dir") -> None:
     _writable_folder(path)
 
 
+# Folders the output checks made for this command (the top one of each), removed again while empty
+# when the command fails (:func:`remove_made_folders`): a bad input leaves nothing behind.
+_made: list[Path] = []
+
+
 def _writable_folder(folder: Path) -> None:
+    top = next((p for p in reversed((folder, *folder.parents)) if not p.exists()), None)
+    if top is not None:
+        _made.append(top)
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as err:
@@ -203,3 +214,20 @@ def _writable_folder(folder: Path) -> None:
             pass
     except OSError as err:
         raise InputError(folder, f"cannot write in this folder ({err.strerror})") from None
+
+
+def remove_made_folders() -> None:
+    """Remove the folders the output checks made for a command that then failed, where nothing was
+    written in them (deepest first; a folder holding anything stays)."""
+    while _made:
+        top = _made.pop()
+        for folder in sorted((p for p in (top, *top.rglob("*")) if p.is_dir()), key=lambda p: -len(p.parts)):
+            try:
+                folder.rmdir()
+            except OSError:
+                pass
+
+
+def forget_made_folders() -> None:
+    """The command succeeded: the folders made for its outputs stay."""
+    _made.clear()

@@ -17,7 +17,7 @@ import typer
 from rich.console import Console
 
 from ..core.geometry import wrap
-from ._app import app
+from ._app import QUIET_HELP, app
 from ._common import VIEW_HELP, VIEW_SAVE_HELP
 
 DEMO_SCENARIO = "spl-trajectory"
@@ -42,7 +42,7 @@ def match_truth(stamps_gtd: np.ndarray, served_times: np.ndarray, served_index: 
 def demo_cmd(
     seconds: float = typer.Option(20.0, help="How long to track."),
     out_dir: Path = typer.Option(Path("demo-out"), "--out-dir", help="Where to write the results."),
-    quiet: bool = typer.Option(False, help="No live view."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help=QUIET_HELP),
     view: str | None = typer.Option(None, "--view", metavar="[web]", help=VIEW_HELP),
     view_save: Path | None = typer.Option(None, "--view-save", help=VIEW_SAVE_HELP),
 ):

@@ -152,10 +152,13 @@ def _not_a_log(path: Path) -> str | None:
     """What a file is that would be read as a ``.npz`` log but is not a zip archive (one of gtsjax's
     own outputs, an image, some text), so that ``info`` names it instead of failing to read a log;
     ``None`` for anything else (the readers say what is wrong with it)."""
-    if detect_format(path) != "npz" or not path.is_file() or zipfile.is_zipfile(path):
-        return None
-    with open(path, "rb") as f:
-        head = f.read(4096)
+    try:
+        if detect_format(path) != "npz" or not path.is_file() or zipfile.is_zipfile(path):
+            return None
+        with open(path, "rb") as f:
+            head = f.read(4096)
+    except OSError:
+        return None  # cannot be opened: the log reader says so, in one line
     for magic, kind in ((b"\x89PNG", "a PNG image"), (b"%PDF", "a PDF document"), (b"\xff\xd8\xff", "a JPEG image")):
         if head.startswith(magic):
             return kind
