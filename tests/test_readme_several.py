@@ -1,9 +1,9 @@
-"""The README's several-laser block (section "Several lasers on one field") runs as written, in order,
-from an empty folder (issue 39): its commands are read from the README itself, so that a change that
-breaks them fails here.
+"""The several-laser block (docs/several-lasers.md, "Several lasers on one field"; in the README until
+issue 40) runs as written, in order, from an empty folder (issue 39): its commands are read from that
+page itself, so that a change that breaks them fails here.
 
 Each ``gtsjax`` line of the block's fenced code runs in-process (``gtsjax.cli.main``) in a fresh
-folder, with smaller settings swapped in where the README's would take minutes (seconds simulated and
+folder, with smaller settings swapped in where the page's would take minutes (seconds simulated and
 evaluated, training caps; :data:`SMALLER`), and must exit 0 and leave its outputs, holding scans or
 rows. ``emulate`` and ``run`` are skipped: they serve and read live lasers until stopped
 (``tests/test_several.py`` and ``tests/test_cli_commands.py`` run them)."""
@@ -19,8 +19,8 @@ from gtsjax.io import load_log
 from gtsjax.io.gtd import read_gtd
 from gtsjax.io.modelfile import load_model
 
-README = Path(__file__).resolve().parents[1] / "README.md"
-HEADING = "## Several lasers on one field"
+PAGE = Path(__file__).resolve().parents[1] / "docs" / "several-lasers.md"
+HEADING = "# Several lasers on one field"
 LIVE = ("emulate", "run")  # serve or read lasers until stopped: not run here
 
 # Per command: options whose value is replaced (and added where the line has none) to keep the test to
@@ -70,7 +70,7 @@ def option(args: list[str], name: str, default: str | None = None) -> str | None
 
 def test_the_block_is_the_pipeline():
     """The block simulates, trains, evaluates and replays (so that the run below tests something)."""
-    names = [c[0] for c in block_commands(README.read_text())]
+    names = [c[0] for c in block_commands(PAGE.read_text())]
     assert {"simulate", "plot", "train", "evaluate", "replay"} <= set(names)
     assert names.index("simulate") < names.index("plot") and names.index("train") < names.index("replay")
 
@@ -78,7 +78,7 @@ def test_the_block_is_the_pipeline():
 def test_the_readme_several_laser_block_runs_in_order(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     ran = []
-    for args in block_commands(README.read_text()):
+    for args in block_commands(PAGE.read_text()):
         if args[0] in LIVE:
             continue
         args = smaller(args)
