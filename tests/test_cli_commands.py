@@ -394,7 +394,7 @@ def evaluated(tmp_path_factory):
 
 def test_evaluate_labelled_log_with_site_and_error_map(evaluated):
     """``evaluate LOG --site``: the labelled log's own point, found by hand from its truth, in the per-point
-    table, with the README's static figures (0.6–1.3 cm position RMSE per point) held to the static target
+    table, with docs/accuracy.md's static figures (0.6–1.3 cm position RMSE per point) held to the static target
     with margin (≤ 3 cm), and the error map drawn."""
     log, out, result, path = evaluated
     assert "points" in result, result  # a per-point table and an error map for a static log
@@ -412,7 +412,7 @@ def test_evaluate_labelled_log_with_site_and_error_map(evaluated):
 
 
 def test_evaluate_static_heading_per_point_within_10_degrees(evaluated):
-    """The README's static heading figures (0.6–2.1° RMSE per point) held to ≤ 10° at every point. A single
+    """docs/accuracy.md's static heading figures (0.6–2.1° RMSE per point) held to ≤ 10° at every point. A single
     scan read as another side early in a track's life (spl-eval:61 scan 29, −148°) once made its track switch
     for that scan, and alone lifted point (1, 1) to 11.8°: a new heading hypothesis now starts from what the
     rest of the mixture has kept, and one misread cannot outweigh a second of agreeing reads."""

@@ -92,7 +92,7 @@ def test_truncated_bag_exit_2(logs, tmp_path):
 def test_replay_breezyslam_log_with_demo_model(logs, tmp_path):
     """A real office seen by a URG-04LX, replayed with the shipped model: every scan goes through (one
     sensor row per scan, at the log's own stamps, read here by hand), and no robot is reported (there is
-    none; README, *Real scenes*: these scans were in its background training)."""
+    none; docs/accuracy.md, *Real scenes with no robot*: these scans were in its background training)."""
     lines = (logs / BREEZY).read_text().splitlines()[:40]
     dat = tmp_path / "first40.dat"
     dat.write_text("\n".join(lines) + "\n")

@@ -72,7 +72,7 @@ def test_a_new_id_while_the_object_stays_is_a_switch():
 
 
 def test_evaluate_command_writes_both_tables(tmp_path):
-    """The shipped model on the README's bumped-sensor scenario (spl-bumped:2005) gives the README's
+    """The shipped model on docs/accuracy.md's bumped-sensor scenario (spl-bumped:2005) gives its
     figures (recall 100 %, 0.9 cm, 2.5°, heading median 0.8°, no false track or id switch, the bump
     recovered in the first scan after it; per scan 98.5 % detected, 1.0 cm), within twice their error."""
     from gtsjax.cli import main

@@ -218,7 +218,7 @@ def test_every_simulated_scenario_matches_reference():
     from gtsjax.sensors import get_model
     from gtsjax.sim import SCENARIOS, simulate  # part of the package: an import error is a failure, not a skip
 
-    assert {"spl-train", "spl-eval", "lab-eval", "hall-eval"} <= set(SCENARIOS)  # the README's sites: not a vacuous loop
+    assert {"spl-train", "spl-eval", "lab-eval", "hall-eval"} <= set(SCENARIOS)  # docs/accuracy.md's sites: not a vacuous loop
     cfg = FrontEndConfig()
     for name in SCENARIOS:
         log, _site = simulate(name, seed=0, n_scans=3)

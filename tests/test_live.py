@@ -55,7 +55,7 @@ def test_run_tracks_the_emulated_robot(tmp_path):
     there = ~np.isnan(true_pose[:, 0])  # a track is still reported for 0.3 s after the robot is lifted
     assert there.sum() >= 20
     xy = np.array([[r.x, r.y] for r in rows])
-    # README, Accuracy: 1.0 cm position RMSE and a 1.0° heading median on spl-eval; bounds of twice
+    # docs/accuracy.md: 1.0 cm position RMSE and a 1.0° heading median on spl-eval; bounds of twice
     # and five times those (one point and a handful of headings, not the whole grid).
     assert np.median(np.linalg.norm(xy[there] - true_pose[there, :2], axis=1)) < 0.02
     err = np.degrees(np.abs(np.angle(np.exp(1j * (np.array([r.theta for r in rows])[there] - true_pose[there, 2])))))
@@ -110,7 +110,7 @@ def test_a_robot_put_down_is_reported_with_its_heading_within_half_a_second(tmp_
             continue
         err = np.degrees(np.abs(np.angle(np.exp(1j * (theta[sel] - true_theta)))))
         # Issue 15's target is 5°; replayed, 92–98 % of spl-eval's put-downs meet it and the worst is
-        # 9.6° (README): every put-down within 10° (before the outline: 30–73° off for two seconds),
+        # 9.6° (docs/accuracy.md): every put-down within 10° (before the outline: 30–73° off for two seconds),
         # most within 5°.
         assert err.max() < 10.0, (round(t_a - t_served[0], 2), np.round(err, 1))
         within_5 += bool(err.max() < 5.0)

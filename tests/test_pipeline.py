@@ -23,7 +23,7 @@ from tests._utils import run_cli
 
 
 def test_training_report_is_complete(tiny):
-    """The small model's held-out figures, against what guessing gives and what the README reports for
+    """The small model's held-out figures, against what guessing gives and what docs/speed.md reports for
     the shipped model (98.9 % accuracy, 1.8 cm; this one sees 60 examples a class and 80 poses):
     accuracy ≥ 95 %, well above always answering the commonest class; every class found in ≥ 85 % of its
     examples; position RMSE ≤ 5 cm (the README's target for a moving robot); a heading median under

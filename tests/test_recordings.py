@@ -8,7 +8,7 @@ poses with no gap; at 10 and 40 Hz; with and without clutter; the Nao-like outli
 size. Each must pass training's own tracking check (``train --strict``'s) and track held-out scenes of
 its site (the robot put down for 2 s at six poses, and walking for 30 s) with recall at least 97 % once
 each track had its confirmation time, and position RMSE at most 2 cm, scored by
-``drivers.evaluation`` (the README's tables' scorer) against the simulator's truth.
+``drivers.evaluation`` (the scorer of docs/accuracy.md's tables) against the simulator's truth.
 """
 
 import dataclasses

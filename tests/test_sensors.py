@@ -79,7 +79,7 @@ def measured_noise(log, window=9, stride=3, every=4):
 
 def test_urg04lx_noise_is_the_measured_noise_of_a_real_unit_times_one_and_a_half(shared_file):
     """The simulated URG-04LX noise is the repeatability measured on a real unit's log (the shared
-    BreezySLAM log) taken 1.5 times larger (README): within 1.2–2 times what this test measures, in each
+    BreezySLAM log) taken 1.5 times larger (docs/accuracy.md): within 1.2–2 times what this test measures, in each
     range band where the log has surfaces (2 mm below 1 m, 3.5 mm at 1.5–2 m, 6–7 mm at 2.5–4 m)."""
     log = import_log(shared_file("data", "logs", "breezyslam_exp1.dat"))
     rng, sd = measured_noise(log)

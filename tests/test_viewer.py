@@ -182,7 +182,7 @@ def test_replay_view_web_draws_in_headless_chromium(tmp_path):
         # (y = 1.3 and 2.7 m), as anyone standing behind the laser sees the field.
         laser_row, posts_row = _rows(shot, LASER_COLOUR), _rows(shot, SEEN_COLOUR)
         assert laser_row < posts_row, (laser_row, posts_row, shot)
-        if os.environ.get("GTSJAX_VIEW_SHOT"):  # the README's screenshot: GTSJAX_VIEW_SHOT=docs/view.png
+        if os.environ.get("GTSJAX_VIEW_SHOT"):  # docs/viewing.md's screenshot: GTSJAX_VIEW_SHOT=docs/view.png
             shutil.copy(shot, os.environ["GTSJAX_VIEW_SHOT"])
     finally:
         proc.terminate()
