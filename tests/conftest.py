@@ -44,6 +44,16 @@ def in_ci() -> bool:
     return os.environ.get("CI", "").strip().lower() in ("true", "1", "yes")
 
 
+def need(what: bool, why: str) -> None:
+    """Skip the test where ``what`` is false on a developer's machine; fail it in CI (``CI=true``),
+    where every tool it needs is installed by ``.ci/run`` and a skip would be a test passing by not
+    running."""
+    if not what:
+        if in_ci():
+            pytest.fail(f"{why} (CI=true: this test must run)", pytrace=False)
+        pytest.skip(why)
+
+
 def shared_path(*parts: str) -> Path:
     """``SHARED/parts...`` (the real captures and logs beside the clone). Missing, the test is skipped on a
     developer's machine, and fails in CI (``CI=true``): there the real data must be present, or the

@@ -166,7 +166,7 @@ def test_export_tum_files_per_track(gtd_two_tracks, capsys):
 
 
 def test_export_tum_read_by_evo(gtd_two_tracks, tmp_path):
-    file_interface = pytest.importorskip("evo.tools.file_interface")
+    from evo.tools import file_interface  # evo is a test dependency: the check runs, never skipped
     path, tracks = gtd_two_tracks
     out_dir = tmp_path / "tum"
     assert main(["export-tum", str(path), "--out-dir", str(out_dir)]) == 0
@@ -177,12 +177,12 @@ def test_export_tum_read_by_evo(gtd_two_tracks, tmp_path):
         w, x, y, z = traj.orientations_quat_wxyz.T
         np.testing.assert_allclose(wrap_angle(np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)) - ref[:, 3]),
                                    0.0, atol=2e-6)
-    evo_traj = Path(sys.executable).with_name("evo_traj")
-    if evo_traj.exists():  # evo's own command line, with its settings kept out of the real home
-        res = subprocess.run([str(evo_traj), "tum", *sorted(map(str, out_dir.glob("*.tum")))], capture_output=True,
-                             text=True, timeout=120, env={**os.environ, "HOME": str(tmp_path)})
-        assert res.returncode == 0, res.stderr
-        assert "30 poses" in res.stdout and "10 poses" in res.stdout
+    evo_traj = Path(sys.executable).with_name("evo_traj")  # evo's own command line, installed with it
+    assert evo_traj.exists(), f"{evo_traj} not found: the test extra installs evo and its evo_traj"
+    res = subprocess.run([str(evo_traj), "tum", *sorted(map(str, out_dir.glob("*.tum")))], capture_output=True,
+                         text=True, timeout=120, env={**os.environ, "HOME": str(tmp_path)})  # settings out of the home
+    assert res.returncode == 0, res.stderr
+    assert "30 poses" in res.stdout and "10 poses" in res.stdout
 
 
 def test_export_tum_bad_csv_exit_2(tmp_path):

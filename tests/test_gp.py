@@ -9,13 +9,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+# scikit-learn is a test dependency (pyproject's ``test`` extra): imported, not skipped without it.
+import sklearn.gaussian_process as sk_gp  # noqa: E402
+import sklearn.gaussian_process.kernels as sk_k  # noqa: E402
+
 from gtsjax import InputError, gp
 from gtsjax.gp.kernel import _effective_noise, _lml_forward, _safe_rows
 from gtsjax.train import TrainConfig
 from gtsjax.train.fit import fit_gp
-
-sk_gp = pytest.importorskip("sklearn.gaussian_process")
-sk_k = pytest.importorskip("sklearn.gaussian_process.kernels")
 
 
 def _sk_kernel(params: gp.Hyperparameters, noise: float, *, fixed: bool):

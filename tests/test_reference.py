@@ -9,9 +9,6 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-pytest.importorskip("filterpy")
-pytest.importorskip("sklearn")
-
 from gtsjax.cli.demo import demo_model_path  # noqa: E402
 from gtsjax.core.pipeline import perceive  # noqa: E402
 from gtsjax.drivers.replay import process_log  # noqa: E402

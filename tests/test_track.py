@@ -180,7 +180,6 @@ def test_rejected_heading_is_a_position_only_update():
     with the rest's weight: ``(1 − _OUTLIER_P) / _OUTLIER_P`` times what the rest keeps, while the main
     one, which the read does not support either, loses against the rest's faded odds what the floor
     gives against the read; the main one stays the state's heading; the reference tracker agrees."""
-    pytest.importorskip("filterpy")
     from gtsjax.core.g_track import _OUTLIER_P
     from tests.reference.track import Tracker
 
@@ -408,7 +407,6 @@ def run_both(params, scans, m=4, dt=0.1):
     float64) through ``scans``; per scan, both must have the same live ids with the same confirmation
     and counters, the same state and the same heading hypotheses. Returns per scan ``{id: (confirmed,
     hits, contrary)}`` and the states (gtsjax's)."""
-    pytest.importorskip("filterpy")
     from tests.reference.track import Tracker
 
     ref = Tracker(params, m)
@@ -549,7 +547,6 @@ def test_partial_views_follow_a_confirmed_track_but_never_start_one():
     """Occluded views of a class seen whole (``partial``): alone they start nothing; after whole views
     have confirmed a track, they keep it updated (a robot passing behind another). The reference
     tracker agrees scan by scan."""
-    pytest.importorskip("filterpy")
     from tests.reference.track import Tracker
 
     def run(partial_flags):
@@ -585,7 +582,6 @@ def test_vague_headings_move_the_position_only_and_may_start_a_track():
     those reads move the track's position as the others do and leave its heading alone; not marked,
     they pass the heading gate (their variance widens it) and pull it. Vague reads alone still start and
     confirm a track (unlike partial views). gtsjax and the reference agree on every scan."""
-    pytest.importorskip("filterpy")
     from tests.reference.track import Tracker
 
     def run(flags, off):
@@ -813,7 +809,6 @@ def test_a_gap_in_the_scans_counts_as_the_periods_it_spans():
     stall) counts 20 missed periods, not one: a confirmed track whose robot was lifted meanwhile is
     neither reported (m_report 0.3 s) nor kept (m_delete 1 s). Without the period it counts one scan,
     as before. The reference tracker, given the same period, agrees."""
-    pytest.importorskip("filterpy")
     from tests.reference.track import Tracker
 
     for period, after in ((0.1, {}), (None, {0: (True, 1)})):
@@ -901,7 +896,6 @@ def test_guesses_keep_a_confirmed_track_near_its_prediction_only():
     its prediction; one further off (a person's legs in front of a hidden robot) leaves it missing,
     and after more than ``GUESS_MISSES`` misses even a near one does not revive it. The reference
     tracker agrees scan by scan on ids, confirmation, misses and the state."""
-    pytest.importorskip("filterpy")
     from gtsjax.core.g_track import GUESS_MISSES, GUESS_RADIUS
     from tests.reference.track import Tracker
 

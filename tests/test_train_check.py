@@ -65,3 +65,36 @@ def test_train_strict_fails_on_a_model_that_cannot_track(tmp_path):
     assert out.exists()  # written all the same: the user may look at it
     problem = [line for line in proc.stderr.splitlines() if "cannot track" in line]
     assert problem and "speed" in problem[0] and "--max-speed" in problem[0], proc.stderr
+
+
+def test_in_view_means_returns_on_it_not_behind_another_nor_out_of_reach():
+    """``seen``: a scan ray-cast by hand (a NumPy loop over beams and discs, the laser at the origin
+    facing +x with a 180° view): a robot in the open is in view, one straight behind it is not (its
+    disc gets no ray), nor one behind the laser, nor one past the range window; a robot beside a
+    post is in view, the post's returns being the post's."""
+    from gtsjax.io import ScanLog
+    from gtsjax.train.check import seen
+
+    n = 721
+    angle_min, inc = -np.pi / 2, np.pi / (n - 1)
+    discs = {"open": (2.0, 1.0), "behind": (3.5, 1.75), "back": (-2.0, 0.0), "far": (0.0, -5.0), "by post": (2.0, -1.0)}
+    post = np.array([[2.0, -1.3]])
+    r_disc = 0.12
+    ranges = np.zeros(n, np.float32)
+    for i in range(n):
+        a = angle_min + i * inc
+        u = np.array([np.cos(a), np.sin(a)])
+        best = np.inf
+        for c in [*discs.values(), tuple(post[0])]:
+            c = np.asarray(c)
+            along = c @ u
+            off2 = c @ c - along**2
+            if along > 0 and off2 <= r_disc**2:
+                best = min(best, along - np.sqrt(r_disc**2 - off2))
+        ranges[i] = best if best <= 4.0 else 0.0  # a 4 m range window: "far" is beyond it
+    log = ScanLog(ranges=ranges[None], stamps=np.array([0.0]), angle_min=angle_min, angle_increment=inc,
+                  range_min=0.02, range_max=4.0)
+    truth = np.array([list(discs.values())], float)
+    got = seen(log, np.zeros((1, 3)), truth, np.ones((1, len(discs)), bool), post, radius=0.3)
+    assert dict(zip(discs, got[0].tolist(), strict=True)) == {
+        "open": True, "behind": False, "back": False, "far": False, "by post": True}

@@ -6,7 +6,9 @@ fitting, ``gtsjax train`` replays each labelled log through the complete step (s
 included, as ``replay`` runs it) and scores, per tracked class, the scans of the held-out seconds (the
 tracker runs through the whole log, so that a held-out second is tracked as a live run would track it):
 
-- detection rate: scans with the class in view in which the step detected it (within ``radius``);
+- detection rate: scans with the class in view in which the step detected it (within ``radius``); in
+  view meaning that the scan has returns on it (:func:`seen`): a robot hidden behind another, or
+  beyond the laser's reach, is not a miss of the model's;
 - rows: of those scans, the share with a ground-truth row of the class there, once each appearance is
   older than the tracker's confirmation time plus half a second (a robot put down at its next pose
   between two scans, as a training grid is recorded, appears anew);
@@ -56,6 +58,7 @@ ADVICE = {
 ROWS_PER_DETECTION = 0.9  # rows for at least this share of the scans in which the robot was detected
 DETECTION = 0.9  # the robot detected in at least this share of the held-out scans in which it is in view
 JUMP_SPEED = 2.0  # m/s: a labelled object faster than this between two scans was put down elsewhere
+MIN_RETURNS = 3  # returns on an object for it to be in view (a scan's lone return is a mixed pixel)
 
 
 def _counts() -> dict:
@@ -123,6 +126,31 @@ def _lost_at(out, t: int, xy: np.ndarray, cls: int, radius: float) -> str:
             "unposed": "cap"}.get(why, "classifier" if int(out.cand_class[t][int(np.argmin(d))]) != cls else "bounds")
 
 
+def seen(log: ScanLog, sensor_pose: np.ndarray, truth_xy: np.ndarray, present: np.ndarray,
+         landmark_xy: np.ndarray, radius: float) -> np.ndarray:
+    """Which labelled objects (``truth_xy`` [T, M, 2] where ``present``) each scan has at least
+    :data:`MIN_RETURNS` returns on: returns within ``radius`` of the object whose nearest labelled
+    object or site landmark (``landmark_xy`` [L, 2]) it is, the scan placed in O at ``sensor_pose``
+    [T, 3] (the step's own map transformation). A robot behind another robot, out of the laser's
+    reach or field of view has none, and is not counted as a scan the model missed it in."""
+    T, M = present.shape
+    out = np.zeros((T, M), bool)
+    angles = log.angle_min + log.angle_increment * np.arange(log.n_beams)
+    valid = log.valid()
+    for t in range(T):
+        if not present[t].any():
+            continue
+        r = log.ranges[t, valid[t]].astype(np.float64)
+        a = sensor_pose[t, 2] + angles[valid[t]]
+        pts = sensor_pose[t, :2] + r[:, None] * np.stack([np.cos(a), np.sin(a)], axis=1)
+        objs = np.concatenate([np.where(present[t][:, None], truth_xy[t], np.inf), landmark_xy])
+        d = np.linalg.norm(pts[:, None, :] - objs[None, :, :], axis=2)
+        near = np.argmin(d, axis=1) if len(objs) else np.zeros(0, int)
+        on = d[np.arange(len(pts)), near] <= radius
+        out[t] = np.bincount(near[on], minlength=len(objs))[:M] >= MIN_RETURNS
+    return out
+
+
 def check_log(model: Model, log: ScanLog, held: np.ndarray, tracked: Sequence[str], *, radius: float = 0.3,
               settle_s: float | None = None) -> dict:
     """Per tracked class of ``log``'s labels, counts over the held-out scans (``held`` [T]) of ``log``
@@ -139,6 +167,8 @@ def check_log(model: Model, log: ScanLog, held: np.ndarray, tracked: Sequence[st
         x, y = np.nan_to_num(truth[..., 0]), np.nan_to_num(truth[..., 1])
         present &= (x >= b[0]) & (y >= b[1]) & (x <= b[2]) & (y <= b[3])
     since = _since(truth[..., :2], log.stamps, present)
+    in_view = present & seen(log, np.asarray(out.sensor_pose, np.float64), np.nan_to_num(truth[..., :2]), present,
+                             np.asarray(model.site.landmark_xy, np.float64), radius)
     res: dict[str, dict] = {}
     for i, name in enumerate(log.truth_classes):
         name = str(name)
@@ -146,7 +176,7 @@ def check_log(model: Model, log: ScanLog, held: np.ndarray, tracked: Sequence[st
             continue
         c = classes.index(name)
         r = res.setdefault(name, _counts())
-        for t in np.flatnonzero(present[:, i] & held):
+        for t in np.flatnonzero(in_view[:, i] & held):
             xy = truth[t, i, :2]
             det = np.asarray(out.det_mask[t]) & (np.asarray(out.det_class[t]) == c)
             found = det.any() and np.min(np.linalg.norm(out.det_pose[t][det, :2] - xy, axis=1)) <= radius
