@@ -466,7 +466,7 @@ EXIT_2 = {
         [
             "run",
             "--port",
-            "{d}/no-tty",
+            "/dev/null",
             "--site",
             "{d}/site.json",
             "--model",
@@ -624,13 +624,13 @@ def test_bad_site_or_model_is_one_line_and_exit_2(inputs, tmp_path, capsys, case
 
 
 def test_train_makes_a_missing_model_folder_before_reading_anything(inputs, tmp_path, capsys):
-    """The model's folder is made (and checked) before any log is read: with a log that does not
-    exist, the command fails on the log, and the folder is already there, empty."""
+    """The model's folder is checked (made) before any log is read: with a log that does not exist,
+    the command fails on the log, and the folder it made is removed again, leaving nothing behind."""
     out = tmp_path / "new" / "models" / "m.npz"
     code = main(["train", str(inputs / "missing.npz"), "--site", str(inputs / "site.json"), "--out", str(out)])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "missing.npz" in err[0], err
-    assert out.parent.is_dir() and list(out.parent.iterdir()) == []
+    assert not (tmp_path / "new").exists()
 
 
 def test_replay_writes_into_a_missing_folder(inputs, tmp_path):

@@ -1,6 +1,7 @@
 """The Typer application every command module registers on, and the guard that turns a user's
 mistake into one line on stderr and exit status 2."""
 
+import functools
 import sys
 
 import typer
@@ -107,6 +108,7 @@ def command():
     return cmd
 
 
+@functools.cache
 def _quiet_option():
     """The ``--quiet`` flag as Typer makes it (taken from a one-option command of its own), setting
     :func:`quiet` instead of being passed to the command."""
