@@ -135,8 +135,19 @@ def test_train_command_line_takes_several_logs_and_caps(tmp_path):
     assert header["sensor_model"] == "URG-04LX"
     reg = load_model(tmp_path / "m.npz").pose[rep["classes"].index("robot")]
     assert reg.shared is not None and [g.n_outputs for g in reg.shared] == [2, 2] and reg.sin is None
-    assert run_cli("replay", tmp_path / "b.npz", "--site", tmp_path / "site.json", "--model", tmp_path / "m.npz",
-                   "--out", tmp_path / "gtd.csv").returncode == 0
+    assert (
+        run_cli(
+            "replay",
+            tmp_path / "b.npz",
+            "--site",
+            tmp_path / "site.json",
+            "--model",
+            tmp_path / "m.npz",
+            "--out",
+            tmp_path / "gtd.csv",
+        ).returncode
+        == 0
+    )
 
 
 # ------------------------------------------------------------------------------------------ run, recover
@@ -272,9 +283,24 @@ def test_run_ends_in_one_line_when_the_sensor_is_gone(field, tmp_path):
     with open(tmp_path / "stderr.txt", "w") as err:
         with SensorEmulator(URG_04LX, log) as emu:
             port = emu.path
-            proc = popen_cli("run", "--port", port, "--site", site, "--model", DEMO_MODEL, "--out",
-                             tmp_path / "gtd.csv", "--record", raw, "--json", "--quiet", "--reconnect-timeout", "2",
-                             stderr=err)
+            proc = popen_cli(
+                "run",
+                "--port",
+                port,
+                "--site",
+                site,
+                "--model",
+                DEMO_MODEL,
+                "--out",
+                tmp_path / "gtd.csv",
+                "--record",
+                raw,
+                "--json",
+                "--quiet",
+                "--reconnect-timeout",
+                "2",
+                stderr=err,
+            )
             lines = read_lines(proc, 10, PATIENCE_S)
         try:  # the emulator is gone, and its pty with it
             proc.wait(timeout=60)
@@ -429,14 +455,19 @@ def inputs(tmp_path_factory):
     log, site = simulate("spl-eval", seed=1, n_scans=5)
     save_log(log, d / "log.npz")
     save_site(site, d / "site.json")
+    # 8 s of the same field, long enough for tracks (the robot put down after 1 s): the replays that must
+    # write rows read this one.
+    tracked, _ = simulate("spl-eval", seed=1, n_scans=80)
+    save_log(tracked, d / "tracked.npz")
     (d / "bad_site.json").write_text(
         '{"landmarks": [{"class": "post", "x": 0, "y": 0}, {"class": "post", "x": 1, '
         '"y": 0}], "sensor_pose": [0, 0, 0]}'
     )
     (d / "bad_model.npz").write_text("not a model")
     (d / "gtd.csv").write_text("stamp,track_id,class,x,y,theta,var_x,var_y,var_theta\n")
-    (d / "gtd_rows.csv").write_text("stamp,track_id,class,x,y,theta,var_x,var_y,var_theta\n"
-                                    "1.0,1,robot,1.0,1.0,0.5,0.01,0.01,0.01\n")
+    (d / "gtd_rows.csv").write_text(
+        "stamp,track_id,class,x,y,theta,var_x,var_y,var_theta\n1.0,1,robot,1.0,1.0,0.5,0.01,0.01,0.01\n"
+    )
     (d / "a_folder.npz").mkdir()
     two = json.loads((d / "site.json").read_text())
     pose = two.pop("sensor_pose")
@@ -503,8 +534,18 @@ EXIT_2 = {
         "is a directory",
     ),
     "replay, sensor-out a folder": (
-        ["replay", "{d}/log.npz", "--site", "{d}/site.json", "--model", str(DEMO_MODEL), "--out", "{o}/o.csv",
-         "--sensor-out", "{d}/a_folder.npz"],
+        [
+            "replay",
+            "{d}/log.npz",
+            "--site",
+            "{d}/site.json",
+            "--model",
+            str(DEMO_MODEL),
+            "--out",
+            "{o}/o.csv",
+            "--sensor-out",
+            "{d}/a_folder.npz",
+        ],
         "a_folder.npz",
         "is a directory",
     ),
@@ -529,19 +570,51 @@ EXIT_2 = {
         SITE,
     ),
     "run, out a folder": (
-        ["run", "--port", "{d}/no-tty", "--site", "{d}/site.json", "--model", str(DEMO_MODEL), "--out", "{d}/a_folder.npz"],
+        [
+            "run",
+            "--port",
+            "{d}/no-tty",
+            "--site",
+            "{d}/site.json",
+            "--model",
+            str(DEMO_MODEL),
+            "--out",
+            "{d}/a_folder.npz",
+        ],
         "a_folder.npz",
         "is a directory",
     ),
     "run, record under a file": (
-        ["run", "--port", "{d}/no-tty", "--site", "{d}/site.json", "--model", str(DEMO_MODEL), "--out", "{o}/o.csv",
-         "--record", "{d}/log.npz/raw.npz"],
+        [
+            "run",
+            "--port",
+            "{d}/no-tty",
+            "--site",
+            "{d}/site.json",
+            "--model",
+            str(DEMO_MODEL),
+            "--out",
+            "{o}/o.csv",
+            "--record",
+            "{d}/log.npz/raw.npz",
+        ],
         "log.npz",
         "is a file, not a folder",
     ),
     "run, summary a folder": (
-        ["run", "--port", "{d}/no-tty", "--site", "{d}/site.json", "--model", str(DEMO_MODEL), "--out", "{o}/o.csv",
-         "--summary", "{d}/a_folder.npz"],
+        [
+            "run",
+            "--port",
+            "{d}/no-tty",
+            "--site",
+            "{d}/site.json",
+            "--model",
+            str(DEMO_MODEL),
+            "--out",
+            "{o}/o.csv",
+            "--summary",
+            "{d}/a_folder.npz",
+        ],
         "a_folder.npz",
         "is a directory",
     ),
@@ -566,26 +639,64 @@ EXIT_2 = {
         "has 2 sensors (north, south): name the one the scans are from with --laser NAME",
     ),
     "run, a sensor the site does not have": (
-        ["run", "--port", "{d}/no-tty", "--site", "{d}/two_sensors.json", "--laser", "east", "--model",
-         str(DEMO_MODEL), "--out", "{o}/o.csv"],
+        [
+            "run",
+            "--port",
+            "{d}/no-tty",
+            "--site",
+            "{d}/two_sensors.json",
+            "--laser",
+            "east",
+            "--model",
+            str(DEMO_MODEL),
+            "--out",
+            "{o}/o.csv",
+        ],
         "two_sensors.json",
         "has no sensor named 'east'",
     ),
     "replay --log, a laser the site lacks": (
-        ["replay", "--log", "east={d}/log.npz", "--site", "{d}/two_sensors.json", "--model", str(DEMO_MODEL),
-         "--out", "{o}/o.csv"],
+        [
+            "replay",
+            "--log",
+            "east={d}/log.npz",
+            "--site",
+            "{d}/two_sensors.json",
+            "--model",
+            str(DEMO_MODEL),
+            "--out",
+            "{o}/o.csv",
+        ],
         "two_sensors.json",
         "has no sensor named 'east'",
     ),
     "replay --log, a site of one laser": (
-        ["replay", "--log", "north={d}/log.npz", "--site", "{d}/site.json", "--model", str(DEMO_MODEL),
-         "--out", "{o}/o.csv"],
+        [
+            "replay",
+            "--log",
+            "north={d}/log.npz",
+            "--site",
+            "{d}/site.json",
+            "--model",
+            str(DEMO_MODEL),
+            "--out",
+            "{o}/o.csv",
+        ],
         "site.json",
         "has no sensors list",
     ),
     "replay --log, not NAME=LOG": (
-        ["replay", "--log", "{d}/log.npz", "--site", "{d}/two_sensors.json", "--model", str(DEMO_MODEL),
-         "--out", "{o}/o.csv"],
+        [
+            "replay",
+            "--log",
+            "{d}/log.npz",
+            "--site",
+            "{d}/two_sensors.json",
+            "--model",
+            str(DEMO_MODEL),
+            "--out",
+            "{o}/o.csv",
+        ],
         "--log",
         "is not NAME=LOG",
     ),
@@ -595,8 +706,19 @@ EXIT_2 = {
         "has no sensor named 'east'",
     ),
     "run, two ports for a site of one laser": (
-        ["run", "--port", "north={d}/a", "--port", "south={d}/b", "--site", "{d}/site.json", "--model",
-         str(DEMO_MODEL), "--out", "{o}/o.csv"],
+        [
+            "run",
+            "--port",
+            "north={d}/a",
+            "--port",
+            "south={d}/b",
+            "--site",
+            "{d}/site.json",
+            "--model",
+            str(DEMO_MODEL),
+            "--out",
+            "{o}/o.csv",
+        ],
         "--port",
         "each is NAME=PORT, NAME one of the site's sensors (it has no sensors list)",
     ),
@@ -634,10 +756,37 @@ def test_train_makes_a_missing_model_folder_before_reading_anything(inputs, tmp_
 
 
 def test_replay_writes_into_a_missing_folder(inputs, tmp_path):
+    """``--out`` and ``--sensor-out`` in folders not yet made: made, and written whole (rows on the
+    simulated robot, a sensor row per scan)."""
     out, sensor = tmp_path / "a" / "b" / "gtd.csv", tmp_path / "c" / "sensor.csv"
-    code = main(["replay", str(inputs / "log.npz"), "--site", str(inputs / "site.json"), "--model", str(DEMO_MODEL),
-                 "--out", str(out), "--sensor-out", str(sensor)])
-    assert code == 0 and out.read_text().startswith("stamp,track_id,class,") and sensor.is_file()
+    code = main(
+        [
+            "replay",
+            str(inputs / "tracked.npz"),
+            "--site",
+            str(inputs / "site.json"),
+            "--model",
+            str(DEMO_MODEL),
+            "--out",
+            str(out),
+            "--sensor-out",
+            str(sensor),
+            "--quiet",
+        ]
+    )
+    assert code == 0 and out.read_text().startswith("stamp,track_id,class,")
+    log = load_log(inputs / "tracked.npz")
+    assert_rows_on_the_robot(read_gtd(out), log)
+    lines = sensor.read_text().splitlines()
+    assert lines[0].startswith("stamp,") and len(lines) == 1 + log.n_scans
+
+
+def assert_rows_on_the_robot(rows, log, most_m=0.025):
+    """At least 10 rows, each within ``most_m`` of the log's one robot at its stamp (the shipped model on
+    ``tracked.npz``: within 1.2 cm)."""
+    at = {float(s): t for t, s in enumerate(log.stamps)}
+    off = [math.hypot(r.x - log.truth_poses[at[r.stamp], 0, 0], r.y - log.truth_poses[at[r.stamp], 0, 1]) for r in rows]
+    assert len(rows) >= 10 and max(off) <= most_m, (len(rows), np.round(off, 3))
 
 
 def test_run_on_a_full_disk_stops_in_one_line_and_keeps_what_was_written(field, tmp_path):
@@ -649,14 +798,37 @@ def test_run_on_a_full_disk_stops_in_one_line_and_keeps_what_was_written(field, 
     log, site = field
     limit = 40_000
     raw = tmp_path / "raw.npz"
-    child = ("import resource, runpy, sys; "
-             f"resource.setrlimit(resource.RLIMIT_FSIZE, ({limit}, {limit})); "
-             "sys.argv[0] = 'gtsjax'; runpy.run_module('gtsjax', run_name='__main__', alter_sys=True)")
+    child = (
+        "import resource, runpy, sys; "
+        f"resource.setrlimit(resource.RLIMIT_FSIZE, ({limit}, {limit})); "
+        "sys.argv[0] = 'gtsjax'; runpy.run_module('gtsjax', run_name='__main__', alter_sys=True)"
+    )
     with SensorEmulator(URG_04LX, log) as emu:
         res = subprocess.run(
-            [sys.executable, "-c", child, "run", "--port", emu.path, "--site", str(site), "--model", str(DEMO_MODEL),
-             "--out", str(tmp_path / "gtd.csv"), "--record", str(raw), "--quiet", "--duration", "120"],
-            capture_output=True, text=True, timeout=PATIENCE_S, env={**cli_env(), "GTSJAX_CACHE_DIR": "off"})
+            [
+                sys.executable,
+                "-c",
+                child,
+                "run",
+                "--port",
+                emu.path,
+                "--site",
+                str(site),
+                "--model",
+                str(DEMO_MODEL),
+                "--out",
+                str(tmp_path / "gtd.csv"),
+                "--record",
+                str(raw),
+                "--quiet",
+                "--duration",
+                "120",
+            ],
+            capture_output=True,
+            text=True,
+            timeout=PATIENCE_S,
+            env={**cli_env(), "GTSJAX_CACHE_DIR": "off"},
+        )
     err = [line for line in res.stderr.strip().splitlines() if not line.startswith("connected to ")]
     assert res.returncode == 2, res.stderr
     assert len(err) == 1 and err[0].startswith(f"gtsjax: {journal_path(raw)}: cannot write (File too large)"), err
@@ -678,12 +850,24 @@ def test_gtd_writer_on_a_full_device_is_one_line():
 
 def test_replay_picks_the_named_sensor_of_a_site_with_two(inputs, tmp_path):
     """``--laser NAME`` on a site of several lasers: the scans are that laser's, so the replay with the
-    first sensor named writes what the one-sensor site writes."""
-    one, two = tmp_path / "one.csv", tmp_path / "two.csv"
-    common = ["replay", str(inputs / "log.npz"), "--model", str(DEMO_MODEL)]
+    first sensor named writes what the one-sensor site writes, rows on the robot; with the second
+    (3 m across the field, facing the other way) the same scans are read from there: rows, all far
+    from the robot."""
+    one, two, south = tmp_path / "one.csv", tmp_path / "two.csv", tmp_path / "south.csv"
+    common = ["replay", str(inputs / "tracked.npz"), "--model", str(DEMO_MODEL), "--quiet"]
     assert main([*common, "--site", str(inputs / "site.json"), "--out", str(one)]) == 0
     assert main([*common, "--site", str(inputs / "two_sensors.json"), "--laser", "north", "--out", str(two)]) == 0
+    assert main([*common, "--site", str(inputs / "two_sensors.json"), "--laser", "south", "--out", str(south)]) == 0
     assert one.read_text() == two.read_text()
+    log = load_log(inputs / "tracked.npz")
+    assert_rows_on_the_robot(read_gtd(two), log)
+    at = {float(s): t for t, s in enumerate(log.stamps)}
+    rows = read_gtd(south)
+    assert len(rows) >= 10
+    assert all(
+        math.hypot(r.x - log.truth_poses[at[r.stamp], 0, 0], r.y - log.truth_poses[at[r.stamp], 0, 1]) > 1.0
+        for r in rows
+    )
 
 
 def test_plot_coverage_of_two_sensors(inputs, tmp_path, capsys):
@@ -707,7 +891,9 @@ def test_plot_coverage_of_two_sensors(inputs, tmp_path, capsys):
                 sx, sy, sth = sen.pose
                 r = math.hypot(x - sx, y - sy)
                 b = math.remainder(math.atan2(y - sy, x - sx) - sth, 2 * math.pi)
-                n += m.range_min <= r <= m.range_max and m.angle_min <= b <= m.angle_min + m.angle_increment * (m.n_beams - 1)
+                n += m.range_min <= r <= m.range_max and m.angle_min <= b <= m.angle_min + m.angle_increment * (
+                    m.n_beams - 1
+                )
             seen.append(n)
     seen = np.asarray(seen)
     for k in (1, 2):
