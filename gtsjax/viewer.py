@@ -1,4 +1,4 @@
-"""The run as Rerun shows it (issues 19 and 39): ``--view`` (the native viewer), ``--view web`` (Rerun's
+"""The run as Rerun shows it: ``--view`` (the native viewer), ``--view web`` (Rerun's
 web viewer, no internet needed) and ``--view-save FILE.rrd`` on ``run``, ``replay`` and ``demo``, for
 one laser or several. ``rerun-sdk`` is an optional extra (``pip install "gtsjax[viewer]"``).
 

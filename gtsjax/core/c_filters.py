@@ -32,7 +32,7 @@ def binary_filter(
 
 
 class Envelope(eqx.Module):
-    """Per-class shape envelopes, learnt at training (issue 13): for each class and range bin, the
+    """Per-class shape envelopes, learnt at training: for each class and range bin, the
     intervals that a candidate's width, depth and point count must lie in for the candidate to be of
     that class.
 

@@ -4,12 +4,11 @@ as an argument.
 XLA:CPU (jaxlib 0.10) hands some fusions to the YNNPACK library by default. In a program that takes
 the model as an argument (batch replay: one compiled chunk serves every model of a shape), the pose
 GPs' kernel row became one such fusion that recomputes each inducing point's squared norm for every
-candidate of every scan, ``[scans, GPs, 5 991]`` elements at some 14 ns each: 2.8 ms per group of 8
-scans, 47 % of batch replay's time (``jax.profiler`` trace of ``perceive_batch``). With those library
-fusions off, XLA's own fusions compute the same in a fraction of it: batch replay of the shipped
-model 1 654 → 3 176 scans/s vectorised, 723 → 1 536 step by step (same process, interleaved). The
-live step closes over the model, so XLA folds those norms into constants and the option changes
-nothing there (0.96 against 0.99 ms median), and it is left alone.
+candidate of every scan, ``[scans, GPs, inducing points]`` elements: nearly half of batch replay's
+time in a ``jax.profiler`` trace of ``perceive_batch``. With those library fusions off, XLA's own
+fusions compute the same in a fraction of it, and batch replay runs about twice as fast (figures in
+``docs/speed.md``). The live step closes over the model, so XLA folds those norms into constants and
+the option changes nothing there; it is left alone.
 
 :func:`batch_jit` applies the option where the backend is a CPU and the installed XLA knows it
 (checked once by compiling a trivial program with it); elsewhere it is plain ``jax.jit``.

@@ -1,10 +1,9 @@
 """A pytree of arrays held as one flat buffer per dtype between compiled calls.
 
 Every array that enters or leaves a compiled call costs the call a few microseconds on the host
-(PjRt makes, checks and later frees a buffer for each), whatever its size. The live step's state is
-21 small arrays and its output 28: on a 2-core Xeon a call that only passed the state through took
-0.14 ms, one that also returned the output 0.21 ms, against 0.04 ms for the frame alone, a sixth of
-the whole step. Packed, they are three buffers each way (float32, int32, bool).
+(PjRt makes, checks and later frees a buffer for each), whatever its size. The live step's state and
+output are a few dozen small arrays, whose buffers alone cost a large share of the whole step
+(measured in ``docs/speed.md``). Packed, they are three buffers each way (float32, int32, bool).
 
 :class:`Packing` is the layout, made from any example of the tree (arrays or
 ``jax.ShapeDtypeStruct``): :meth:`~Packing.pack` inside the compiled function (one concatenation per

@@ -1,4 +1,4 @@
-"""The ground truth as a ROS 2 bag (MCAP storage), beside a robot's own bags (issues 19 and 39).
+"""The ground truth as a ROS 2 bag (MCAP storage), beside a robot's own bags.
 
 ``--out-bag DIR`` on ``replay`` and ``run`` writes, with rosbags' writer (``StoragePlugin.MCAP``), for
 one laser or several:

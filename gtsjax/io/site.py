@@ -1,7 +1,7 @@
 """Site files (JSON, ``shared/spec/formats.md``): the field's static landmarks, the user's rough
 guess of the sensor pose, and optional bounds for mobile objects.
 
-Several lasers on one field (issue 18) extend the format with an optional ``sensors`` list, each
+Several lasers on one field extend the format with an optional ``sensors`` list, each
 ``{"name": str, "sensor_pose": [x, y, θ], "model": "URG-04LX" | …}`` (``model`` optional: any
 scanner). A site with ``sensors`` may leave out the top-level ``sensor_pose``; it is then written as
 the first sensor's, so that a program that knows one sensor still reads the file. A site without

@@ -1,4 +1,4 @@
-"""Several lasers on a full-size SPL field (issue 18): one scene, one log per laser.
+"""Several lasers on a full-size SPL field: one scene, one log per laser.
 
 Today's SPL field is 9 × 6 m inside a carpet of 10.4 × 7.4 m; the goals' posts (0.10 m) stand on the
 goal lines, their centres 0.80 m either side of the middle; four thin poles beside the side lines

@@ -275,7 +275,7 @@ def _crossing(layout_fn, seconds=22.0):
 
 # ------------------------------------------------------------------------- recording styles
 #
-# The ways users record a training log (GitHub issue 38): each style a habit, on a site's training grid
+# The ways users record a training log : each style a habit, on a site's training grid
 # (:func:`_grid_points` at 0.5 × 0.4 m), for either robot outline, at the scanner's rate or another.
 
 SITES: dict[str, Callable[[], Layout]] = {"spl": spl_layout, "lab": lab_layout, "hall": hall_layout}
@@ -669,7 +669,7 @@ SCENARIOS: dict[str, tuple[str, Callable]] = {
                   "between poses", _eval(hall_layout, HALL_EVAL_POINTS)),
     "hall-trajectory": ("clean hall: a robot walking a Lissajous path at 0.1–0.4 m/s for 60 s",
                         _trajectory(hall_layout)),
-    "spl-train-turn": ("the recording that broke training (issue 38): SPL grid, the robot turned on the spot through "
+    "spl-train-turn": ("the recording that broke training: SPL grid, the robot turned on the spot through "
                        "16 headings, one scan each, carried 1 s out of view between points", _recorded("spl", "turn")),
     "hall-train-turn": ("clean hall: the robot turned on the spot, one scan per 22.5°, carried 1 s out of view "
                         "between grid points", _recorded("hall", "turn")),

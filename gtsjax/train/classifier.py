@@ -2,7 +2,7 @@
 open-set test's examples and thresholds (:func:`fit_support`), and the classifier's GPs, one per
 class on 1/0 targets (eq. 14; :func:`fit_classifier`), on balanced and capped examples.
 
-**What the model must reject** (issue 13). Background logs (recorded anywhere with no robot in view)
+**What the model must reject**. Background logs (recorded anywhere with no robot in view)
 add background examples: every candidate the binary filters keep in them, except look-alikes of a
 landmark class (a post in view while recording, :func:`landmark_lookalikes`). With them the
 classifier sees many more background examples, shared evenly between their sources
