@@ -66,10 +66,16 @@ def cli_env() -> dict:
     return env
 
 
+# ``gtsjax ARGS`` as a child process runs it here: ``python -m tests._child ARGS``, the command line under
+# the checks the in-process tests run with (the beartype import hook, strict dtype and rank promotion).
+CHILD = (sys.executable, "-m", "tests._child")
+
+
 def run_cli(*args, timeout: float = 600, **kwargs) -> subprocess.CompletedProcess:
-    """``python -m gtsjax ARGS`` in a child process, as a user runs it; stdout and stderr captured."""
+    """``gtsjax ARGS`` in a child process, as a user runs it (under the tests' checks: ``CHILD``); stdout
+    and stderr captured."""
     return subprocess.run(
-        [sys.executable, "-m", "gtsjax", *map(str, args)],
+        [*CHILD, *map(str, args)],
         capture_output=True,
         text=True,
         timeout=timeout,
@@ -79,18 +85,11 @@ def run_cli(*args, timeout: float = 600, **kwargs) -> subprocess.CompletedProces
 
 
 def popen_cli(*args, **kwargs) -> subprocess.Popen:
-    """``python -m gtsjax ARGS`` started in the background (stdout a pipe of text lines)."""
+    """``gtsjax ARGS`` started in the background (stdout a pipe of text lines), under the tests' checks
+    and with Ctrl-C as a user's terminal delivers it (``tests._child`` restores SIGINT's handler)."""
     kwargs.setdefault("stdout", subprocess.PIPE)
     kwargs.setdefault("stderr", subprocess.PIPE)
-    # Ctrl-C as a user's terminal delivers it: a shell that starts the tests in the background (a CI
-    # script's ``&``, ``nohup``) leaves SIGINT ignored, and a child that inherits that never sees one.
-    # The child restores it itself (a ``preexec_fn`` would fork a process that runs JAX's threads).
-    return subprocess.Popen([sys.executable, "-c", _RUN_WITH_SIGINT, *map(str, args)], text=True, bufsize=1,
-                            env=cli_env(), **kwargs)
-
-
-_RUN_WITH_SIGINT = ("import runpy, signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
-                    "sys.argv[0] = 'gtsjax'; runpy.run_module('gtsjax', run_name='__main__', alter_sys=True)")
+    return subprocess.Popen([*CHILD, *map(str, args)], text=True, bufsize=1, env=cli_env(), **kwargs)
 
 
 def read_lines(proc, n, timeout):

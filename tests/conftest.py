@@ -6,17 +6,15 @@ import os
 import tempfile
 from pathlib import Path
 
-import jax
 import pytest
-from jaxtyping import install_import_hook
+
+from tests._child import install_checks
 
 # The core's and the GP library's annotations (shapes, dtypes) checked at run time in every test: when a
-# function is traced, or called eagerly. Installed before anything imports gtsjax.
-install_import_hook(["gtsjax.core", "gtsjax.gp"], "beartype.beartype")
-
-jax.config.update("jax_enable_x64", True)
-jax.config.update("jax_numpy_dtype_promotion", "strict")
-jax.config.update("jax_numpy_rank_promotion", "raise")
+# function is traced, or called eagerly; installed before anything imports gtsjax. With JAX's settings
+# above. The same in every ``gtsjax`` child the tests start (``tests._utils.run_cli`` and ``popen_cli``
+# run ``python -m tests._child``).
+install_checks()
 
 # Compiled programs kept on disk, as the command line keeps them (``gtsjax.cli.use_compile_cache``), in a
 # folder of the tests' own that every worker and every ``gtsjax`` subprocess shares: the step of the demo
@@ -77,7 +75,29 @@ def shared_file():
 @pytest.fixture(scope="session")
 def tiny(tmp_path_factory):
     """A small model trained on a subsample of the SPL training grid and a log with legs, shared by the
-    test modules (trained once per session)."""
+    test modules: trained once per run, by the first worker that asks; a second worker waits for it
+    and reads what the first left (``tiny.pkl``: the objects the training returned, pickled, so the
+    model file's round trip is still tested against the trained model, not against itself)."""
+    import fcntl
+    import pickle
+
+    shared = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):  # each worker's base is a folder of the run's own
+        shared = shared.parent
+    d = shared / "tiny"
+    d.mkdir(exist_ok=True)
+    with open(shared / "tiny.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes (or its process ends)
+        done = d / "tiny.pkl"
+        if not done.exists():
+            part = d / "tiny.pkl.part"
+            part.write_bytes(pickle.dumps(_train_tiny(d)))
+            part.replace(done)
+        made = pickle.loads(done.read_bytes())
+    return {"dir": d, "path": d / "model.npz", **made}
+
+
+def _train_tiny(d: Path) -> dict:
     import dataclasses
 
     from gtsjax.io import save_site
@@ -86,12 +106,9 @@ def tiny(tmp_path_factory):
     from gtsjax.train import TrainConfig, train
 
     config = dataclasses.replace(TrainConfig(), max_per_class=60, max_pose_examples=80, n_inducing=32, restarts=1)
-    d = tmp_path_factory.mktemp("tiny")
     train_log, site = simulate("spl-train", seed=11, n_scans=500)
     legs, _ = simulate("spl-legs", seed=12, n_scans=150)
     model, report = train([train_log, legs], site, config)
-    path = d / "model.npz"
-    save_model(model, path, summary=report)
+    save_model(model, d / "model.npz", summary=report)
     save_site(site, d / "site.json")
-    return {"dir": d, "model": model, "path": path, "site": site, "report": report, "train_log": train_log,
-            "config": config}
+    return {"model": model, "site": site, "report": report, "train_log": train_log, "config": config}
