@@ -328,48 +328,57 @@ def _as_served(frame, served) -> bool:
 
 
 @pytest.mark.parametrize(
-    "option,value,fault",
+    "options,fault",
     [
-        ("--checksum-errors", "0.3", "checksum"),
-        ("--drop-bytes", "0.3", "damaged"),
-        ("--stalls", "0.2", "stall"),
-        ("--disconnects", "0.1", "disconnect"),
+        (("--checksum-errors", "0.3"), "checksum"),
+        (("--line-errors", "0.05"), "lines"),
+        (("--drop-bytes", "0.3"), "damaged"),
+        (("--stalls", "0.2"), "stall"),
+        (("--stalls", "0.1", "--stall-seconds", "3"), "long stall"),
+        (("--disconnects", "0.1"), "disconnect"),
     ],
 )
-def test_emulate_fault_options(tmp_path, option, value, fault):
+def test_emulate_fault_options(tmp_path, options, fault):
     """``gtsjax emulate LOG OPTION P``: the fault the option names reaches a client (the serial link,
-    whose counters tell the faults apart), no damaged frame is delivered, and Ctrl-C ends it (status 0)."""
+    whose counters tell the faults apart), no damaged frame is delivered, and Ctrl-C ends it (status 0).
+    ``--line-errors``: several lines of one block with a bad sum (``--checksum-errors`` spoils one a
+    block); ``--stall-seconds 3``: a stall holds the frames back that long (by default 0.5 s)."""
     log, _ = simulate("spl-trajectory", seed=43, n_scans=30)
     save_log(log, tmp_path / "scene.npz")
     served = [np.asarray(log_source(log)(i)[0], np.int64) for i in range(log.n_scans)]
-    proc = popen_cli("emulate", tmp_path / "scene.npz", "--seed", "5", option, value)
+    proc = popen_cli("emulate", tmp_path / "scene.npz", "--seed", "5", *options)
     try:
         first = read_lines(proc, 1, timeout=60)
         assert first, proc.stderr.read() if proc.poll() is not None else "no path printed"
         path = re.search(r" on (\S+) \(pty", first[0])[1]
+        frames, got_at = [], []
         seen = {
             "checksum": lambda s: s.salvaged > 0,  # a bad sum costs its line's beams, not the frame
+            "lines": lambda s: any(f.frame.bad_lines >= 2 for f in frames),  # several lines of one block
             "damaged": lambda s: s.truncated + s.malformed + s.garbage_bytes > 0,  # never from a bad sum alone
             "stall": lambda s: s.timeouts > 0,
+            "long stall": lambda s: s.timeouts > 0 and max(np.diff(got_at), default=0.0) > 2.5,
             "disconnect": lambda s: s.io_errors > 0 and s.reconnects > 0,
         }[fault]
-        frames = []
-        # A stall (0.5 s) outlasts the stall test's link timeout (3 periods, at least 0.2 s): seen as one.
+        # A stall (0.5 s) outlasts the stall tests' link timeout (3 periods, at least 0.2 s): seen as one.
         # The others keep the default timeout (10 periods), which a run of damaged blocks does not reach.
-        quick = {"timeout_periods": 3, "min_timeout_s": 0.2} if fault == "stall" else {}
+        quick = {"timeout_periods": 3, "min_timeout_s": 0.2} if "stall" in fault else {}
         with Link(path, reply_timeout_s=0.3, backoff_s=0.05, backoff_max_s=0.2, **quick) as link:
             deadline = time.monotonic() + 60.0
             while not (seen(link.stats) and len(frames) >= 10) and time.monotonic() < deadline:
                 f = link.get(timeout=0.1)
                 if f is not None:
                     frames.append(f)
+                    got_at.append(time.monotonic())
             stats = link.stats
-        assert seen(stats), stats
+        assert seen(stats), (stats, np.round(np.diff(got_at), 2))
         assert len(frames) >= 10 and all(_as_served(f.frame, served) for f in frames)
-        if fault in ("checksum", "damaged"):
+        if fault in ("checksum", "lines", "damaged"):
             assert stats.timeouts == stats.reconnects == 0, stats  # only the fault asked for
-        if fault == "checksum":
+        if fault in ("checksum", "lines"):
             assert stats.truncated == stats.malformed == stats.garbage_bytes == stats.checksum_errors == 0, stats
+        if fault == "checksum":
+            assert max(f.frame.bad_lines for f in frames) == 1
     finally:
         proc.send_signal(signal.SIGINT)
         try:
@@ -801,7 +810,7 @@ def test_run_on_a_full_disk_stops_in_one_line_and_keeps_what_was_written(field, 
     child = (
         "import resource, runpy, sys; "
         f"resource.setrlimit(resource.RLIMIT_FSIZE, ({limit}, {limit})); "
-        "sys.argv[0] = 'gtsjax'; runpy.run_module('gtsjax', run_name='__main__', alter_sys=True)"
+        "runpy.run_module('tests._child', run_name='__main__', alter_sys=True)"
     )
     with SensorEmulator(URG_04LX, log) as emu:
         res = subprocess.run(
