@@ -53,9 +53,10 @@ def wrap(a):
 
 def test_demo_tracks_the_walking_robot(tmp_path):
     """``gtsjax demo`` for 6 s: exit 0, the three files, and rows on the simulated robot's path (found
-    here by hand from the scenario, whatever the timing), within the README's figures for the demo (1.0 cm,
-    2.9° over its rows) with margins: the position within 2 cm of the path, the reported RMSE within the
-    README's targets for a moving robot (5 cm, 6°)."""
+    here by hand from the scenario, whatever the timing) with the path's heading there, and the RMSE it
+    reports within about twice the README's figures for the demo (1.0–1.1 cm, 1.6–2.1° over 20 s).
+    Measured here, three runs: 0.3–0.5 cm median and 1.5–1.7 cm most off the path, the path's heading
+    0.7–1.4° median, and 1.2–1.3 cm, 1.2–2.8° reported."""
     out = tmp_path / "demo-out"
     res = run_cli("demo", "--seconds", "6", "--quiet", "--out-dir", out, timeout=PATIENCE_S)
     assert res.returncode == 0, res.stderr
@@ -64,15 +65,20 @@ def test_demo_tracks_the_walking_robot(tmp_path):
     assert len(rows) >= 10 and {r.cls for r in rows} == {"robot"}
     assert (out / "site.json").exists() and a_picture(out / "demo.png")
     log, _ = simulate(DEMO_SCENARIO, seed=DEMO_SEED)
-    path = log.truth_poses[:, 0, :2]
-    path = path[~np.isnan(path[:, 0])]
-    fine = np.concatenate([path[:-1] + f * (path[1:] - path[:-1]) for f in np.linspace(0, 1, 10, endpoint=False)])
+    truth = log.truth_poses[:, 0]
+    truth = truth[~np.isnan(truth[:, 0])]
+    steps = np.linspace(0, 1, 10, endpoint=False)
+    fine = np.concatenate([truth[:-1, :2] + f * (truth[1:, :2] - truth[:-1, :2]) for f in steps])
+    heading = np.concatenate([truth[:-1, 2] + f * wrap(truth[1:, 2] - truth[:-1, 2]) for f in steps])
     xy = np.array([[r.x, r.y] for r in rows])
-    off_path = np.min(np.linalg.norm(xy[:, None, :] - fine[None, :, :], axis=2), axis=1)
-    assert np.median(off_path) < 0.02 and np.max(off_path) < 0.10, np.round(off_path, 3)
+    dist = np.linalg.norm(xy[:, None, :] - fine[None, :, :], axis=2)
+    off_path = np.min(dist, axis=1)
+    assert np.median(off_path) < 0.01 and np.max(off_path) < 0.035, np.round(off_path, 3)
+    off_heading = np.degrees(np.abs(wrap(np.array([r.theta for r in rows]) - heading[np.argmin(dist, axis=1)])))
+    assert np.median(off_heading) < 2.5, np.round(off_heading, 1)
     m = re.search(r"position RMSE ([\d.]+) cm, heading RMSE ([\d.]+)° over (\d+) rows", " ".join(res.stderr.split()))
     assert m, res.stderr
-    assert float(m[1]) <= 5.0 and float(m[2]) <= 6.0 and int(m[3]) == len(rows)
+    assert float(m[1]) <= 2.0 and float(m[2]) <= 4.0 and int(m[3]) == len(rows)
 
 
 def test_demo_without_a_confirmed_track_fails(tmp_path, capsys):
@@ -429,8 +435,8 @@ def evaluated(tmp_path_factory):
 
 def test_evaluate_labelled_log_with_site_and_error_map(evaluated):
     """``evaluate LOG --site``: the labelled log's own point, found by hand from its truth, in the per-point
-    table, with docs/accuracy.md's static figures (0.6–1.3 cm position RMSE per point) held to the static target
-    with margin (≤ 3 cm), and the error map drawn."""
+    table, with docs/accuracy.md's static figures (0.6–1.3 cm position RMSE per point) held to 1.5 times the
+    worst (≤ 2 cm; these two points give 1.0 and 1.1 cm), and the error map drawn."""
     log, out, result, path = evaluated
     assert "points" in result, result  # a per-point table and an error map for a static log
     truth = log.truth_poses[:, 0]
@@ -439,20 +445,21 @@ def test_evaluate_labelled_log_with_site_and_error_map(evaluated):
     np.testing.assert_allclose(got[np.lexsort(got.T[::-1])], points, atol=1e-6)
     assert sum(p["n"] for p in result["points"]) == result["n_errors"] > 0
     for p in result["points"]:
-        assert p["position_rmse_m"] <= 0.03, p
+        assert p["position_rmse_m"] <= 0.02, p
     assert result["recall"] >= 0.97 and result["false_tracks_per_scan"] <= 0.02, result
     png = out / f"{str(path).replace('/', '_').replace(':', '_')}-errors.png"
     assert result["figure"] == str(png) and a_picture(png)
     assert str(path) in (out / "results.md").read_text()
 
 
-def test_evaluate_static_heading_per_point_within_10_degrees(evaluated):
-    """docs/accuracy.md's static heading figures (0.6–2.1° RMSE per point) held to ≤ 10° at every point. A single
-    scan read as another side early in a track's life (spl-eval:61 scan 29, −148°) once made its track switch
-    for that scan, and alone lifted point (1, 1) to 11.8°: a new heading hypothesis now starts from what the
-    rest of the mixture has kept, and one misread cannot outweigh a second of agreeing reads."""
+def test_evaluate_static_heading_per_point_within_3_5_degrees(evaluated):
+    """docs/accuracy.md's static heading figures (0.6–2.1° RMSE per point) held to about 1.7 times the worst
+    (≤ 3.5°; these two points give 1.6° each). A single scan read as another side early in a track's life
+    (spl-eval:61 scan 29, −148°) once made its track switch for that scan, and alone lifted point (1, 1)
+    to 11.8°: a new heading hypothesis now starts from what the rest of the mixture has kept, and one
+    misread cannot outweigh a second of agreeing reads."""
     _, _, result, _ = evaluated
-    assert all(p["heading_rmse_deg"] <= 10.0 for p in result["points"]), result["points"]
+    assert all(p["heading_rmse_deg"] <= 3.5 for p in result["points"]), result["points"]
 
 
 # ------------------------------------------------------------------------------------------ exit status 2

@@ -29,9 +29,26 @@ def test_run_tracks_the_emulated_robot(tmp_path):
         return base(i)
 
     with SensorEmulator(URG_04LX, source, faults=faults) as emu:
-        code = main(["run", "--port", emu.path, "--site", str(tmp_path / "site.json"), "--model",
-                     str(demo_model_path()), "--out", str(tmp_path / "gtd.csv"), "--record", str(tmp_path / "raw.npz"),
-                     "--frames", "60", "--quiet", "--out-bag", str(tmp_path / "gt")])
+        code = main(
+            [
+                "run",
+                "--port",
+                emu.path,
+                "--site",
+                str(tmp_path / "site.json"),
+                "--model",
+                str(demo_model_path()),
+                "--out",
+                str(tmp_path / "gtd.csv"),
+                "--record",
+                str(tmp_path / "raw.npz"),
+                "--frames",
+                "60",
+                "--quiet",
+                "--out-bag",
+                str(tmp_path / "gt"),
+            ]
+        )
         injected = emu.faults.checksum
     assert code == 0
     rows = read_gtd(tmp_path / "gtd.csv")
@@ -55,11 +72,13 @@ def test_run_tracks_the_emulated_robot(tmp_path):
     there = ~np.isnan(true_pose[:, 0])  # a track is still reported for 0.3 s after the robot is lifted
     assert there.sum() >= 20
     xy = np.array([[r.x, r.y] for r in rows])
-    # docs/accuracy.md: 1.0 cm position RMSE and a 1.0° heading median on spl-eval; bounds of twice
-    # and five times those (one point and a handful of headings, not the whole grid).
-    assert np.median(np.linalg.norm(xy[there] - true_pose[there, :2], axis=1)) < 0.02
+    # docs/accuracy.md: 1.0 cm position RMSE and a 1.0° heading median on spl-eval. Here one point and the
+    # few headings the 60 frames happen to span (how long `run` took to start decides which): medians of
+    # 0.7–1.2 cm and 0.8–2.3° measured over seven runs; bounds of 1.5 cm and 3.5°.
+    off = np.linalg.norm(xy[there] - true_pose[there, :2], axis=1)
     err = np.degrees(np.abs(np.angle(np.exp(1j * (np.array([r.theta for r in rows])[there] - true_pose[there, 2])))))
-    assert np.median(err) < 5.0, np.round(err, 1)
+    medians = (round(float(np.median(off)), 4), round(float(np.median(err)), 2))
+    assert medians[0] < 0.015 and medians[1] < 3.5, (medians, np.round(off, 3), np.round(err, 1))
     raw = load_log(tmp_path / "raw.npz")
     assert raw.n_scans >= len({r.stamp for r in rows}) and raw.n_beams == URG_04LX.n_beams
     assert injected > 0  # frames with bad sums were sent, their good lines kept, and survived
@@ -67,8 +86,11 @@ def test_run_tracks_the_emulated_robot(tmp_path):
     # stamp to the nanosecond (read back with the mcap library; the float64 stamp's exact value)
     msgs = read_mcap(next((tmp_path / "gt").glob("*.mcap")))
     assert sum(m.channel.topic == "/scan" for m in msgs) == 60
-    poses = sorted((m.log_time_ns, m.ros_msg.child_frame_id, m.ros_msg.pose.pose.position.x)
-                   for m in msgs if m.channel.topic == "/gtsjax/track_odom")
+    poses = sorted(
+        (m.log_time_ns, m.ros_msg.child_frame_id, m.ros_msg.pose.pose.position.x)
+        for m in msgs
+        if m.channel.topic == "/gtsjax/track_odom"
+    )
     want = sorted((round(Fraction(r.stamp) * 10**9), f"robot_{r.track_id}", r.x) for r in rows)
     assert [p[:2] for p in poses] == [w[:2] for w in want]
     np.testing.assert_allclose([p[2] for p in poses], [w[2] for w in want], atol=1e-6)  # the CSV's 6 decimals
@@ -87,8 +109,22 @@ def test_a_robot_put_down_is_reported_with_its_heading_within_half_a_second(tmp_
         return base(i)
 
     with SensorEmulator(URG_04LX, source) as emu:
-        code = main(["run", "--port", emu.path, "--site", str(tmp_path / "site.json"), "--model",
-                     str(demo_model_path()), "--out", str(tmp_path / "gtd.csv"), "--frames", "130", "--quiet"])
+        code = main(
+            [
+                "run",
+                "--port",
+                emu.path,
+                "--site",
+                str(tmp_path / "site.json"),
+                "--model",
+                str(demo_model_path()),
+                "--out",
+                str(tmp_path / "gtd.csv"),
+                "--frames",
+                "130",
+                "--quiet",
+            ]
+        )
     assert code == 0
     rows = read_gtd(tmp_path / "gtd.csv")
     stamps = np.array([r.stamp for r in rows])
@@ -217,11 +253,20 @@ def test_rows_from_packed_equal_rows_from_output():
         packed[m, :4] = rng.random(4)
         got = rows_from_packed(12.5 + trial, packed, classes)
         t = packed[:-1]
-        want = rows_from_output(12.5 + trial, t[:, 0].astype(np.int64), t[:, 1].astype(np.int64), t[:, 2:5],
-                                t[:, 5:8], t[:, 9] > 0.5, classes, t[:, 8])
+        want = rows_from_output(
+            12.5 + trial,
+            t[:, 0].astype(np.int64),
+            t[:, 1].astype(np.int64),
+            t[:, 2:5],
+            t[:, 5:8],
+            t[:, 9] > 0.5,
+            classes,
+            t[:, 8],
+        )
         assert got == want
         assert rows_from_packed(12.5 + trial, packed.tolist(), classes) == want
     from gtsjax.core.geometry import wrap
+
     a = np.concatenate([np.linspace(-20.0, 20.0, 4001), [np.pi, -np.pi, 3 * np.pi, -3 * np.pi, 0.0, -0.0, 1e-300]])
     assert [wrap_angle(float(x)) for x in a] == wrap(a).tolist()
 
@@ -236,8 +281,11 @@ def test_decoder_sample_is_a_block_of_the_links_kind():
     from gtsjax.io import scip
     from gtsjax.sensors import URG_04LX, UTM_30LX
 
-    for sensor, build, inten in ((UTM_30LX, scip.me_command, True), (UTM_30LX, scip.md_command, False),
-                                 (URG_04LX, scip.md_command, False)):
+    for sensor, build, inten in (
+        (UTM_30LX, scip.me_command, True),
+        (UTM_30LX, scip.md_command, False),
+        (URG_04LX, scip.md_command, False),
+    ):
         link = SimpleNamespace(model=sensor, command=build(sensor.amin, sensor.amax, 1, 0, 0))
         (frame,) = scip.StreamDecoder().feed(decoder_sample(link))
         assert isinstance(frame, scip.ScanFrame) and frame.n_values == sensor.n_beams
