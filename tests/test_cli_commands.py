@@ -98,8 +98,8 @@ def test_demo_without_a_confirmed_track_fails(tmp_path, capsys):
 def test_train_command_line_takes_several_logs_and_caps(tmp_path):
     """``gtsjax train A.npz B.npz ... --max-pose N``: both logs' scans are used, the pose GPs hold the
     N examples asked for, the classifier and landmark GPs their caps, and the model names the scanner.
-    With ``--pose-kernels 2`` the robot's pose GPs are two groups of one kernel (position, heading), and
-    the model replays."""
+    With ``--pose-kernels 2`` the robot's pose GPs are two groups of one kernel (position, heading), with
+    ``--max-speed`` and ``--max-turn-rate`` the robot's tracker limits those given, and the model replays."""
     a, site = simulate("spl-train", seed=21, n_scans=250)
     b, _ = simulate("spl-legs", seed=22, n_scans=100)
     save_log(a, tmp_path / "a.npz")
@@ -127,6 +127,10 @@ def test_train_command_line_takes_several_logs_and_caps(tmp_path):
         "32",
         "--restarts",
         "1",
+        "--max-speed",
+        "robot=0.7",
+        "--max-turn-rate",
+        "robot=2.5",
         timeout=PATIENCE_S,
     )
     assert res.returncode == 0, res.stderr
@@ -139,7 +143,12 @@ def test_train_command_line_takes_several_logs_and_caps(tmp_path):
     assert all(n[f"class.{c}"] == 40 * len(rep["classes"]) for c in rep["classes"])  # 40 of each class
     header = read_header(tmp_path / "m.npz")
     assert header["sensor_model"] == "URG-04LX"
-    reg = load_model(tmp_path / "m.npz").pose[rep["classes"].index("robot")]
+    model = load_model(tmp_path / "m.npz")
+    robot = rep["classes"].index("robot")
+    # --max-speed and --max-turn-rate: the robot's limits in the tracker, what the labels show replaced.
+    assert float(model.tracker.max_speed[robot]) == pytest.approx(0.7)
+    assert float(model.tracker.max_turn_rate[robot]) == pytest.approx(2.5)
+    reg = model.pose[robot]
     assert reg.shared is not None and [g.n_outputs for g in reg.shared] == [2, 2] and reg.sin is None
     assert (
         run_cli(
