@@ -10,6 +10,7 @@ from .core.f_maptransform import Transform as Transform
 from .core.frontend import FrontEndConfig as FrontEndConfig
 from .core.frontend import front_end as front_end
 from .core.g_track import TrackerParams as TrackerParams
+from .core.model import Model as Model
 from .core.pipeline import Output as Output
 from .core.pipeline import PipelineState as PipelineState
 from .core.pipeline import init_state as init_state
@@ -18,7 +19,6 @@ from .core.scan import Scan as Scan
 from .drivers.replay import process_log as process_log
 from .errors import InputError as InputError
 from .errors import InputWarning as InputWarning
-from .model import Model as Model
 from .sensors import MODELS as MODELS
 from .sensors import SensorModel as SensorModel
 from .sensors import get_model as get_model

@@ -205,3 +205,16 @@ def get_model(name: str) -> SensorModel:
     if model is None:
         raise InputError(name, f"unknown sensor model; known: {', '.join(MODELS)}")
     return model
+
+
+def with_scanner(model):
+    """``model`` (a :class:`~gtsjax.core.model.Model`) with what this table says of the scanner its
+    ``sensor_model`` names: its scan period (the tracker counts missed scans in it) and its beams (the
+    reach of a model from before its own geometry was kept); ``None`` for a scanner the table does not
+    know. Every loaded or trained model gets them (:func:`~gtsjax.io.modelfile.load_model`,
+    :func:`~gtsjax.train.train`): the model file names its scanner and saves neither."""
+    known = MODELS.get(model.sensor_model)
+    if known is None:
+        return dataclasses.replace(model, scan_period=None, sensor_beams=None)
+    return dataclasses.replace(model, scan_period=1.0 / known.rate_hz,
+                               sensor_beams=(known.angle_min, known.angle_increment, known.n_beams))

@@ -1,5 +1,6 @@
-"""Helpers the commands share: reading any scan input, one-line descriptions, a model with its site,
-the track summary. Command modules import these, never one another."""
+"""Helpers the commands share: reading any scan input, one-line descriptions, the track summary, the
+output checks. Command modules import these, never one another; their models come from
+:mod:`gtsjax.drivers.setup`."""
 
 import os
 import tempfile
@@ -10,10 +11,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
 from ..errors import InputError
-from ..io import load_site
 from ..io.importers import detect_format, import_log
-from ..io.modelfile import load_model
-from ..io.site import one_sensor
 from ._app import quiet
 
 INPUT_HELP = ("Scan log: .npz, a ROS 1 bag (.bag), a ROS 2 bag (its directory), a CARMEN log (.log, .log.gz) "
@@ -71,13 +69,6 @@ def print_warnings(console, tally: dict | None, model=None, prefix: str = "") ->
     return lines
 
 
-def load_for_run(model_path: Path, site_path: Path, sensor: str | None = None):
-    """The model with the site attached, as one of its lasers sees it (``--laser``; whether it fits
-    the scans is ``fit_to_model``'s check)."""
-    site = one_sensor(load_site(site_path), sensor, site_path)
-    return load_model(model_path).with_site(site, where=str(site_path))
-
-
 VIEW_HELP = ("Show the run in Rerun: --view opens the native viewer, --view web serves Rerun's web viewer on "
              "127.0.0.1, page and data alike (GTSJAX_VIEW_HOST=0.0.0.0 for other machines; its address printed; no "
              "internet needed). Needs the viewer extra: "
@@ -127,15 +118,6 @@ def one_model(models: list[Path]) -> Path:
         raise InputError("--model", f"given {len(models)} times; several models are for a site's lasers of different "
                                     "scanner models (--log NAME=LOG or --port NAME=PORT)")
     return models[0]
-
-
-def load_for_lasers(model_paths: list[Path], site_path: Path, site, confirm_scans: int | None = None,
-                    max_tracks: int | None = None) -> list:
-    """Each ``--model`` for a site's several lasers, with the site attached (as its first laser sees
-    it: each laser's own guess is in the several-laser state) and the run's settings."""
-    first = site.sensor_list[0].name
-    return [load_model(p).with_site(one_sensor(site, first), where=str(site_path))
-            .with_confirmation(confirm_scans).with_capacity(max_tracks) for p in model_paths]
 
 
 def _same_place(a: Path, b: Path) -> bool:

@@ -85,9 +85,9 @@ def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Pa
                out_bag: Path | None = None, rerun_view: str | None = None, view_save: Path | None = None,
                keep_warm: bool = True, reconnect_timeout: float | None = None, csv_units: bool = False):
     """Open the sensor, run the live loop, show the view (the terminal's table; with ``rerun_view`` or
-    ``view_save``, Rerun's: :mod:`gtsjax.viewer`); returns (live stats, link stats)."""
-    from ..drivers.live import Outputs, check_sensor, run_live, warm_up
-    from ..io.modelfile import load_model
+    ``view_save``, Rerun's: :mod:`gtsjax.viewer`); returns (live stats, link stats, the model run)."""
+    from ..drivers.live import Outputs, run_live, warm_up
+    from ..drivers.setup import check_sensor, load
     from ..io.serial import Link
     from ..io.site import load_site, one_sensor
     from ..sensors import MODELS
@@ -95,8 +95,7 @@ def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Pa
     console = console or Console(stderr=True)
     site_obj = one_sensor(load_site(site), sensor, site)
     check_ports([port])  # before seconds of loading and compiling
-    model = load_model(model_path).with_site(site_obj, where=str(site)).with_confirmation(
-        confirm_scans).with_capacity(max_tracks)
+    model = load(model_path, site_obj, where=str(site), confirm_scans=confirm_scans, max_tracks=max_tracks)
     # Compile before the sensor streams, when the model names a known scanner (else after connecting).
     compiled = warm_up(model, MODELS[model.sensor_model]) if model.sensor_model in MODELS else None
     from ._common import open_view
@@ -120,16 +119,17 @@ def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Pa
                 stats = run_live(link, model, out, record=record, outputs=Outputs(json_lines, udp, csv_units),
                                  duration=duration, on_scan=on_scan, with_intensity=intensity,
                                  compiled=compiled, max_frames=frames, out_bag=out_bag, view=shown,
-                                 keep_warm=keep_warm, reconnect_timeout=reconnect_timeout)
+                                 keep_warm=keep_warm, reconnect_timeout=reconnect_timeout, sensor_checked=True)
             if not console.is_terminal:  # rich ends the last view with a newline only on a terminal
                 console.line()
         else:
             stats = run_live(link, model, out, record=record, outputs=Outputs(json_lines, udp, csv_units), duration=duration,
                              with_intensity=intensity, compiled=compiled, max_frames=frames, out_bag=out_bag,
-                             view=shown, keep_warm=keep_warm, reconnect_timeout=reconnect_timeout)
+                             view=shown, keep_warm=keep_warm, reconnect_timeout=reconnect_timeout,
+                             sensor_checked=True)
     finally:
         link.stop()
-    return stats, link.stats
+    return stats, link.stats, model
 
 
 def track_live_several(lasers: "dict[str, str]", model_paths: "list[Path]", site: Path, out: Path, *, record: Path | None,
@@ -148,18 +148,19 @@ def track_live_several(lasers: "dict[str, str]", model_paths: "list[Path]", site
 
     from ..drivers.live import Outputs
     from ..drivers.live_several import run_live_several, warm_up_several
+    from ..drivers.setup import load_for_lasers
     from ..drivers.several import models_for_lasers, site_poses
     from ..io.serial import Link
     from ..io.site import load_site
     from ..sensors import MODELS
-    from ._common import load_for_lasers, open_view
+    from ._common import open_view
 
     console = console or Console(stderr=True)
     site_obj = load_site(site)
     names = list(lasers)
     check_ports(list(lasers.values()))  # before seconds of loading and compiling
-    models, kinds = models_for_lasers(load_for_lasers(model_paths, site, site_obj, confirm_scans, max_tracks),
-                                      site_obj, names)
+    models, kinds = models_for_lasers(load_for_lasers(model_paths, site_obj, str(site), confirm_scans=confirm_scans,
+                                                      max_tracks=max_tracks), site_obj, names)
     poses = site_poses(site_obj, names)
     compiled = (warm_up_several(models, tuple(MODELS[m.sensor_model] for m in models), poses, kinds)
                 if all(m.sensor_model in MODELS for m in models) else None)

@@ -81,8 +81,8 @@ def demo_cmd(
 
     with SensorEmulator(get_model(log.sensor_model), source) as emu:
         console.print(f"emulated {log.sensor_model} on {emu.path}: the SPL field, a robot walking ({DEMO_SCENARIO})")
-        stats, link_stats = track_live(emu.path, demo_model_path(), site_path, gtd, duration=seconds,
-                                       view=not quiet, console=console, rerun_view=view, view_save=view_save)
+        stats, link_stats, _ = track_live(emu.path, demo_model_path(), site_path, gtd, duration=seconds,
+                                          view=not quiet, console=console, rerun_view=view, view_save=view_save)
     rows = read_gtd(gtd)
     tracks = {tid: arr for tid, _, arr in tracks_of(rows)}
     truth = log.truth_poses[:, 0]

@@ -70,9 +70,8 @@ def evaluate_cmd(
 ):
     """Score a model against labelled logs or held-out simulated scenarios."""
     from ..drivers.evaluation import evaluate_log, per_point
+    from ..drivers.setup import attach_site, fit_to_model, load
     from ..io import load_log, load_site
-    from ..io.logs import fit_to_model
-    from ..io.modelfile import load_model
     from ..io.site import one_sensor
     from ..sim import simulate
     from ..sim.match import is_match
@@ -82,9 +81,8 @@ def evaluate_cmd(
         raise fail("evaluate", "give labelled logs with --site, or --scenario NAME[:SEED]")
     if logs and site is None:
         raise fail("evaluate", "logs need --site SITE.json")
-    bases = [load_model(p).with_confirmation(confirm_scans).with_capacity(max_tracks) for p in models]
-    if without_outline:
-        bases = [b.without_outline() for b in bases]
+    bases = [load(p, confirm_scans=confirm_scans, max_tracks=max_tracks, without_outline=without_outline)
+             for p in models]
     base = bases[0]
     jobs, matches = [], []
     for spec in scenario or []:
@@ -92,7 +90,7 @@ def evaluate_cmd(
         if is_match(name):
             matches.append((spec, name, int(seed or 1000)))
             continue
-        jobs.append((spec, lambda name=name, seed=seed: simulate(name, seed=int(seed or 1000))))
+        jobs.append((spec, lambda name=name, seed=seed: (*simulate(name, seed=int(seed or 1000)), False)))
     if logs:
         site_obj = one_sensor(load_site(site), sensor, site)
         for p in logs:  # every log is read and checked before the first is evaluated: a bad one fails fast
@@ -100,7 +98,7 @@ def evaluate_cmd(
             if not log.labelled:
                 raise fail(p, "not a labelled log (no truth_poses)")
             log = fit_to_model(log, base, p)
-            jobs.append((str(p), lambda log=log: (log, site_obj)))
+            jobs.append((str(p), lambda log=log: (log, site_obj, True)))
     if jobs and len(bases) > 1:
         raise fail("--model", f"given {len(bases)} times: several models are for match scenarios of lasers of "
                               "different scanners (spl-match-N-mixed), not for logs or one-laser scenarios")
@@ -112,11 +110,11 @@ def evaluate_cmd(
     for spec, name, seed in matches:
         results.update(_evaluate_match(bases, spec, name, seed, robots, seconds))
     for label, get in jobs:
-        log, site_obj = get()
+        log, site_obj, fitted = get()
         if not log.labelled:
             raise fail(label, "not a labelled log (no truth_poses)")
-        m = base.with_site(site_obj)
-        res = evaluate_log(m, log, where=label)
+        m = attach_site(base, site_obj)
+        res = evaluate_log(m, log, where=label, fitted=fitted)
         pts, pos, th, cnt = per_point(log, res)
         errors = res.pop("_errors")
         static = len(pts) <= 64 and cnt.size and cnt.min() >= 3
@@ -150,14 +148,14 @@ def _evaluate_match(bases, spec: str, name: str, seed: int, robots: int, seconds
     ones (of four) and with all: rows ``SPEC LASER[+LASER...]``. ``bases``: the models, one per
     scanner model of the match's lasers (:func:`~gtsjax.drivers.several.models_for_lasers`)."""
     from ..drivers.evaluation import evaluate_outputs
+    from ..drivers.setup import attach_site, fit_to_model
     from ..drivers.several import merge_logs, models_for_lasers, process_several, site_poses
-    from ..io.logs import fit_to_model
     from ..io.site import one_sensor
     from ..sim.match import simulate_match
 
     logs, site = simulate_match(name, seed=seed, n_robots=robots, seconds=seconds)
     names = list(logs)
-    models, kinds = models_for_lasers([b.with_site(one_sensor(site, names[0])) for b in bases], site, names)
+    models, kinds = models_for_lasers([attach_site(b, one_sensor(site, names[0])) for b in bases], site, names)
     model_of = {n: models[kinds[i]] for i, n in enumerate(names)}
     logs = {n: fit_to_model(log, model_of[n], f"{spec} {n}") for n, log in logs.items()}
     combos = [(n,) for n in names]

@@ -11,12 +11,13 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from ..drivers.setup import load
 from ..errors import InputError
 from ..io import load_site
 from ..io.gtd import HEADER as GTD_HEADER
 from ..io.gtd import read_gtd, tracks_of
 from ..io.importers import bag_topics, detect_format, format_name
-from ..io.modelfile import is_model_file, load_model, read_header
+from ..io.modelfile import is_model_file, read_header
 from ..sensors import MODELS
 from ._app import app
 from ._common import TOPIC_HELP, describe, load_input, source_of
@@ -181,7 +182,7 @@ def _not_a_log(path: Path) -> str | None:
 def describe_model(path: Path) -> list[str]:
     """A model file, checked as ``replay`` loads it, in a few lines: scanner, classes, predictors, and
     what its training summary says."""
-    model, header = load_model(path), read_header(path)
+    model, header = load(path), read_header(path)
     landmark, tracked = np.asarray(model.landmark_mask), np.asarray(model.tracker.tracked)
     roles = [c + (" (landmark)" if lm else " (tracked)" if tr else "")
              for c, lm, tr in zip(model.classes, landmark, tracked, strict=True)]

@@ -4,7 +4,7 @@ batch re-processing of logged scan files (a ``.npz`` log, or a ROS bag, CARMEN o
 (:func:`~gtsjax.drivers.replay.replay_logs`), into one CSV each in the ``--out`` folder.
 
 The log is checked against the scanner geometry the model was trained on before anything is written
-(:func:`~gtsjax.io.logs.fit_to_model`): another angular step is refused, and so is a wider field of
+(:func:`~gtsjax.io.logs.fit_to_model`, through :mod:`gtsjax.drivers.setup`): another angular step is refused, and so is a wider field of
 view unless ``--crop-fov`` cuts it (and the range window) to the model's."""
 
 import json
@@ -17,10 +17,12 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
 from ..drivers.replay import replay_log, replay_logs
+from ..drivers.setup import fit_to_model, load, load_for_lasers
 from ..errors import InputError
+from ..io import load_site
 from ..io.bag_out import check_bag_dir
 from ..io.importers import detect_format, format_name
-from ..io.logs import fit_to_model
+from ..io.site import one_sensor
 from ._app import CONFIRM_HELP, MAX_TRACKS_HELP, app, quiet
 from ._common import (
     CSV_UNITS_HELP,
@@ -32,8 +34,6 @@ from ._common import (
     check_out_file,
     describe,
     distinct_paths,
-    load_for_lasers,
-    load_for_run,
     load_input,
     one_model,
     open_view,
@@ -108,7 +108,8 @@ def replay_cmd(
         check_bag_dir(out_bag)
     if summary is not None:
         check_out_file(summary, "--summary")
-    m = load_for_run(model, site, sensor).with_confirmation(confirm_scans).with_capacity(max_tracks)
+    m = load(model, one_sensor(load_site(site), sensor, site), where=str(site), confirm_scans=confirm_scans,
+             max_tracks=max_tracks)
     outs, sensor_outs = _outputs(logs, out, sensor_out)
     scan_logs = [_load_fitted(log, topic, m, crop_fov, console) for log in logs]
     shown = open_view(m, view, view_save, console)
@@ -214,7 +215,6 @@ def _replay_lasers(specs: list[str], site_path: Path, model_paths: list[Path], o
     """``replay --log NAME=LOG ...``: the lasers' logs merged by stamp into one track table (and the
     bag and the view, each laser's scans under its name)."""
     from ..drivers.several import models_for_lasers, replay_several
-    from ..io import load_site
 
     site_obj = load_site(site_path)
     paths: dict[str, Path] = {}
@@ -234,7 +234,7 @@ def _replay_lasers(specs: list[str], site_path: Path, model_paths: list[Path], o
     check_out_file(out)
     if sensor_out is not None:
         check_out_file(sensor_out, "--sensor-out")
-    loaded = load_for_lasers(model_paths, site_path, site_obj, confirm_scans, max_tracks)
+    loaded = load_for_lasers(model_paths, site_obj, str(site_path), confirm_scans=confirm_scans, max_tracks=max_tracks)
     models, kinds = models_for_lasers(loaded, site_obj, list(paths))
     logs = {name: _load_fitted(path, topic, models[kinds[i]], crop_fov, console)
             for i, (name, path) in enumerate(paths.items())}

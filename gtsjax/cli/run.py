@@ -87,7 +87,7 @@ def run_cmd(
                            rerun_view=view, view_save=view_save)
         return
     port, model = port[0], one_model(models)
-    stats, link_stats = track_live(port, model, site, out, record=record, json_lines=json_lines, udp=udp,
+    stats, link_stats, loaded = track_live(port, model, site, out, record=record, json_lines=json_lines, udp=udp,
                                    duration=duration, frames=frames, intensity=intensity, view=not quiet,
                                    confirm_scans=confirm_scans, sensor=sensor, max_tracks=max_tracks,
                                    out_bag=out_bag, rerun_view=view, view_save=view_save, keep_warm=keep_warm,
@@ -102,9 +102,7 @@ def run_cmd(
         from ..drivers.live import summary_json
 
         summary.write_text(summary_json(stats, link_stats) + "\n")
-    from ..io.modelfile import load_model
-
-    Console(stderr=True).print(track_summary(load_model(model), stats.track_ids, stats.unlike, stats.off_envelope),
+    Console(stderr=True).print(track_summary(loaded, stats.track_ids, stats.unlike, stats.off_envelope),
                                soft_wrap=True)
     print_warnings(Console(stderr=True), stats.tally.finish() if stats.tally is not None else None)
 

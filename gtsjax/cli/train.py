@@ -18,11 +18,11 @@ from rich.progress import BarColumn, Progress, ProgressColumn, TextColumn, TimeE
 from rich.table import Table
 from rich.text import Text
 
+from ..drivers.setup import MAX_TRACKS_LIMIT
 from ..errors import InputError
 from ..io import load_log, load_site
 from ..io.modelfile import save_model
 from ..io.site import one_sensor
-from ..model import MAX_TRACKS_LIMIT
 from ..train import TrainConfig, fit_background, train
 from ._app import app
 from ._common import check_out_file, distinct_paths, load_input

@@ -11,10 +11,10 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
+from ..precision import exact_products
 from .a_segment import Candidates, segment
 from .b_features import Features, characterise_all
 from .c_filters import binary_filter
-from .precision import exact_products
 from .scan import Scan
 
 _F32 = jnp.float32

@@ -19,8 +19,8 @@ leading axis of ``SeveralState.transforms``).
 
 Lasers of different scanner models (a URG-04LX and a UTM-30LX) each use a model trained for their
 scanner, with one track table: the models must agree on the classes and the number of track slots
-(:func:`check_models`). Each laser's reach (field of view, range) is part of the state, so that every
-laser's coverage is judged by its own scanner. Live, each scanner model has its own compiled step
+(the host checks them: :func:`gtsjax.drivers.setup.check_models`). Each laser's reach (field of
+view, range) is part of the state, so that every laser's coverage is judged by its own scanner. Live, each scanner model has its own compiled step
 (its model closed over) on the one state; in batch, :func:`update_mixed` picks the scanning laser's
 model with ``lax.switch``, its perception and scan padded to the widest model's.
 """
@@ -32,12 +32,11 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
-from ..model import Model
-from ..sensors import MODELS
+from ..precision import exact_products
 from .f_maptransform import Transform
 from .g_track import TrackerState
+from .model import Model
 from .pipeline import Output, Perception, in_reach, perceive, update_view
-from .precision import exact_products
 from .scan import Scan
 
 
@@ -54,13 +53,13 @@ class SeveralState(eqx.Module):
 
 def laser_reach(model: Model) -> tuple[float, float, float]:
     """The reach of a laser of the scanner ``model`` was trained for: first and last beam's bearing,
-    range (host floats)."""
+    range (host floats). A model from before its geometry was kept reads its scanner's beams from
+    ``sensor_beams`` (filled in by the host), or, for an unknown scanner, sees all round."""
     a0, da, n = model.angle_min, model.angle_increment, model.n_beams
     if not (math.isfinite(a0) and math.isfinite(da)):  # a model from before its geometry was kept
-        known = MODELS.get(model.sensor_model)
-        if known is None:
+        if model.sensor_beams is None:
             return (-math.pi, math.pi, model.range_max)
-        a0, da, n = known.angle_min, known.angle_increment, known.n_beams
+        a0, da, n = model.sensor_beams
     return (a0, a0 + da * (n - 1), model.range_max)
 
 
@@ -80,24 +79,6 @@ def init_several(model: "Model | tuple[Model, ...]", sensor_poses: Float[Array, 
         n_scans=jnp.zeros(poses.shape[0], jnp.int32),
         reach=jnp.asarray([laser_reach(models[i]) for i in kinds], jnp.float32),
     )
-
-
-def check_models(models: "tuple[Model, ...]", where: object = "--model") -> None:
-    """Models of different scanners that are to share one track table must know the same classes
-    (in the same order), have as many track slots and carry the same site's landmarks."""
-    from ..errors import InputError
-
-    first = models[0]
-    for m in models[1:]:
-        if m.classes != first.classes:
-            raise InputError(where, f"the {m.sensor_model} model's classes ({', '.join(m.classes)}) differ from the "
-                                    f"{first.sensor_model} model's ({', '.join(first.classes)}): one track table needs "
-                                    "the same classes")
-        if m.max_tracks != first.max_tracks:
-            raise InputError(where, f"the {m.sensor_model} model has {m.max_tracks} track slots, the "
-                                    f"{first.sensor_model} model {first.max_tracks}: give --max-tracks")
-        if m.site is not None and first.site is not None and m.site.landmark_xy.shape != first.site.landmark_xy.shape:
-            raise InputError(where, "the models carry different sites")
 
 
 def _row(tree, k):

@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from ..model import Model
+from ..precision import exact_products
 from .c_filters import envelope_pass, partial_view, shape_quantities
 from .d_classify import classify, gp_inputs
 from .e_pose import regress, to_sensor_frame, vague_headings
@@ -25,7 +25,7 @@ from .f_maptransform import Transform, poses_to_field, update_transform
 from .frontend import front_end
 from .g_track import Detections, TrackerState, reported, track_step
 from .geometry import in_bounds, wrap
-from .precision import exact_products
+from .model import Model
 from .scan import Scan
 
 _F32 = jnp.float32

@@ -22,8 +22,8 @@ object's class nearest each object, before tracking, within ``match_radius``; it
 import numpy as np
 
 from ..core.geometry import wrap
+from ..core.model import Model
 from ..io.logs import ScanLog, fit_to_model, to_scans
-from ..model import Model
 from .replay import process_log
 
 
@@ -168,11 +168,13 @@ def _detection_errors(log: ScanLog, out, classes, present, radius):
     return np.asarray(e_pos), np.asarray(e_th), found
 
 
-def evaluate_log(model: Model, log: ScanLog, *, where: object = "scan log", **kw) -> dict:
+def evaluate_log(model: Model, log: ScanLog, *, where: object = "scan log", fitted: bool = False, **kw) -> dict:
     """Replay ``log`` (``model`` must have its site attached) and score it. A log from another scanner
     geometry than the model's is refused (:func:`~gtsjax.io.logs.fit_to_model`, naming ``where``), never
-    cropped: an accuracy figure is for the scans as they were recorded."""
-    log = fit_to_model(log, model, where)
+    cropped: an accuracy figure is for the scans as they were recorded. ``fitted``: the caller has
+    checked the log so already (``evaluate`` checks every log before the first is replayed)."""
+    if not fitted:
+        log = fit_to_model(log, model, where)
     _, out = process_log(model, to_scans(log, model.n_beams))
     return evaluate_outputs(model, log, out, **kw)
 

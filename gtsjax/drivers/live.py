@@ -26,15 +26,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..core.model import Model
 from ..core.pipeline import Output, PipelineState, init_state, step
 from ..core.scan import Scan
 from ..errors import InputError
 from ..io import scip
 from ..io.gtd import GTDWriter, format_rows, json_line, rows_from_table
-from ..io.logs import ScanLog, fit_to_model, frame_dt, valid_beams
-from ..model import Model
+from ..io.logs import frame_dt, valid_beams
 from ..sensors import SensorModel
 from .packing import Packing
+from .setup import check_sensor as check_sensor
 
 #: Bin edges (ms) of the whole-run latency histogram: 40 bins a decade from 10 µs to 100 s.
 LATENCY_EDGES_MS = np.geomspace(1e-2, 1e5, 281)
@@ -273,21 +274,6 @@ def rows_from_packed(stamp: float, packed: "np.ndarray | list", class_names) -> 
     return rows_from_table(stamp, table[:-1], class_names)
 
 
-def check_sensor(model: Model, sensor: SensorModel, where: str, *, intensity: bool = True) -> None:
-    """Refuse a live sensor that is not the scanner ``model`` was trained for, by the rules a log
-    must meet (:func:`~gtsjax.io.logs.fit_geometry`: the model's scanner name unless it is
-    ``unknown``, the same angular step within 1 %, every beam inside the model's field of view, at
-    most its beams), through the same function on an empty scan with the sensor's geometry. A live
-    scan cannot be cropped, so a wider field of view is refused too. A model that reads intensities
-    refuses a sensor that gives none, or a stream asked for without them (``intensity`` False)."""
-    streams = sensor.has_intensity and intensity
-    probe = ScanLog(ranges=np.zeros((1, sensor.n_beams), np.float32), stamps=np.zeros(1), angle_min=sensor.angle_min,
-                    angle_increment=sensor.angle_increment, range_min=sensor.range_min, range_max=sensor.range_max,
-                    sensor_model=sensor.name,
-                    intensities=np.zeros((1, sensor.n_beams), np.float32) if streams else None)
-    fit_to_model(probe, model, f"{where} ({sensor.name})", crop=False)
-
-
 def udp_address(udp: str) -> tuple[str, int]:
     """``HOST:PORT`` of ``--udp`` as a socket address, checked: a port in 1–65535 and a host that
     resolves (a mistake is one line, before the sensor is opened)."""
@@ -344,7 +330,7 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
              duration: float | None = None, stop: threading.Event | None = None, on_scan=None,
              with_intensity: bool = False, compiled=None, max_frames: int | None = None,
              out_bag: Path | None = None, view=None, keep_warm: bool = True,
-             reconnect_timeout: float | None = None) -> LiveStats:
+             reconnect_timeout: float | None = None, sensor_checked: bool = False) -> LiveStats:
     """Track from a started :class:`~gtsjax.io.serial.Link` until ``duration`` seconds, ``max_frames``
     frames processed, ``stop`` set, or Ctrl-C; then stop the link (QT) and finalise the recording.
     ``on_scan(stats, output, stamp)`` is called after each scan (the live view; ``output`` is the
@@ -355,6 +341,8 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
     frame (after the latency is taken; closed at the end). ``reconnect_timeout``: a link that has been
     reconnecting this many seconds (the sensor unplugged, its pty gone) ends the run with one line
     (:class:`InputError`) after what was written is closed, instead of retrying for ever.
+    ``sensor_checked``: the caller has checked the link's sensor against the model
+    (:func:`~gtsjax.drivers.setup.check_sensor`), which is otherwise done here first.
 
     ``keep_warm``: a few milliseconds before each frame is due (the last one's arrival plus the
     sensor's period), if it has not come, the step runs once on the last frame and its result is
@@ -370,7 +358,8 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
     from ..io.record import Recorder
 
     sensor = link.model
-    check_sensor(model, sensor, str(getattr(link, "port", "sensor")), intensity=with_intensity)
+    if not sensor_checked:
+        check_sensor(model, sensor, str(getattr(link, "port", "sensor")), intensity=with_intensity)
     live_step, state = compiled if compiled is not None else warm_up(model, sensor)
     from .diagnose import Tally
 

@@ -20,10 +20,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..core.model import Model
 from ..core.multi import init_several, miss_period, step_several
 from ..errors import InputError
 from ..io.gtd import GTDWriter
-from ..model import Model
 from ..sensors import SensorModel
 from .live import LiveStats, LiveStep, Outputs, check_sensor, decoder_sample, rows_from_packed, warm_host, warm_up_lead
 from .several import Disagreement

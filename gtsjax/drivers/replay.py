@@ -20,11 +20,11 @@ import numpy as np
 from jaxtyping import Array, Int
 
 from ..core.geometry import wrap
+from ..core.model import Model
 from ..core.pipeline import Output, PipelineState, init_state, perceive, step, update
 from ..core.scan import Scan
 from ..io.gtd import GTDWriter, rows_from_output
 from ..io.logs import to_scans
-from ..model import Model
 from .compile import batch_jit
 from .diagnose import Tally
 

@@ -23,16 +23,17 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from ..core.geometry import wrap
-from ..core.multi import SeveralState, check_models, init_several, pad_perception, update_mixed, update_several, widest
+from ..core.model import Model
+from ..core.multi import SeveralState, init_several, pad_perception, update_mixed, update_several, widest
 from ..core.pipeline import Output, Perception
 from ..core.scan import Scan
 from ..errors import InputError
 from ..io.gtd import GTDWriter, rows_from_output
 from ..io.logs import ScanLog, scan_dt, to_scans
 from ..io.site import Site
-from ..model import Model
 from .compile import batch_jit
 from .replay import SUB_CHUNK, _pad_chunk, chunk_for, perceive_batch
+from .setup import check_models
 
 
 @dataclasses.dataclass(frozen=True)

@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 from jaxtyping import Array, ArrayLike, Bool, Float
 
-from ..core.precision import exact_products
+from ..precision import exact_products
 from .errors import GPArgumentError
 from .kernel import _LOG_2PI, DEFAULT_JITTER, Hyperparameters, _cast, _factor, _standardise, gram
 from .sparse import SparseGP, _build_sparse

@@ -25,7 +25,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Float, PRNGKeyArray
 
-from ..core.precision import exact_products
+from ..precision import exact_products
 from .errors import GPArgumentError, GPFitError
 from .exact import GP, _condition
 from .kernel import DEFAULT_JITTER, Hyperparameters, log_marginal_likelihood

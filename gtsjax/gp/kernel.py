@@ -22,7 +22,7 @@ import jax.scipy.linalg as jsl
 import jax.tree_util as jtu
 from jaxtyping import Array, Bool, Float
 
-from ..core.precision import exact_products
+from ..precision import exact_products
 
 DEFAULT_JITTER = 1e-8
 _LOG_2PI = math.log(2.0 * math.pi)

@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 from jaxtyping import Array, Bool, Float, Int
 
-from ..core.precision import exact_products
+from ..precision import exact_products
 from .kernel import Hyperparameters, _cast, _effective_noise, _masked_gram, _standardise, gram, gram_matmul, kernel
 
 if TYPE_CHECKING:

@@ -323,7 +323,7 @@ def fit_geometry(
 
 
 def fit_to_model(log: ScanLog, model, where: object, *, crop: bool = False, hint: str = "") -> ScanLog:
-    """:func:`fit_geometry` with the geometry ``model`` (a :class:`~gtsjax.model.Model`, read only for
+    """:func:`fit_geometry` with the geometry ``model`` (a :class:`~gtsjax.core.model.Model`, read only for
     its scanner attributes) was trained on; and, where the model's GPs read intensities, that the log
     carries them (a model trained with them would see an all-zero profile, find nothing, and say
     nothing)."""

@@ -40,9 +40,10 @@ from ..core.e_pose import PoseRegressor
 from ..core.e_refine import Outline
 from ..core.frontend import FrontEndConfig
 from ..core.g_track import TrackerParams
+from ..core.model import Model, SiteArrays
 from ..errors import InputError
 from ..gp import GP, Hyperparameters, SharedSparseGP, SparseGP
-from ..model import Model, SiteArrays
+from ..sensors import with_scanner
 from .npz import check_npz
 
 FORMAT = "gtsjax-model"
@@ -70,6 +71,8 @@ _TYPES = {
 _HEADER = {"format": str, "version": int, "sensor_model": str, "n_beams": int, "classes": list, "schema": dict}
 # Fields made from the others when a model is loaded (``PoseRegressor.with_common_inputs``), never written.
 _DERIVED = {(PoseRegressor, "common")}
+# Fields the loader fills in from the sensor table (``sensors.with_scanner``), never written nor read.
+_FILLED = {(Model, "scan_period"), (Model, "sensor_beams")}
 # Tuples with one entry per class.
 _PER_CLASS = {(Classifier, "gps"), (Model, "pose")}
 # The shape-fixing settings a model file carries, and the ranges within which the step can run on
@@ -96,7 +99,7 @@ def _encode(node, leaves: dict[str, np.ndarray]):
         return {
             "type": name,
             "fields": {f.name: _encode(getattr(node, f.name), leaves) for f in dataclasses.fields(node)
-                       if (type(node), f.name) not in _DERIVED},
+                       if (type(node), f.name) not in _DERIVED | _FILLED},
         }
     if isinstance(node, tuple):
         return {"tuple": [_encode(v, leaves) for v in node]}
@@ -189,7 +192,7 @@ class _Reader:
         given = spec.get("fields")
         if not isinstance(given, dict):
             raise self.fail(f"damaged model schema at {where or 'the top'}")
-        fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
+        fields = {f.name: f for f in dataclasses.fields(cls) if f.init and (cls, f.name) not in _FILLED}
         if unknown := sorted(set(given) - set(fields)):
             raise self.fail(f"field {_join(where, unknown[0])} is not one a {name} has (a newer gtsjax's model file?)")
         out = {}
@@ -382,8 +385,10 @@ def _check_header(header, path: Path) -> None:
 
 
 def load_model(path: str | os.PathLike) -> Model:
-    """Read a model file, checked against the model its header describes (see the module docstring).
-    Whether it fits a log or a sensor is :func:`~gtsjax.io.logs.fit_to_model`'s to say."""
+    """Read a model file, checked against the model its header describes (see the module docstring),
+    with what the sensor table says of its scanner (:func:`~gtsjax.sensors.with_scanner`). A model
+    ready to run (a site, the run's options, checked against a sensor or log) comes from
+    :mod:`gtsjax.drivers.setup`."""
     path = Path(path)
     header, npz = _open(path)
     try:
@@ -396,4 +401,4 @@ def load_model(path: str | os.PathLike) -> Model:
     finally:
         npz.close()
     _check(top, _config_sizes(top, header, path), path)
-    return _build(top).with_common_pose_inputs()
+    return with_scanner(_build(top).with_common_pose_inputs())

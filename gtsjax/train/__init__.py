@@ -1,4 +1,4 @@
-"""Training from labelled logs (``gtsjax train``): the :class:`~gtsjax.model.Model` of one scanner
+"""Training from labelled logs (``gtsjax train``): the :class:`~gtsjax.core.model.Model` of one scanner
 and the site's kinds of landmarks, and a report of how it was made and how it does on held-out data.
 
 One module per step, in the order :func:`train` takes them (the paper's stages in brackets):
@@ -28,12 +28,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..core.g_track import TrackerParams
-from ..core.precision import exact_products
+from ..core.model import Model
 from ..errors import InputError, InputWarning
 from ..io.logs import ScanLog
 from ..io.site import Site
-from ..model import Model
-from ..sensors import MODELS
+from ..precision import exact_products
+from ..sensors import MODELS, with_scanner
 from .bounds import shape_rows
 from .check import check_pipeline, coverage, held_mask, simulated_checks, verdict
 from .classifier import fit_classifier, fit_support, landmark_lookalikes
@@ -249,7 +249,8 @@ def train(logs: Sequence[ScanLog], site: "Site | Sequence[Site]", cfg: TrainConf
         range_min=float(first.range_min),
         range_max=float(first.range_max),
         outline=outline,
-    ).with_common_pose_inputs()  # as a model file loads
+    ).with_common_pose_inputs()
+    model = with_scanner(model)  # as a model file loads
     stage("held-out evaluation")
     report = {
         "classes": list(classes),

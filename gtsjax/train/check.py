@@ -30,11 +30,11 @@ import numpy as np
 
 from ..core.g_track import HOLDS, Detections, TrackerState, reported, track_step
 from ..core.geometry import wrap
+from ..core.model import Model
 from ..core.pipeline import REASONS
 from ..drivers.replay import process_log
 from ..io.logs import ScanLog, to_scans
 from ..io.site import Site
-from ..model import Model
 from .labels import scan_groups
 
 STAGES = ("not segmented", "filters", "classifier", "open set", "envelope", "cap", "bounds",

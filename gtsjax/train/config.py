@@ -1,6 +1,6 @@
 """Settings of ``gtsjax train`` (:class:`TrainConfig`).
 
-A setting the trained :class:`~gtsjax.model.Model` carries (front-end settings, the classifier's
+A setting the trained :class:`~gtsjax.core.model.Model` carries (front-end settings, the classifier's
 threshold, stage f's gate and spread, the variance floor, the track slots) takes its default from the
 core's own definition, so that a default lives in one place; the rest are training's alone (example
 caps, inducing points, fits, the held-out split, the labelling radii).
@@ -10,8 +10,8 @@ import dataclasses
 
 from ..core.d_classify import DEFAULT_THRESHOLD
 from ..core.frontend import FrontEndConfig
+from ..core.model import DEFAULT_MAP_GATE, DEFAULT_MAP_MIN_SPREAD, DEFAULT_MAX_TRACKS, DEFAULT_MEAS_VAR_FLOOR
 from ..errors import InputError
-from ..model import DEFAULT_MAP_GATE, DEFAULT_MAP_MIN_SPREAD, DEFAULT_MAX_TRACKS, DEFAULT_MEAS_VAR_FLOOR
 
 
 @dataclasses.dataclass(frozen=True)

@@ -12,7 +12,7 @@ from ..core.c_filters import envelope_pass
 from ..core.d_classify import classify
 from ..core.e_pose import regress_one_class
 from ..core.geometry import wrap
-from ..model import Model
+from ..core.model import Model
 from .labels import Examples
 
 

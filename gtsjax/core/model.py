@@ -1,10 +1,15 @@
-"""The trained model and the site, as the arrays the step needs.
+"""The trained model and the site, as the arrays the step needs: a pure parameter tree.
 
 A :class:`Model` is what ``gtsjax train`` produces (front-end settings, per-class shape envelopes,
 one score GP per class with its open-set examples, pose GPs per class, tracker tuning) plus the site it runs on (landmarks, the rough sensor pose, bounds),
 attached with :meth:`Model.with_site` at load time: the same trained model serves any field with the
 same kinds of landmarks. Shapes that must be static (class count, maximum tracks) are static fields;
 everything a user may tune is an array, so tuning does not recompile the step.
+
+Nothing here knows files, sensors' tables or command-line options: the replacers (``with_site``,
+``with_confirmation``, ``with_capacity``) take values the host has checked. Reading a model from a
+file and checking it against a site, the options and a sensor or log is the host's one door,
+:mod:`gtsjax.drivers.setup`.
 """
 
 import dataclasses
@@ -14,13 +19,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from .core.c_filters import Envelope
-from .core.d_classify import Classifier
-from .core.e_pose import PoseRegressor
-from .core.e_refine import Outline
-from .core.frontend import FrontEndConfig
-from .core.g_track import TrackerParams
-from .errors import InputError
+from .c_filters import Envelope
+from .d_classify import Classifier
+from .e_pose import PoseRegressor
+from .e_refine import Outline
+from .frontend import FrontEndConfig
+from .g_track import TrackerParams
 
 _F32 = jnp.float32
 
@@ -31,7 +35,6 @@ DEFAULT_MAP_GATE = 0.4
 DEFAULT_MAP_MIN_SPREAD = 0.3
 DEFAULT_MEAS_VAR_FLOOR = (2.5e-5, 2.5e-5, 3e-4)
 DEFAULT_MAX_TRACKS = 8
-MAX_TRACKS_LIMIT = 64  # track slots a model may be given (--max-tracks)
 
 
 class SiteArrays(eqx.Module):
@@ -77,19 +80,18 @@ class Model(eqx.Module):
     # The mobile classes' learnt outlines and side hypotheses (stage e′); None: a model trained before
     # them, whose poses are the GP's.
     outline: Outline | None = None
+    # The scan period (s) of the scanner ``sensor_model`` names, ``None`` for one of unknown rate; the
+    # tracker counts missed scans in these periods (:func:`~gtsjax.core.g_track.track_step`). Never
+    # saved (the file names its scanner): the host fills it in from its sensor table wherever a model
+    # is loaded or trained (:func:`gtsjax.io.modelfile.with_scanner`).
+    scan_period: float | None = eqx.field(static=True, default=None)
+    # The same table's beams of that scanner (angle_min, angle_increment, n_beams), filled in likewise:
+    # the reach of a model from before its own geometry was kept (:func:`~gtsjax.core.multi.laser_reach`).
+    sensor_beams: tuple[float, float, int] | None = eqx.field(static=True, default=None)
 
     @property
     def n_classes(self) -> int:
         return len(self.classes)
-
-    @property
-    def scan_period(self) -> float | None:
-        """The scan period (s) of the scanner the model was trained for; ``None`` for one of unknown
-        rate. The tracker counts missed scans in these periods (:func:`~gtsjax.core.g_track.track_step`)."""
-        from .sensors import MODELS
-
-        known = MODELS.get(self.sensor_model)
-        return None if known is None else 1.0 / known.rate_hz
 
     @property
     def uses_intensity(self) -> bool:
@@ -107,11 +109,10 @@ class Model(eqx.Module):
         """The model with tracks confirmed (reported) only after ``n_scans`` scans of detections, more
         of them of the track's class than of anything else at its spot (``None``: as trained, half a
         second of scans). Longer confirmation keeps short-lived look-alikes of a robot (a chair seen
-        for a moment) out of the ground truth and delays every real robot's first row as much."""
+        for a moment) out of the ground truth and delays every real robot's first row as much.
+        ``n_scans`` is at least 1 (the host checks a user's)."""
         if n_scans is None:
             return self
-        if n_scans < 1:
-            raise InputError("--confirm-scans", f"must be at least 1, not {n_scans}")
         return eqx.tree_at(lambda m: m.tracker.n_confirm, self, jnp.asarray(n_scans, jnp.int32))
 
     def with_capacity(self, max_tracks: int | None) -> "Model":
@@ -119,11 +120,9 @@ class Model(eqx.Module):
         given a pose per scan (``max_objects``); ``None``: as trained. Nothing learnt depends on them:
         they are the step's array sizes, and a field with more robots than slots cannot track them all
         (a match of 10 robots on a model of 8). Each slot costs step time (the tracker's matrices grow
-        with their square)."""
+        with their square). ``max_tracks`` is at least 1 (the host checks a user's against its limit)."""
         if max_tracks is None:
             return self
-        if not 1 <= max_tracks <= MAX_TRACKS_LIMIT:
-            raise InputError("--max-tracks", f"must be 1 to {MAX_TRACKS_LIMIT}, not {max_tracks}")
         return dataclasses.replace(self, max_tracks=int(max_tracks), max_objects=int(max_tracks))
 
     def without_outline(self) -> "Model":
@@ -140,14 +139,19 @@ class Model(eqx.Module):
         pose = tuple(None if r is None else r.with_common_inputs() for r in self.pose)
         return eqx.tree_at(lambda m: m.pose, self, pose, is_leaf=lambda x: x is None)
 
-    def with_site(self, site, *, where: str = "site") -> "Model":
-        """Attach a :class:`~gtsjax.io.site.Site`. Every landmark class must be one the model knows
-        as a landmark class; otherwise it could never be detected."""
-        lm_classes = [c for c, is_lm in zip(self.classes, np.asarray(self.landmark_mask), strict=True) if is_lm]
-        unknown = sorted({c for c in site.landmark_classes if c not in lm_classes})
+    @property
+    def landmark_classes(self) -> tuple[str, ...]:
+        """The classes that are static landmarks (host-side: reads ``landmark_mask``)."""
+        return tuple(c for c, is_lm in zip(self.classes, np.asarray(self.landmark_mask), strict=True) if is_lm)
+
+    def with_site(self, site) -> "Model":
+        """Attach a site (anything with ``landmark_xy``, ``landmark_classes``, ``sensor_pose`` and
+        ``bounds``: :class:`~gtsjax.io.site.Site`). Every landmark class must be one the model knows as
+        a landmark class, or it could never be detected: a site that breaks this is a ``ValueError``
+        here; the host refuses a user's first, naming the file (:func:`gtsjax.drivers.setup.attach_site`)."""
+        unknown = sorted(set(site.landmark_classes) - set(self.landmark_classes))
         if unknown:
-            raise InputError(where, f"landmark class(es) {', '.join(unknown)} unknown to the model "
-                                    f"(it knows {', '.join(lm_classes) or 'none'})")
+            raise ValueError(f"landmark class(es) {', '.join(unknown)} unknown to the model")
         arrays = SiteArrays(
             landmark_xy=jnp.asarray(site.landmark_xy, _F32),
             landmark_class=jnp.asarray([self.classes.index(c) for c in site.landmark_classes], jnp.int32),
