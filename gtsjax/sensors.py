@@ -34,6 +34,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from .core.scan import Beams
 from .errors import InputError
 
 
@@ -82,6 +83,11 @@ class SensorModel:
         return self.amax - self.amin + 1
 
     @property
+    def beams(self) -> Beams:
+        """The scanner's beams (first angle, step, count, range window) as logs, models and scans give theirs."""
+        return Beams(self.angle_min, self.angle_increment, self.n_beams, self.range_min, self.range_max)
+
+    @property
     def angle_increment(self) -> float:
         return 2.0 * math.pi / self.ares
 
@@ -91,12 +97,12 @@ class SensorModel:
 
     @property
     def angle_max(self) -> float:
-        return (self.amax - self.afrt) * self.angle_increment
+        return self.beams.angle_max
 
     @property
     def angles(self) -> np.ndarray:
         """Beam angles in S, radians, float64 ``[n_beams]``."""
-        return (np.arange(self.amin, self.amax + 1) - self.afrt) * self.angle_increment
+        return self.beams.angles()
 
     @property
     def range_min(self) -> float:
@@ -216,5 +222,4 @@ def with_scanner(model):
     known = MODELS.get(model.sensor_model)
     if known is None:
         return dataclasses.replace(model, scan_period=None, sensor_beams=None)
-    return dataclasses.replace(model, scan_period=1.0 / known.rate_hz,
-                               sensor_beams=(known.angle_min, known.angle_increment, known.n_beams))
+    return dataclasses.replace(model, scan_period=1.0 / known.rate_hz, sensor_beams=known.beams)

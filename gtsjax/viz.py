@@ -177,14 +177,8 @@ def coverage_grid(site, models, step: float = 0.05, margin: float = 0.5):
     xs = np.arange(x0 + step / 2, x1, step)
     ys = np.arange(y0 + step / 2, y1, step)
     gx, gy = np.meshgrid(xs, ys)
-    seen = []
-    for sen, m in zip(site.sensor_list, models, strict=True):
-        sx, sy, sth = sen.pose
-        dx, dy = gx - sx, gy - sy
-        r = np.hypot(dx, dy)
-        bearing = np.arctan2(np.sin(np.arctan2(dy, dx) - sth), np.cos(np.arctan2(dy, dx) - sth))
-        fov_max = m.angle_min + m.angle_increment * (m.n_beams - 1)
-        seen.append((r >= m.range_min) & (r <= m.range_max) & (bearing >= m.angle_min) & (bearing <= fov_max))
+    spots = np.stack([gx, gy], axis=-1)
+    seen = [m.beams.reach(np.asarray(sen.pose, float), spots) for sen, m in zip(site.sensor_list, models, strict=True)]
     return xs, ys, np.asarray(seen)
 
 
@@ -201,7 +195,7 @@ def coverage_figure(site, models, title: str = ""):
     cb.set_label("lasers that see the spot")
     for sen, m in zip(site.sensor_list, models, strict=True):
         sx, sy, sth = sen.pose
-        a = sth + m.angle_min + np.linspace(0, m.angle_increment * (m.n_beams - 1), 200)
+        a = sth + np.linspace(m.angle_min, m.angle_max, 200)
         ax.plot(np.r_[sx, sx + m.range_max * np.cos(a), sx], np.r_[sy, sy + m.range_max * np.sin(a), sy],
                 color="#c33", lw=0.8, ls="--", zorder=2)
     draw_site(ax, site)

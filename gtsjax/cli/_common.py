@@ -36,7 +36,7 @@ def describe(log) -> str:
     dur = float(log.stamps[-1] - log.stamps[0])
     rate = (log.n_scans - 1) / dur if dur > 0 else float("nan")
     return (f"{log.n_scans} scans × {log.n_beams} beams, {dur:.1f} s ({rate:.1f} Hz), "
-            f"sensor {log.sensor_model or 'unknown'}, fov {np.degrees(log.angle_increment * (log.n_beams - 1)):.1f}°, "
+            f"sensor {log.sensor_model or 'unknown'}, fov {np.degrees(log.beams.angle_max - log.angle_min):.1f}°, "
             f"{100 * log.valid().mean():.0f}% returns, intensities {'yes' if log.intensities is not None else 'no'}")
 
 

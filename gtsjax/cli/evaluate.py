@@ -190,15 +190,12 @@ def occluded_share(merged, site, radius: float = 0.15) -> float:
     truth = merged.log.truth_poses
     views = hidden = 0
     for t in range(truth.shape[0]):
-        sensor = sensors[merged.laser[t]]
-        fov = (sensor.angle_min, sensor.angle_min + sensor.angle_increment * (sensor.n_beams - 1))
-        sx, sy, sth = site.sensor(merged.names[merged.laser[t]]).pose
+        pose = np.asarray(site.sensor(merged.names[merged.laser[t]]).pose, float)
         xy = truth[t, :, :2]
         present = ~np.isnan(xy[:, 0])
-        rel = xy - [sx, sy]
+        rel = xy - pose[:2]
         rng = np.hypot(rel[:, 0], rel[:, 1])
-        bearing = np.arctan2(np.sin(np.arctan2(rel[:, 1], rel[:, 0]) - sth), np.cos(np.arctan2(rel[:, 1], rel[:, 0]) - sth))
-        reach = present & (rng <= sensor.range_max) & (bearing >= fov[0]) & (bearing <= fov[1])
+        reach = present & sensors[merged.laser[t]].beams.reach(pose, xy)
         for i in np.flatnonzero(reach):
             views += 1
             u = rel[i] / rng[i]

@@ -11,6 +11,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from ..core.scan import Beams
 from ..drivers.setup import load
 from ..errors import InputError
 from ..io import load_site
@@ -99,7 +100,7 @@ def describe_bag(path: Path) -> tuple[list[str], list[str]]:
         line = f"  topic {t.name}: {t.msgtype}, {t.count} messages"
         if t.geometry is not None:
             n, amin, inc, rmin, rmax, inten = t.geometry
-            last = amin + (n - 1) * inc
+            last = Beams(amin, inc, n).angle_max
             line += (f", {n} beams from {np.degrees(amin):.1f}° to {np.degrees(last):.1f}° by "
                      f"{np.degrees(inc):.3f}°, returns in [{rmin:g}, {rmax:g}] m, intensities {'yes' if inten else 'no'}")
         lines.append(line)
@@ -187,7 +188,7 @@ def describe_model(path: Path) -> list[str]:
     roles = [c + (" (landmark)" if lm else " (tracked)" if tr else "")
              for c, lm, tr in zip(model.classes, landmark, tracked, strict=True)]
     fov = (f", {np.degrees(model.angle_min):.1f}° … "
-           f"{np.degrees(model.angle_min + (model.n_beams - 1) * model.angle_increment):.1f}°"
+           f"{np.degrees(model.beams.angle_max):.1f}°"
            if np.isfinite(model.angle_min) else "")
     gps = model.classifier.gps
     sizes = sorted({int((gp.z if hasattr(gp, "z") else gp.x).shape[0]) for gp in gps})  # sparse: inducing points

@@ -169,7 +169,7 @@ def plot_coverage(path: Path, scanner: str, out: Path | None, console: Console) 
         raise InputError("--scanner", err.problem) from None
     _, _, seen = coverage_grid(site_obj, models)
     count = seen.sum(0)
-    lines = [f"{sen.name} ({m.name}, {m.range_max:g} m, {np.degrees(m.angle_increment * (m.n_beams - 1)):.0f}°): "
+    lines = [f"{sen.name} ({m.name}, {m.range_max:g} m, {np.degrees(m.angle_max - m.angle_min):.0f}°): "
              f"sees {_pct(s.mean())} of the field" for sen, m, s in zip(site_obj.sensor_list, models, seen,
                                                                                 strict=True)]
     shares = ", ".join(f"{_pct(np.mean(count >= k))} by {k}+" for k in range(1, len(models) + 1))

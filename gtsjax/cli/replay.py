@@ -201,7 +201,7 @@ def _load_fitted(log: Path, topic: str | None, m, crop_fov: bool, console: Conso
         if (src := source_of(raw)) is not None:
             console.print(f"  source: {src}", soft_wrap=True)
     if crop_fov:
-        last = scan_log.angle_min + (scan_log.n_beams - 1) * scan_log.angle_increment
+        last = scan_log.beams.angle_max
         console.print(f"{log}: cropped to the model's field of view: {scan_log.n_beams} of {raw.n_beams} beams "
                       f"({np.degrees(scan_log.angle_min):.1f}° … {np.degrees(last):.1f}°), returns in "
                       f"[{scan_log.range_min:g}, {scan_log.range_max:g}] m", soft_wrap=True)

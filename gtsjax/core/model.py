@@ -25,6 +25,7 @@ from .e_pose import PoseRegressor
 from .e_refine import Outline
 from .frontend import FrontEndConfig
 from .g_track import TrackerParams
+from .scan import Beams
 
 _F32 = jnp.float32
 
@@ -85,9 +86,15 @@ class Model(eqx.Module):
     # saved (the file names its scanner): the host fills it in from its sensor table wherever a model
     # is loaded or trained (:func:`gtsjax.io.modelfile.with_scanner`).
     scan_period: float | None = eqx.field(static=True, default=None)
-    # The same table's beams of that scanner (angle_min, angle_increment, n_beams), filled in likewise:
-    # the reach of a model from before its own geometry was kept (:func:`~gtsjax.core.multi.laser_reach`).
-    sensor_beams: tuple[float, float, int] | None = eqx.field(static=True, default=None)
+    # The same table's beams of that scanner, filled in likewise: the reach of a model from before its
+    # own geometry was kept (:func:`~gtsjax.core.multi.laser_reach`).
+    sensor_beams: Beams | None = eqx.field(static=True, default=None)
+
+    @property
+    def beams(self) -> Beams:
+        """The scanner geometry the model was trained on (its first angle and step NaN in a model
+        from before that was kept), as sensors and logs give theirs."""
+        return Beams(self.angle_min, self.angle_increment, self.n_beams, self.range_min, self.range_max)
 
     @property
     def n_classes(self) -> int:

@@ -36,8 +36,8 @@ from ..precision import exact_products
 from .f_maptransform import Transform
 from .g_track import TrackerState
 from .model import Model
-from .pipeline import Output, Perception, in_reach, perceive, update_view
-from .scan import Scan
+from .pipeline import SEE_THROUGH_MARGIN, Output, Perception, perceive, update_view
+from .scan import Scan, within
 
 
 class SeveralState(eqx.Module):
@@ -55,12 +55,12 @@ def laser_reach(model: Model) -> tuple[float, float, float]:
     """The reach of a laser of the scanner ``model`` was trained for: first and last beam's bearing,
     range (host floats). A model from before its geometry was kept reads its scanner's beams from
     ``sensor_beams`` (filled in by the host), or, for an unknown scanner, sees all round."""
-    a0, da, n = model.angle_min, model.angle_increment, model.n_beams
-    if not (math.isfinite(a0) and math.isfinite(da)):  # a model from before its geometry was kept
+    beams = model.beams
+    if not (math.isfinite(beams.angle_min) and math.isfinite(beams.increment)):  # from before its geometry was kept
         if model.sensor_beams is None:
             return (-math.pi, math.pi, model.range_max)
-        a0, da, n = model.sensor_beams
-    return (a0, a0 + da * (n - 1), model.range_max)
+        beams = model.sensor_beams
+    return (beams.angle_min, beams.angle_max, model.range_max)
 
 
 def init_several(model: "Model | tuple[Model, ...]", sensor_poses: Float[Array, "lasers 3"],
@@ -126,7 +126,8 @@ def update_several(model: Model, state: SeveralState, p, scan: Scan, k: Int[Arra
     lasers' scanners differ in rate (:func:`miss_period`; ``model``'s limits are put on it)."""
     model = on_clock(model, period)
     xy = state.tracker.mean[:, :2]
-    watched = jax.vmap(lambda tf, r: in_reach(r, tf, xy))(state.transforms, state.reach)  # [lasers, tracks]
+    watched = jax.vmap(lambda tf, r: within(tf, xy, r[0], r[1], 0.0, r[2] - SEE_THROUGH_MARGIN))(
+        state.transforms, state.reach)  # [lasers, tracks]
     n_watch = jnp.sum(watched, axis=0, dtype=jnp.int32)
     tf, tracker, out = update_view(model, _row(state.transforms, k), state.tracker, p, scan, span_dt=span_dt,
                                    several=True, unwatched=n_watch == 0, watchers=jnp.maximum(n_watch, 1),

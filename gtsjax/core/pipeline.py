@@ -26,7 +26,7 @@ from .frontend import front_end
 from .g_track import Detections, TrackerState, reported, track_step
 from .geometry import in_bounds, wrap
 from .model import Model
-from .scan import Scan
+from .scan import Beams, Scan
 
 _F32 = jnp.float32
 
@@ -197,17 +197,9 @@ def seen_through(scan: Scan, tf: Transform, xy_o: Float[Array, "n 2"], range_max
 def in_coverage(scan: Scan, tf: Transform, xy_o: Float[Array, "n 2"], range_max: float) -> Bool[Array, " n"]:
     """Whether each field position lies where the scan's laser can see: inside its field of view
     and its range (less ``SEE_THROUGH_MARGIN``), as its transform ``tf`` places it."""
-    last = scan.angle_min + scan.angle_increment * (scan.n_beams - 1)
-    return in_reach(jnp.stack([scan.angle_min, last, jnp.asarray(range_max, scan.angle_min.dtype)]), tf, xy_o)
-
-
-def in_reach(reach: Float[Array, "3"], tf: Transform, xy_o: Float[Array, "n 2"]) -> Bool[Array, " n"]:
-    """:func:`in_coverage` for a laser described by ``reach``: the bearings of its first and last
-    beams in S and its range (m)."""
-    xy_s = tf.to_sensor(xy_o)
-    rho = jnp.sqrt(jnp.sum(xy_s**2, axis=-1))
-    bearing = jnp.arctan2(xy_s[:, 1], xy_s[:, 0])
-    return (bearing >= reach[0]) & (bearing <= reach[1]) & (rho <= reach[2] - SEE_THROUGH_MARGIN)
+    beams = Beams(scan.angle_min, scan.angle_increment, scan.n_beams,
+                  range_max=jnp.asarray(range_max, scan.angle_min.dtype))
+    return beams.reach(tf, xy_o, margin=SEE_THROUGH_MARGIN)
 
 
 @exact_products

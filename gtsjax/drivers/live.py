@@ -28,11 +28,11 @@ import numpy as np
 
 from ..core.model import Model
 from ..core.pipeline import Output, PipelineState, init_state, step
-from ..core.scan import Scan
+from ..core.scan import Scan, valid_beams
 from ..errors import InputError
 from ..io import scip
 from ..io.gtd import GTDWriter, format_rows, json_line, rows_from_table
-from ..io.logs import frame_dt, valid_beams
+from ..io.logs import frame_dt
 from ..sensors import SensorModel
 from .packing import Packing
 from .setup import check_sensor as check_sensor
@@ -145,7 +145,7 @@ class LiveStep:
     delivers it (:class:`~gtsjax.io.serial.LinkFrame`: its ranges in metres, its intensities or
     ``None``, at most the model's ``n_beams``). What crosses the call is kept to a few buffers, each
     costing the call some microseconds on the host whatever its size: the frame goes in as one
-    float32 buffer, copied as it came (which beams hold a return, :func:`~gtsjax.io.logs.valid_beams`,
+    float32 buffer, copied as it came (which beams hold a return, :func:`~gtsjax.core.scan.valid_beams`,
     and the padding are worked out inside the compiled step); the state and the output cross as one
     buffer per dtype (:class:`~gtsjax.drivers.packing.Packing`: 3 each way instead of 21 and 28
     arrays). The state is opaque between calls (start from :meth:`initial_state`, read it with

@@ -12,11 +12,9 @@ The command line gets its models from here only.
 
 import os
 
-import numpy as np
-
 from ..core.model import Model
 from ..errors import InputError
-from ..io.logs import ScanLog, fit_to_model
+from ..io.logs import check_intensities, fit_beams, fit_to_model
 from ..io.modelfile import load_model
 from ..io.site import Site, one_sensor
 from ..sensors import SensorModel
@@ -120,20 +118,11 @@ def check_models(models: "tuple[Model, ...]", where: object = "--model") -> None
 
 def check_sensor(model: Model, sensor: SensorModel, where: str, *, intensity: bool = True) -> None:
     """Refuse a live sensor that is not the scanner ``model`` was trained for, by the rules a log
-    must meet (:func:`~gtsjax.io.logs.fit_geometry`: the model's scanner name unless it is
-    ``unknown``, the same angular step within 1 %, every beam inside the model's field of view, at
-    most its beams), through the same function on an empty scan with the sensor's geometry. A live
-    scan cannot be cropped, so a wider field of view is refused too. A model that reads intensities
-    refuses a sensor that gives none, or a stream asked for without them (``intensity`` False)."""
-    streams = sensor.has_intensity and intensity
-    probe = ScanLog(
-        ranges=np.zeros((1, sensor.n_beams), np.float32),
-        stamps=np.zeros(1),
-        angle_min=sensor.angle_min,
-        angle_increment=sensor.angle_increment,
-        range_min=sensor.range_min,
-        range_max=sensor.range_max,
-        sensor_model=sensor.name,
-        intensities=np.zeros((1, sensor.n_beams), np.float32) if streams else None,
-    )
-    fit_to_model(probe, model, f"{where} ({sensor.name})", crop=False)
+    must meet (:func:`~gtsjax.io.logs.fit_beams` on the sensor's beams and the model's: the model's
+    scanner name unless it is ``unknown``, the same angular step within 1 %, every beam inside the
+    model's field of view, at most its beams). A live scan cannot be cropped, so a wider field of view
+    is refused too. A model that reads intensities refuses a sensor that gives none, or a stream
+    asked for without them (``intensity`` False)."""
+    where = f"{where} ({sensor.name})"
+    check_intensities(model, sensor.has_intensity and intensity, where)
+    fit_beams(sensor.beams, model.beams, where, scanner=sensor.name, trained_for=model.sensor_model)

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.scan import Beams
 from ..errors import InputError, InputWarning
 from .npz import check_npz
 
@@ -22,15 +23,6 @@ REQUIRED = ("ranges", "stamps", "angle_min", "angle_increment")
 OPTIONAL = ("intensities", "range_min", "range_max", "sensor_model", "truth_classes", "truth_poses")
 DEFAULT_RANGE_MIN = 0.02
 DEFAULT_RANGE_MAX = 30.0
-
-
-def valid_beams(ranges: np.ndarray, range_min: float, range_max: float) -> np.ndarray:
-    """Beams with a return: finite, positive and inside the scanner's ``[range_min, range_max]``. The
-    one definition, for logs and live frames alike (the step zeroes every other beam): NumPy arrays on
-    the host, JAX arrays inside the live step (plain operators serve both)."""
-    r = ranges if hasattr(ranges, "shape") else np.asarray(ranges)
-    with np.errstate(invalid="ignore"):
-        return ((r - r) == 0) & (r > 0) & (r >= range_min) & (r <= range_max)  # r − r: NaN unless finite
 
 
 @dataclasses.dataclass
@@ -61,12 +53,17 @@ class ScanLog:
     def labelled(self) -> bool:
         return self.truth_poses is not None
 
+    @property
+    def beams(self) -> Beams:
+        """The log's scanner geometry: first angle, step, beams per scan, range window."""
+        return Beams(self.angle_min, self.angle_increment, self.n_beams, self.range_min, self.range_max)
+
     def angles(self) -> np.ndarray:
-        return self.angle_min + np.arange(self.n_beams) * self.angle_increment
+        return self.beams.angles()
 
     def valid(self) -> np.ndarray:
-        """Beams with a return (:func:`valid_beams`)."""
-        return valid_beams(self.ranges, self.range_min, self.range_max)
+        """Beams with a return (:meth:`~gtsjax.core.scan.Beams.valid`)."""
+        return self.beams.valid(self.ranges)
 
     def slice(self, start: int, stop: int) -> "ScanLog":
         """Scans ``start:stop`` as a log of their own."""
@@ -298,16 +295,52 @@ def fit_geometry(
     ``n_beams`` beams, as it did then. Every refusal is :class:`InputError` naming ``where``; without
     ``crop`` a log that fits is returned as it is (the same object).
     """
+    return _fit_log(log, Beams(angle_min, angle_increment, n_beams, range_min, range_max), where, crop, hint,
+                    sensor_model)
+
+
+def fit_to_model(log: ScanLog, model, where: object, *, crop: bool = False, hint: str = "") -> ScanLog:
+    """:func:`fit_geometry` with the geometry ``model`` (a :class:`~gtsjax.core.model.Model`, read only for
+    its scanner attributes) was trained on; and, where the model's GPs read intensities, that the log
+    carries them (a model trained with them would see an all-zero profile, find nothing, and say
+    nothing)."""
+    check_intensities(model, log.intensities is not None, where)
+    want = Beams(model.angle_min, model.angle_increment, model.n_beams, model.range_min, model.range_max)
+    return _fit_log(log, want, where, crop, hint, model.sensor_model)
+
+
+def check_intensities(model, given: bool, where: object) -> None:
+    """A model whose GPs read the intensity profile refuses scans without intensities (``given``
+    False): it would see an all-zero profile, find nothing, and say nothing."""
+    if getattr(model, "uses_intensity", False) and not given:
+        raise InputError(where, "has no intensities, but the model was trained on scans with them (its GPs read the "
+                                "intensity profile): give it scans with intensities, or train a model on scans without")
+
+
+def fit_beams(have: Beams, want: Beams, where: object, *, crop: bool = False, hint: str = "",
+              scanner: str | None = None, trained_for: str | None = None) -> slice | None:
+    """The scanner geometry ``have`` (a log's or a live sensor's, of the scanner named ``scanner``)
+    against ``want`` (a model's, trained for ``trained_for``), by the rules of :func:`fit_geometry`:
+    the beams of ``have`` to keep (all of them, unless ``crop``), ``None`` for a model from before
+    its geometry was stored (it takes any scan of at most its beams), or :class:`InputError` naming
+    ``where``."""
+    name = trained_for or "unknown scanner"
+    if trained_for not in (None, "unknown") and scanner is not None and scanner != trained_for:
+        raise InputError(where, f"scans from a {scanner}, but the model was trained for sensor {trained_for}")
+    if not math.isfinite(want.increment):
+        if have.count > want.count:
+            raise InputError(where, f"has {have.count} beams per scan; the model ({name}) takes at most {want.count}")
+        return None
+    return _beams_inside(have, want, where, crop, hint, name)
+
+
+def _fit_log(log: ScanLog, want: Beams, where: object, crop: bool, hint: str, sensor_model: str | None) -> ScanLog:
+    """:func:`fit_geometry` against the beams ``want``."""
     name = sensor_model or "unknown scanner"
-    if sensor_model not in (None, "unknown") and log.sensor_model is not None and log.sensor_model != sensor_model:
-        raise InputError(where, f"scans from a {log.sensor_model}, but the model was trained for sensor {sensor_model}")
-    if not math.isfinite(angle_increment):
-        if log.n_beams > n_beams:
-            raise InputError(where, f"has {log.n_beams} beams per scan; the model ({name}) takes at most {n_beams}")
+    keep = fit_beams(log.beams, want, where, crop=crop, hint=hint, scanner=log.sensor_model, trained_for=sensor_model)
+    if keep is None or not crop:
         return log
-    keep = _beams_inside(log, angle_min, angle_increment, n_beams, where, crop, hint, name)
-    if not crop:
-        return log
+    range_min, range_max = want.range_min, want.range_max
     lo, hi = max(log.range_min, range_min), min(log.range_max, range_max)
     if not lo < hi:
         raise InputError(where, f"range window [{log.range_min:g}, {log.range_max:g}] m does not overlap the "
@@ -322,43 +355,28 @@ def fit_geometry(
                                range_min=float(lo), range_max=float(hi))
 
 
-def fit_to_model(log: ScanLog, model, where: object, *, crop: bool = False, hint: str = "") -> ScanLog:
-    """:func:`fit_geometry` with the geometry ``model`` (a :class:`~gtsjax.core.model.Model`, read only for
-    its scanner attributes) was trained on; and, where the model's GPs read intensities, that the log
-    carries them (a model trained with them would see an all-zero profile, find nothing, and say
-    nothing)."""
-    if getattr(model, "uses_intensity", False) and log.intensities is None:
-        raise InputError(where, "has no intensities, but the model was trained on scans with them (its GPs read the "
-                                "intensity profile): give it scans with intensities, or train a model on scans without")
-    return fit_geometry(log, angle_min=model.angle_min, angle_increment=model.angle_increment,
-                        n_beams=model.n_beams, range_min=model.range_min, range_max=model.range_max, where=where,
-                        crop=crop, hint=hint, sensor_model=model.sensor_model)
-
-
-def _beams_inside(log: ScanLog, angle_min, angle_increment, n_beams, where, crop, hint, name) -> slice:
-    """The beams of ``log`` to keep (all of them, unless ``crop``), or :class:`InputError`; see
+def _beams_inside(have: Beams, want: Beams, where, crop, hint, name) -> slice:
+    """The beams of ``have`` to keep (all of them, unless ``crop``), or :class:`InputError`; see
     :func:`fit_geometry` for the rules."""
     deg = math.degrees
-    if abs(log.angle_increment - angle_increment) > STEP_TOLERANCE * angle_increment:
-        raise InputError(where, f"angular step {deg(log.angle_increment):.3f}° differs from the model's "
-                                f"{deg(angle_increment):.3f}° ({name}) by more than {100 * STEP_TOLERANCE:g} %")
-    model_max = angle_min + (n_beams - 1) * angle_increment
-    half = 0.5 * angle_increment
-    angles = log.angles()
-    inside = (angles >= angle_min - half) & (angles <= model_max + half)
+    if abs(have.increment - want.increment) > STEP_TOLERANCE * want.increment:
+        raise InputError(where, f"angular step {deg(have.increment):.3f}° differs from the model's "
+                                f"{deg(want.increment):.3f}° ({name}) by more than {100 * STEP_TOLERANCE:g} %")
+    half = 0.5 * want.increment
+    angles = have.angles()
+    inside = (angles >= want.angle_min - half) & (angles <= want.angle_max + half)
     first, count = int(np.argmax(inside)), int(inside.sum())  # beam angles increase: the inside is one run
-    if count < log.n_beams:
-        log_max = log.angle_min + (log.n_beams - 1) * log.angle_increment
-        fov = (f"field of view {deg(log.angle_min):.1f}° … {deg(log_max):.1f}° is not inside the model's "
-               f"{deg(angle_min):.1f}° … {deg(model_max):.1f}° ({name})")
+    if count < have.count:
+        fov = (f"field of view {deg(have.angle_min):.1f}° … {deg(have.angle_max):.1f}° is not inside the model's "
+               f"{deg(want.angle_min):.1f}° … {deg(want.angle_max):.1f}° ({name})")
         if not crop:
             raise InputError(where, fov + hint)
-        need = math.ceil(MIN_BEAM_FRACTION * n_beams)
+        need = math.ceil(MIN_BEAM_FRACTION * want.count)
         if count < need:
             raise InputError(where, f"{fov}, and only {count} of its beams lie inside (at least {need} needed)")
-    elif count > n_beams and not crop:
-        raise InputError(where, f"has {count} beams per scan, more than the {n_beams} of the model ({name})")
-    return slice(first, first + min(count, n_beams))
+    elif count > want.count and not crop:
+        raise InputError(where, f"has {count} beams per scan, more than the {want.count} of the model ({name})")
+    return slice(first, first + min(count, want.count))
 
 
 def scan_dt(stamps: np.ndarray, prev_stamp: float | None = None) -> np.ndarray:

@@ -135,7 +135,7 @@ def seen(log: ScanLog, sensor_pose: np.ndarray, truth_xy: np.ndarray, present: n
     reach or field of view has none, and is not counted as a scan the model missed it in."""
     T, M = present.shape
     out = np.zeros((T, M), bool)
-    angles = log.angle_min + log.angle_increment * np.arange(log.n_beams)
+    angles = log.angles()
     valid = log.valid()
     for t in range(T):
         if not present[t].any():
