@@ -4,8 +4,6 @@ the API (``InputError``) and from the command line (exit 2, no output left behin
 before later optional fields were added still load. All cases are edits of the shipped demo model."""
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +14,8 @@ from gtsjax.cli import main
 from gtsjax.io import save_log, save_site
 from gtsjax.io.modelfile import is_model_file, load_model, read_header
 from gtsjax.sim import simulate
+
+from ._utils import run_cli
 
 DEMO_MODEL = Path(__file__).resolve().parents[1] / "gtsjax" / "data" / "demo-model.npz"
 
@@ -166,9 +166,7 @@ def test_info_describes_a_model_file(tmp_path, capsys):
     assert "gtsjax model (format version 3) for URG-04LX, 682 beams" in out and "robot (tracked)" in out
     assert "ranges" not in out
     bad = _edited(tmp_path, "bad", _cut_features)
-    res = subprocess.run(
-        [sys.executable, "-m", "gtsjax", "info", str(bad)], capture_output=True, text=True, timeout=120
-    )
+    res = run_cli("info", bad, timeout=120)
     lines = res.stderr.strip().splitlines()
     assert res.returncode == 2 and len(lines) == 1 and "leaf classifier.gps[1].z" in lines[0], res.stderr
 

@@ -8,7 +8,6 @@ import queue
 import shutil
 import socket
 import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
@@ -19,6 +18,7 @@ import pytest
 from gtsjax.io.gtd import read_gtd
 from gtsjax.viewer import LASER_COLOUR, SEEN_COLOUR
 
+from ._utils import CHILD, cli_env
 from .conftest import in_ci
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -138,9 +138,9 @@ def test_replay_view_web_draws_in_headless_chromium(tmp_path):
     save_log(log, tmp_path / "t.npz")
     save_site(site, tmp_path / "site.json")
     web, grpc = _free_port(), _free_port()
-    env = dict(os.environ, GTSJAX_VIEW_WEB_PORT=str(web), GTSJAX_VIEW_GRPC_PORT=str(grpc))
+    env = dict(cli_env(), GTSJAX_VIEW_WEB_PORT=str(web), GTSJAX_VIEW_GRPC_PORT=str(grpc))
     root = Path(__file__).resolve().parents[1]
-    proc = subprocess.Popen([sys.executable, "-m", "gtsjax", "replay", str(tmp_path / "t.npz"), "--site",
+    proc = subprocess.Popen([*CHILD, "replay", str(tmp_path / "t.npz"), "--site",
                              str(tmp_path / "site.json"), "--model", str(root / "gtsjax" / "data" / "demo-model.npz"),
                              "--out", str(tmp_path / "gtd.csv"), "--view", "web"],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env, cwd=root)
