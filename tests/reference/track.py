@@ -11,7 +11,7 @@ from filterpy.kalman import KalmanFilter
 NX = 6
 SIDES = 4  # heading hypotheses per track (gtsjax: ``e_refine.SIDES``)
 
-# The heading mixture's constants (gtsjax: ``g_track._OUTLIER_P``, ``_REST_P``, ``_SAME_SIDE``, ``_NEW_P``,
+# The heading mixture's constants (gtsjax: ``g_heading._OUTLIER_P``, ``g_types._REST_P``, ``g_heading._SAME_SIDE``, ``_NEW_P``,
 # ``_MERGE``, ``_SWITCH_ODDS``): a detection's heading that none of its sides explains is at least this likely under a uniform heading
 # (and the rest keeps this share of its weight after a read); a new track's rest has this weight;
 # another hypothesis becomes the state's heading at these odds.
