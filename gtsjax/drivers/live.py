@@ -251,9 +251,9 @@ def warm_host(live_step: "LiveStep", last, class_names, sample: bytes | None = N
     the decoding of a data block like the link's (``sample``, :func:`decoder_sample`, by a decoder of
     its own), the frame's ranges in metres, the step's frame buffer, its rows and their CSV text. The
     live loop runs it after :meth:`LiveStep.warm`: with the core idle between frames, the host's
-    code (NumPy's above all) leaves the caches as the step's does. Without it the next frame's few
-    NumPy calls before the step took 0.15 ms, and the reader thread's decoding 0.1–0.15 ms, more
-    than after it (UTM-30LX at 40 Hz)."""
+    code (NumPy's above all) leaves the caches as the step's does, and the next frame's few NumPy
+    calls before the step, and the reader thread's decoding, would each pay for bringing it back
+    (measured in ``docs/speed.md``)."""
     if sample is not None:
         scip.StreamDecoder().feed(sample)
     if last is None:
@@ -268,8 +268,8 @@ def rows_from_packed(stamp: float, packed: "np.ndarray | list", class_names) -> 
     :func:`~gtsjax.io.gtd.rows_from_table` of its track rows.
 
     The live loop passes the ``tolist()``, made once: on its path right after the step, when the
-    interpreter's code has left the caches, each NumPy call costs ten times what it does in a tight
-    loop (17 µs for the whole conversion in a loop, 130–170 µs in the loop after a step, with NumPy)."""
+    interpreter's code has left the caches, each NumPy call costs about ten times what it does in a
+    tight loop, so the conversion is plain Python on one list."""
     table = packed.tolist() if isinstance(packed, np.ndarray) else packed
     return rows_from_table(stamp, table[:-1], class_names)
 
@@ -348,12 +348,9 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
     sensor's period), if it has not come, the step runs once on the last frame and its result is
     thrown away (:meth:`LiveStep.warm`), and so does the host's part of a frame's path
     (:func:`warm_host`: a data block decoded, the frame buffer, the rows and their CSV text), so that
-    the frame finds the step's code and constants, and NumPy's, in the caches and the core awake.
-    On a 2-core Xeon virtual machine the step's warm-up left the median latency of a UTM-30LX frame
-    at 40 Hz as it was (1.4 ms, last byte to GTD row) and lowered its p99 by 7–20 % (1.95–2.45 ms to
-    1.82–1.96 in three interleaved runs, ``scripts/ab_keep_warm.py``); the host's then took the
-    reader thread's decoding from 0.24 to 0.16 ms and the frame's NumPy calls before the step from
-    0.15 to 0.02 ms (median). The cost is one more step per frame, a few per cent of a core."""
+    the frame finds the step's code and constants, and NumPy's, in the caches and the core awake:
+    it leaves the median latency as it is and lowers the p99 (``scripts/ab_keep_warm.py``, figures
+    in ``docs/speed.md``). The cost is one more step per frame, a few per cent of a core."""
     from ..io.bag_out import LASER, BagOut, LaserGeometry
     from ..io.record import Recorder
 

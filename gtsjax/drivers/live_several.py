@@ -1,4 +1,4 @@
-"""The live loop for several lasers of one field (issue 18): one reader thread per port (each a
+"""The live loop for several lasers of one field: one reader thread per port (each a
 :class:`~gtsjax.io.serial.Link`), frames merged by their host stamps into one track table
 (:func:`~gtsjax.core.multi.step_several`), one GTD CSV, per-laser counters.
 

@@ -64,8 +64,8 @@ def _pad_chunk(scans, start: int, stop: int, size: int):
 def chunk_for(n: int, chunk: int) -> int:
     """The chunk size for ``n`` scans: ``chunk``, or for a log shorter than that the power of two that
     holds it (the chunk is padded, its padding leaves the state alone). The chunk's length is a shape
-    of the compiled program: sized to each log, every log length compiled a program of its own
-    (some 20 s on 2 cores, and a miss of the persistent cache); so bucketed, a few serve all."""
+    of the compiled program: sized to each log, every log length would compile a program of its own
+    (tens of seconds, and a miss of the persistent cache); so bucketed, a few serve all."""
     return max(1, min(chunk, 1 << max(0, n - 1).bit_length()))
 
 

@@ -1,4 +1,4 @@
-"""Batch replay of several lasers' logs on one field into one track table (issue 18).
+"""Batch replay of several lasers' logs on one field into one track table.
 
 The logs (one per laser of the site's ``sensors`` list) are merged by stamp into one sequence
 (:func:`merge_logs`; a stable sort, so equal stamps keep the lasers' order), which runs through
@@ -309,7 +309,7 @@ def replay_several(logs: "dict[str, ScanLog]", model: "Model | tuple[Model, ...]
 
 
 class Disagreement:
-    """The cross-laser calibration check of issue 18 (item 4), one scan at a time: each laser's map
+    """The cross-laser calibration check, one scan at a time: each laser's map
     transformation places its detection of a landmark at the landmark's map position plus that
     laser's residual, so two lasers put the same landmark ``|r_k − r_j|`` apart. :meth:`update` gives
     the largest such distance over the landmarks a scan saw and another laser saw in its latest scan

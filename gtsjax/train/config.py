@@ -30,13 +30,10 @@ class TrainConfig:
     # Kernels of a mobile class's four pose GPs (x, y, sin, cos): 4 = each its own; 2 = the position pair
     # and the heading pair each share one (shared length scales, each GP its own signal and noise
     # variance, fitted jointly on the sum of their LMLs: gp.fit_shared), two kernel rows per robot
-    # candidate in the step instead of four; 1 = all four share one. On the shipped model's data
-    # (python scripts/build_demo_model.py, issue 16), 2 against 4: the step 1.57 against 1.78 ms
-    # median, held-out heading median per scan 1.66° against 1.82° and misreads 4.9 % against 5.2 %,
-    # yet the tracked heading RMSE on the README's five scenarios 1.4/2.2/2.0/3.9/1.9° against
-    # 1.2/1.9/1.5/2.2/1.5° (medians +0.0–0.2°): the GP misreads in other directions, the side
-    # hypotheses learnt from them differ (−71°, −43°, +45° against −87°, −43°, +101°), and a person's
-    # legs tipped a track 20–37° off for 1.5 s. Each its own stays the default until that is understood.
+    # candidate in the step instead of four; 1 = all four share one. Sharing saves a part of the step
+    # but, on the shipped model's data, cost tracked heading accuracy (the GP misreads in other
+    # directions and the side hypotheses learnt from them differ; figures in docs/speed.md), so
+    # each its own stays the default until that is understood.
     pose_kernels: int = 4
     max_landmark_examples: int = 500  # position-GP training examples per landmark class (simple shapes)
     # Inducing points of each GP's predictive mean: they bound the step's cost per candidate whatever
