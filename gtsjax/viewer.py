@@ -46,6 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from .core.pipeline import REASONS
+from .core.scan import Beams
 from .errors import InputError
 from .io.bag_out import TRACK_COLOURS, track_colour
 
@@ -253,7 +254,7 @@ class View:
                                             colors=[LASER_COLOUR], labels=[laser or "laser"]), recording=rec)
         r = np.asarray(ranges, np.float64)
         ok = np.isfinite(r) & (r > 0)
-        a = angle_min + angle_increment * np.arange(r.size) + sth
+        a = Beams(angle_min, angle_increment, r.size).angles() + sth
         pts = np.stack([sx + r[ok] * np.cos(a[ok]), sy + r[ok] * np.sin(a[ok])], axis=1)
         rr.log(f"{base}/scan", rr.Points2D(pts, radii=0.012, colors=[colour]), recording=rec)
         seen = np.asarray(out.landmark_seen, bool)

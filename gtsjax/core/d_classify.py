@@ -7,7 +7,7 @@ is always ``background``: a candidate whose best class is background, or whose w
 below its class's threshold, is dropped. Prediction uses each GP's bounded-cost form (a fixed number
 of inducing points), so the cost per candidate does not grow with the training set.
 
-**Open set** (issue 13). A regression score says which training class a candidate is *most* like,
+**Open set**. A regression score says which training class a candidate is *most* like,
 not whether it is like any: far from every training example each GP's mean falls back to its prior
 (the class's share of the examples), and in between it extrapolates, so clutter the model never saw
 (a table, a chair, a person's legs in another building) can win as "robot". So a candidate is also

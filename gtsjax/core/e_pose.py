@@ -27,7 +27,7 @@ class PoseRegressor(eqx.Module):
     """GPs of one class: ``x``, ``y`` (ORS-relative position) and, if the class has a heading, ``sin``,
     ``cos``; each on its own (``x``, ``y``, ``sin``, ``cos``), or in groups that share one kernel
     (``shared``: :class:`~gtsjax.gp.SharedSparseGP` groups whose outputs, in order, are ``x``, ``y``
-    (, ``sin``, ``cos``); one kernel row per candidate and group, issue 16). Training makes two
+    (, ``sin``, ``cos``); one kernel row per candidate and group). Training makes two
     groups, the position and the heading (:attr:`gtsjax.train.TrainConfig.pose_kernels`); models
     trained before hold the separate GPs and still load.
 

@@ -1,4 +1,4 @@
-"""Several lasers on one field (issue 18): each laser's scans through stages a–f on their own, one
+"""Several lasers on one field: each laser's scans through stages a–f on their own, one
 track table for all.
 
 The paper's future work: one laser at the side of a full-size field sees a robot only within its

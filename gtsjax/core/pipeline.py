@@ -209,6 +209,30 @@ def update(model: Model, state: PipelineState, p: Perception, scan: Scan) -> tup
     return PipelineState(tf, tracker, state.n_scans + 1), out
 
 
+def field_detections(model: Model, tf: Transform, p: Perception, several: bool) -> tuple[Detections, Bool[Array, " K"]]:
+    """This scan's detections placed in O by its transform ``tf``, with their covariances (the GP's,
+    the model's floor, and with several lasers each transform's own error), side hypotheses and
+    masks, as the tracker takes them; and which of them are of a tracked class inside the bounds."""
+    site = model.site
+    pose_o, cov_o = poses_to_field(tf, p.pose_s, p.cov_s)
+    cov_o = cov_o + jnp.diag(model.meas_var_floor)[None]
+    if several:
+        # Each laser's transform carries its own error (a centimetre or two, from its landmarks'
+        # detection noise), not in the GP's variance, and different from the other lasers'. Scans of
+        # two lasers interleave (two UTM-30LX: one every 12.5 ms), so to the tracker these errors, and
+        # the detections' own, look like speed: the speed test took robots walking near their top
+        # speed for implausible and they went unreported (two UTM-30LX on spl-match-2-utm:2000:
+        # recall 97.8 % with the floor alone, 98.8 % with this). Counted as measurement noise.
+        cov_o = cov_o + jnp.diag(jnp.asarray([TRANSFORM_VAR, TRANSFORM_VAR, 0.0], cov_o.dtype))[None]
+    side_o = jnp.concatenate([tf.apply(p.side_pose[..., :2]), wrap(p.side_pose[..., 2:] + tf.heading())], -1)
+    inside = _inside(site, pose_o)
+    tracked = p.ok & model.tracker.tracked[p.cls] & inside
+    guess = p.guess & inside
+    det = Detections(pose_o, cov_o, p.cls, tracked | guess, p.kept & ~tracked, p.partial, p.vague, side_o, p.side_logp,
+                     guess)
+    return det, tracked
+
+
 def update_view(model: Model, prev_tf: Transform, tracker: TrackerState, p: Perception, scan: Scan, *,
                 span_dt=None, several: bool = False, unwatched=None, watchers=None, period: float | None = None
                 ) -> tuple[Transform, TrackerState, Output]:
@@ -226,22 +250,8 @@ def update_view(model: Model, prev_tf: Transform, tracker: TrackerState, p: Perc
         prev_tf, p.pose_s[:, :2], p.cls, is_landmark, site.landmark_xy, site.landmark_class,
         model.map_gate, model.map_min_spread,
     )
-    pose_o, cov_o = poses_to_field(tf, p.pose_s, p.cov_s)
-    cov_o = cov_o + jnp.diag(model.meas_var_floor)[None]
-    if several:
-        # Each laser's transform carries its own error (a centimetre or two, from its landmarks'
-        # detection noise), not in the GP's variance, and different from the other lasers'. Scans of
-        # two lasers interleave (two UTM-30LX: one every 12.5 ms), so to the tracker these errors, and
-        # the detections' own, look like speed: the speed test took robots walking near their top
-        # speed for implausible and they went unreported (two UTM-30LX on spl-match-2-utm:2000:
-        # recall 97.8 % with the floor alone, 98.8 % with this). Counted as measurement noise.
-        cov_o = cov_o + jnp.diag(jnp.asarray([TRANSFORM_VAR, TRANSFORM_VAR, 0.0], cov_o.dtype))[None]
-    side_o = jnp.concatenate([tf.apply(p.side_pose[..., :2]), wrap(p.side_pose[..., 2:] + tf.heading())], -1)
-    inside = _inside(site, pose_o)
-    tracked = p.ok & model.tracker.tracked[p.cls] & inside
-    guess = p.guess & inside
-    det = Detections(pose_o, cov_o, p.cls, tracked | guess, p.kept & ~tracked, p.partial, p.vague, side_o, p.side_logp,
-                     guess)
+    det, tracked = field_detections(model, tf, p, several)
+    pose_o = det.pose
     # Several lasers: a track this laser cannot see (out of its range or field of view) is not missed
     # by it, nor is it seen through there (another laser may be watching it).
     # A track no laser can see (``unwatched``: outside every laser's reach) is missed by each, so that

@@ -475,7 +475,7 @@ def fit_shared(
     ``y`` is [N, k]. Returns one :class:`GP` per output, each conditioned on its own targets; they
     share ``x``, ``mask``, the input statistics and the length scales, so that one kernel row of a
     test input serves them all (:meth:`gtsjax.gp.SharedSparseGP.build`: a class's four pose GPs in
-    one row, issue 16). Each is an ordinary :class:`GP`: predicting with it alone is predicting with
+    one row). Each is an ordinary :class:`GP`: predicting with it alone is predicting with
     that output. Rows with a non-finite target in any output are dropped. An output whose targets are
     constant carries no information on the shared hyperparameters: it is left out of the objective
     and keeps its default start (it predicts its constant).

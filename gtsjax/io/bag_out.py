@@ -45,6 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.scan import Beams
 from ..errors import InputError
 from .gtd import TrackRow
 
@@ -206,11 +207,11 @@ class BagOut:
         g = self.lasers[laser]
         frame = LASER if laser == LASER else ros_name(laser)
         r = np.asarray(ranges, np.float32)
-        ok = np.isfinite(r) & (r >= g.range_min) & (r <= g.range_max) & (r > 0)
-        r = np.where(ok, r, np.float32(np.inf)).astype(np.float32)
+        beams = Beams(g.angle_min, g.angle_increment, r.size, g.range_min, g.range_max)
+        r = np.where(beams.valid(r), r, np.float32(np.inf)).astype(np.float32)
         inten = np.zeros(0, np.float32) if intensities is None else np.asarray(intensities, np.float32)
         self._put(scan_topic(laser), T["sensor_msgs/msg/LaserScan"](
-            self._header(ns, frame), g.angle_min, g.angle_min + g.angle_increment * (r.size - 1), g.angle_increment,
+            self._header(ns, frame), g.angle_min, beams.angle_max, g.angle_increment,
             g.time_increment, g.scan_time, g.range_min, g.range_max, r, inten), ns)
         field = self._header(ns, FIELD_FRAME)
         tfs = [] if sensor_pose is None else [self._transform(field, frame, *(float(v) for v in sensor_pose))]

@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.scan import Beams
 from ..errors import InputError, InputWarning
 from ..sensors import URG_04LX
 from .logs import DEFAULT_RANGE_MIN, ScanLog, load_log
@@ -296,7 +297,7 @@ def _read_rosbag(reader, where: Path, label: str, topic: str | None, progress: P
             k = int(np.argwhere(i < 0)[0, 0])
             raise InputError(where, f"message {k} on {name} has a negative intensity")
     if inc < 0:
-        amin, inc = amin + (n - 1) * inc, -inc
+        amin, inc = Beams(amin, inc, n).angle_max, -inc
         r = r[:, ::-1].copy()
         i = None if i is None else i[:, ::-1].copy()
     kind = "ROS 2 bag" if reader.is2 else "ROS 1 bag"
