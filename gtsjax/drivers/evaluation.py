@@ -19,6 +19,8 @@ object's class nearest each object, before tracking, within ``match_radius``; it
 ``det_*`` figures, and the fraction of object-scans with such a detection is ``det_recall``.
 """
 
+import dataclasses
+
 import numpy as np
 
 from ..core.geometry import wrap
@@ -51,61 +53,19 @@ def evaluate_outputs(model: Model, log: ScanLog, out, *, match_radius: float = 0
     of recall. Each appearance's heading ``appear_s`` seconds after it is scored on its own
     (``appear_heading_*``: is the robot just put down reported, and with the right heading?)."""
     T = log.n_scans
-    truth = log.truth_poses
     classes = [model.classes.index(str(c)) for c in log.truth_classes]
-    bounds = model.site.bounds if bool(model.site.has_bounds) else None
-    present = ~np.isnan(truth[..., 0])
-    if bounds is not None:
-        b = np.asarray(bounds)
-        x, y = np.nan_to_num(truth[..., 0]), np.nan_to_num(truth[..., 1])
-        present &= (x >= b[0]) & (y >= b[1]) & (x <= b[2]) & (y <= b[3])
-    since = np.zeros_like(present, dtype=float)
-    for t in range(1, T):
-        since[t] = np.where(present[t] & present[t - 1], since[t - 1] + (log.stamps[t] - log.stamps[t - 1]), 0.0)
-    e_pos, e_th, obj_of_err, scan_of_err = [], [], [], []
-    # Each appearance's heading error ``appear_s`` after it (NaN: no track reported for it yet).
-    crossed = (since >= appear_s) & np.vstack([np.zeros((1, present.shape[1]), bool), since[:-1] < appear_s])
-    e_appear = []
-    matched = np.zeros_like(present)
-    false_tracks = 0
-    ids = {}
-    id_switches = 0
-    for t in range(T):
-        tr_ok = np.asarray(out.track_mask[t])
-        tr_xy = np.asarray(out.track_pose[t, :, :2], np.float64)
-        m = np.full(truth.shape[1], -1)
-        for c in set(classes):
-            sel = np.array([k == c for k in classes])
-            ok_c = tr_ok & (np.asarray(out.track_class[t]) == c)
-            mm = match_scan(np.nan_to_num(truth[t, :, :2]), present[t] & sel, tr_xy, ok_c, match_radius)
-            m = np.where(sel, mm, m)
-        false_tracks += int(tr_ok.sum() - (m >= 0).sum())
-        for i in np.flatnonzero(~present[t]):
-            ids.pop(i, None)  # gone (picked up, left the field): a new track when it is back is no switch
-        for i in np.flatnonzero(crossed[t]):
-            e_appear.append(abs(wrap(float(out.track_pose[t, m[i], 2]) - truth[t, i, 2])) if m[i] >= 0 else np.nan)
-        for i in np.flatnonzero(m >= 0):
-            matched[t, i] = True
-            tid = int(out.track_id[t, m[i]])
-            if i in ids and ids[i] != tid:
-                id_switches += 1
-            ids[i] = tid
-            if since[t, i] >= settle_s:
-                p = np.asarray(out.track_pose[t, m[i]], np.float64)
-                e_pos.append(np.linalg.norm(p[:2] - truth[t, i, :2]))
-                e_th.append(wrap(p[2] - truth[t, i, 2]))
-                obj_of_err.append(i)
-                scan_of_err.append(t)
-    e_pos, e_th = np.asarray(e_pos), np.asarray(e_th)
+    present, since = _presence(model, log)
+    tally = _score_tracks(log, out, classes, present, since, match_radius, settle_s, appear_s)
+    e_pos, e_th = np.asarray(tally.e_pos), np.asarray(tally.e_th)
     settled = present & (since >= settle_s)
     d_pos, d_th, d_found = _detection_errors(log, out, classes, present, match_radius)
     res = {
         "scans": T,
         "objects_present": int(present.sum()),
-        "recall": float((matched & settled).sum() / max(settled.sum(), 1)),
-        "recall_incl_initiation": float(matched.sum() / max(present.sum(), 1)),
-        "false_tracks_per_scan": false_tracks / T,
-        "id_switches": id_switches,
+        "recall": float((tally.matched & settled).sum() / max(settled.sum(), 1)),
+        "recall_incl_initiation": float(tally.matched.sum() / max(present.sum(), 1)),
+        "false_tracks_per_scan": tally.false_tracks / T,
+        "id_switches": tally.id_switches,
         "n_errors": int(e_pos.size),
         "position_rmse_m": float(np.sqrt(np.mean(e_pos**2))) if e_pos.size else float("nan"),
         "position_median_m": float(np.median(e_pos)) if e_pos.size else float("nan"),
@@ -118,32 +78,127 @@ def evaluate_outputs(model: Model, log: ScanLog, out, *, match_radius: float = 0
         "det_heading_median_deg": float(np.degrees(np.median(np.abs(d_th)))) if d_th.size else float("nan"),
         "det_misread_fraction": float(np.mean(np.abs(d_th) > np.radians(30))) if d_th.size else float("nan"),
     }
-    e_appear = np.asarray(e_appear, float)
-    if e_appear.size:
-        # Of the objects that appeared (put down, walked in), the share reported with a heading within
-        # 5° of the truth ``appear_s`` after they appeared, and the worst such heading.
-        res["appear_heading_ok_fraction"] = float(np.mean(np.nan_to_num(e_appear, nan=np.inf) <= np.radians(5)))
-        res["appear_heading_max_deg"] = float(np.degrees(np.nanmax(e_appear))) if np.isfinite(e_appear).any() else float("nan")
-        res["appear_unreported"] = int(np.sum(np.isnan(e_appear)))
+    res.update(_appearance_figures(np.asarray(tally.e_appear, float)))
     sensor_truth = log.extra.get("truth_sensor_pose")
     if sensor_truth is not None:
-        org, th = out.sensor_pose[:, :2], out.sensor_pose[:, 2]
-        e_s = np.linalg.norm(org - sensor_truth[:, :2], axis=1)
-        e_sth = np.abs(wrap(th - sensor_truth[:, 2]))
-        res["sensor_position_error_m_median"] = float(np.median(e_s))
-        res["sensor_heading_error_deg_median"] = float(np.degrees(np.median(e_sth)))
-        jumps = np.flatnonzero(np.any(np.abs(np.diff(sensor_truth, axis=0)) > 1e-9, axis=1))
-        if jumps.size:
-            j = jumps[0] + 1
-            tol_xy, tol_th = 0.01 + 2 * np.median(e_s[:j]), np.radians(0.3) + 2 * np.median(e_sth[:j])
-            ok = (e_s[j:] < tol_xy) & (e_sth[j:] < tol_th)
-            first = int(np.argmax(ok)) if ok.any() else None
-            res["bump_recovered_after_s"] = None if first is None else float(log.stamps[j + first] - log.stamps[j])
+        res.update(_sensor_figures(log, out, sensor_truth))
     from .diagnose import tally_outputs
 
     if hasattr(out, "track_hold") and hasattr(model, "tracker"):  # the step's outputs (not a test's stand-in)
         res["diagnosis"] = tally_outputs(model, out)
-    res["_errors"] = (np.asarray(scan_of_err), np.asarray(obj_of_err), e_pos, e_th)
+    res["_errors"] = (np.asarray(tally.scan_of_err), np.asarray(tally.obj_of_err), e_pos, e_th)
+    return res
+
+
+def _presence(model: Model, log: ScanLog) -> tuple[np.ndarray, np.ndarray]:
+    """Per scan and object: present (labelled, inside the site's bounds) and the seconds since it
+    appeared; a step of its own since both matching and the settled statistics are counted on them."""
+    T = log.n_scans
+    truth = log.truth_poses
+    bounds = model.site.bounds if bool(model.site.has_bounds) else None
+    present = ~np.isnan(truth[..., 0])
+    if bounds is not None:
+        b = np.asarray(bounds)
+        x, y = np.nan_to_num(truth[..., 0]), np.nan_to_num(truth[..., 1])
+        present &= (x >= b[0]) & (y >= b[1]) & (x <= b[2]) & (y <= b[3])
+    since = np.zeros_like(present, dtype=float)
+    for t in range(1, T):
+        since[t] = np.where(present[t] & present[t - 1], since[t - 1] + (log.stamps[t] - log.stamps[t - 1]), 0.0)
+    return present, since
+
+
+@dataclasses.dataclass
+class _TrackTally:
+    """What the scan-by-scan pass over the confirmed tracks counts: matches, false tracks, id switches,
+    the appearances' heading errors and the settled errors (with the scan and object of each)."""
+
+    matched: np.ndarray
+    false_tracks: int = 0
+    id_switches: int = 0
+    e_appear: list = dataclasses.field(default_factory=list)
+    e_pos: list = dataclasses.field(default_factory=list)
+    e_th: list = dataclasses.field(default_factory=list)
+    obj_of_err: list = dataclasses.field(default_factory=list)
+    scan_of_err: list = dataclasses.field(default_factory=list)
+
+
+def _match_classes(out, t: int, truth_t: np.ndarray, present_t: np.ndarray, classes, radius) -> np.ndarray:
+    """Scan ``t``'s objects matched to its confirmed tracks, each class on its own (a track is never
+    matched to an object of another class): per object, the track index or -1."""
+    tr_ok = np.asarray(out.track_mask[t])
+    tr_xy = np.asarray(out.track_pose[t, :, :2], np.float64)
+    m = np.full(truth_t.shape[0], -1)
+    for c in set(classes):
+        sel = np.array([k == c for k in classes])
+        ok_c = tr_ok & (np.asarray(out.track_class[t]) == c)
+        mm = match_scan(np.nan_to_num(truth_t[:, :2]), present_t & sel, tr_xy, ok_c, radius)
+        m = np.where(sel, mm, m)
+    return m
+
+
+def _score_tracks(log: ScanLog, out, classes, present, since, radius, settle_s, appear_s) -> _TrackTally:
+    """Scan by scan, the confirmed tracks against the labelled objects: a pass of its own since the
+    id switches and the appearances' headings depend on the scans before."""
+    truth = log.truth_poses
+    # Each appearance's heading error ``appear_s`` after it (NaN: no track reported for it yet).
+    crossed = (since >= appear_s) & np.vstack([np.zeros((1, present.shape[1]), bool), since[:-1] < appear_s])
+    tally = _TrackTally(matched=np.zeros_like(present))
+    ids = {}
+    for t in range(log.n_scans):
+        tr_ok = np.asarray(out.track_mask[t])
+        m = _match_classes(out, t, truth[t], present[t], classes, radius)
+        tally.false_tracks += int(tr_ok.sum() - (m >= 0).sum())
+        for i in np.flatnonzero(~present[t]):
+            ids.pop(i, None)  # gone (picked up, left the field): a new track when it is back is no switch
+        for i in np.flatnonzero(crossed[t]):
+            tally.e_appear.append(abs(wrap(float(out.track_pose[t, m[i], 2]) - truth[t, i, 2])) if m[i] >= 0
+                                  else np.nan)
+        for i in np.flatnonzero(m >= 0):
+            tally.matched[t, i] = True
+            tid = int(out.track_id[t, m[i]])
+            if i in ids and ids[i] != tid:
+                tally.id_switches += 1
+            ids[i] = tid
+            if since[t, i] >= settle_s:
+                p = np.asarray(out.track_pose[t, m[i]], np.float64)
+                tally.e_pos.append(np.linalg.norm(p[:2] - truth[t, i, :2]))
+                tally.e_th.append(wrap(p[2] - truth[t, i, 2]))
+                tally.obj_of_err.append(i)
+                tally.scan_of_err.append(t)
+    return tally
+
+
+def _appearance_figures(e_appear: np.ndarray) -> dict:
+    """The ``appear_*`` figures (none if no object appeared): how soon a robot just put down is
+    reported with the right heading, a question apart from the settled errors."""
+    if not e_appear.size:
+        return {}
+    # Of the objects that appeared (put down, walked in), the share reported with a heading within
+    # 5° of the truth ``appear_s`` after they appeared, and the worst such heading.
+    return {
+        "appear_heading_ok_fraction": float(np.mean(np.nan_to_num(e_appear, nan=np.inf) <= np.radians(5))),
+        "appear_heading_max_deg": float(np.degrees(np.nanmax(e_appear))) if np.isfinite(e_appear).any()
+        else float("nan"),
+        "appear_unreported": int(np.sum(np.isnan(e_appear))),
+    }
+
+
+def _sensor_figures(log: ScanLog, out, sensor_truth: np.ndarray) -> dict:
+    """The sensor's own pose against the log's truth for it (a simulated bump), and how long after
+    the bump it was recovered: figures only a log with ``truth_sensor_pose`` has."""
+    res = {}
+    org, th = out.sensor_pose[:, :2], out.sensor_pose[:, 2]
+    e_s = np.linalg.norm(org - sensor_truth[:, :2], axis=1)
+    e_sth = np.abs(wrap(th - sensor_truth[:, 2]))
+    res["sensor_position_error_m_median"] = float(np.median(e_s))
+    res["sensor_heading_error_deg_median"] = float(np.degrees(np.median(e_sth)))
+    jumps = np.flatnonzero(np.any(np.abs(np.diff(sensor_truth, axis=0)) > 1e-9, axis=1))
+    if jumps.size:
+        j = jumps[0] + 1
+        tol_xy, tol_th = 0.01 + 2 * np.median(e_s[:j]), np.radians(0.3) + 2 * np.median(e_sth[:j])
+        ok = (e_s[j:] < tol_xy) & (e_sth[j:] < tol_th)
+        first = int(np.argmax(ok)) if ok.any() else None
+        res["bump_recovered_after_s"] = None if first is None else float(log.stamps[j + first] - log.stamps[j])
     return res
 
 
