@@ -11,7 +11,9 @@ import math
 import os
 import warnings
 import zipfile
+from collections.abc import Callable
 from pathlib import Path
+from typing import NoReturn
 
 import numpy as np
 
@@ -167,6 +169,9 @@ def load_log(path: str | os.PathLike) -> ScanLog:
 
 
 def _validate(d: dict[str, np.ndarray], where: object) -> None:
+    """Every rule of the format, raising :class:`InputError` naming ``where`` on the first broken one, in
+    a fixed order (a file that breaks several always gets the same line): ``ranges`` before the keys
+    whose shapes are checked against it."""
     def bad(problem: str):
         raise InputError(where, problem)
 
@@ -175,7 +180,21 @@ def _validate(d: dict[str, np.ndarray], where: object) -> None:
     missing = [k for k in REQUIRED if k not in d]
     if missing:
         bad(f"missing required key(s) {', '.join(repr(k) for k in missing)}")
+    ranges = _check_ranges(d, bad)
+    t = ranges.shape[0]
+    _check_stamps(d, t, bad)
+    _check_geometry(d, bad)
+    if "intensities" in d:
+        _check_intensities(d, ranges, bad)
+    if "sensor_model" in d:
+        sm = np.asarray(d["sensor_model"])
+        if sm.shape != () or sm.dtype.kind != "U":
+            bad(f"'sensor_model' must be a string scalar, got {sm.dtype} of shape {list(sm.shape)}")
+    _check_truth(d, t, bad)
 
+
+def _check_ranges(d: dict[str, np.ndarray], bad: Callable[[str], NoReturn]) -> np.ndarray:
+    """``ranges``: float, ``[T, N]``, not empty; returned, since every other key's shape follows from it."""
     ranges = np.asarray(d["ranges"])
     if ranges.dtype.kind != "f":
         bad(f"'ranges' must be float32, got {ranges.dtype}")
@@ -184,7 +203,12 @@ def _validate(d: dict[str, np.ndarray], where: object) -> None:
     t, n = ranges.shape
     if t == 0 or n == 0:
         bad(f"'ranges' is empty (shape {list(ranges.shape)})")
+    return ranges
 
+
+def _check_stamps(d: dict[str, np.ndarray], t: int, bad: Callable[[str], NoReturn]) -> None:
+    """``stamps``: float, one per scan, finite and never decreasing; a rule of its own since stamps
+    rounded to float32 get their own message (the rounding, not the recorder, lost the time)."""
     stamps = np.asarray(d["stamps"])
     if stamps.dtype.kind != "f":
         bad(f"'stamps' must be float64, got {stamps.dtype}")
@@ -202,6 +226,10 @@ def _validate(d: dict[str, np.ndarray], where: object) -> None:
         i = int(np.flatnonzero(np.diff(stamps) < 0)[0]) + 1
         bad(f"'stamps' decrease at scan {i} ({stamps[i - 1]!r} -> {stamps[i]!r})")
 
+
+def _check_geometry(d: dict[str, np.ndarray], bad: Callable[[str], NoReturn]) -> None:
+    """The scanner's scalars: finite numbers, a positive angular step and a non-empty range window
+    (the defaults standing in for a missing one), the geometry every scan shares."""
     for key in ("angle_min", "angle_increment", "range_min", "range_max"):
         if key not in d:
             continue
@@ -217,40 +245,42 @@ def _validate(d: dict[str, np.ndarray], where: object) -> None:
     if not 0 <= rmin < rmax:
         bad(f"range window [{rmin}, {rmax}] is empty or negative")
 
-    if "intensities" in d:
-        inten = np.asarray(d["intensities"])
-        if inten.dtype.kind != "f":
-            bad(f"'intensities' must be float32, got {inten.dtype}")
-        if inten.shape != ranges.shape:
-            bad(f"'intensities' must have the shape of 'ranges' {list(ranges.shape)}, got {list(inten.shape)}")
-        if not np.all(np.isfinite(inten)) or np.any(inten < 0):
-            bad("'intensities' must be finite and >= 0")
 
-    if "sensor_model" in d:
-        sm = np.asarray(d["sensor_model"])
-        if sm.shape != () or sm.dtype.kind != "U":
-            bad(f"'sensor_model' must be a string scalar, got {sm.dtype} of shape {list(sm.shape)}")
+def _check_intensities(d: dict[str, np.ndarray], ranges: np.ndarray, bad: Callable[[str], NoReturn]) -> None:
+    """``intensities`` (optional): float, one per range, finite and not negative."""
+    inten = np.asarray(d["intensities"])
+    if inten.dtype.kind != "f":
+        bad(f"'intensities' must be float32, got {inten.dtype}")
+    if inten.shape != ranges.shape:
+        bad(f"'intensities' must have the shape of 'ranges' {list(ranges.shape)}, got {list(inten.shape)}")
+    if not np.all(np.isfinite(inten)) or np.any(inten < 0):
+        bad("'intensities' must be finite and >= 0")
 
+
+def _check_truth(d: dict[str, np.ndarray], t: int, bad: Callable[[str], NoReturn]) -> None:
+    """The labels (optional, together or not at all): classes a 1-D string array, poses ``[T, M, 3]``
+    float with an object's row either whole or all NaN (absent)."""
     has_cls, has_poses = "truth_classes" in d, "truth_poses" in d
     if has_cls != has_poses:
         bad("'truth_classes' and 'truth_poses' must come together")
-    if has_poses:
-        cls = np.asarray(d["truth_classes"])
-        if cls.ndim != 1 or cls.dtype.kind != "U":
-            bad(f"'truth_classes' must be a 1-D string array, got {cls.dtype} of shape {list(cls.shape)}")
-        m = cls.shape[0]
-        poses = np.asarray(d["truth_poses"])
-        if poses.dtype.kind != "f":
-            bad(f"'truth_poses' must be float64, got {poses.dtype}")
-        if poses.shape != (t, m, 3):
-            bad(f"'truth_poses' must have shape [{t}, {m}, 3], got {list(poses.shape)}")
-        nan = np.isnan(poses)
-        partial = nan.any(-1) & ~nan.all(-1)
-        if partial.any():
-            i, j = (int(v) for v in np.argwhere(partial)[0])
-            bad(f"'truth_poses' row for object {j} at scan {i} is partly NaN (absent objects need an all-NaN row)")
-        if np.isinf(poses).any():
-            bad("'truth_poses' has an infinite value")
+    if not has_poses:
+        return
+    cls = np.asarray(d["truth_classes"])
+    if cls.ndim != 1 or cls.dtype.kind != "U":
+        bad(f"'truth_classes' must be a 1-D string array, got {cls.dtype} of shape {list(cls.shape)}")
+    m = cls.shape[0]
+    poses = np.asarray(d["truth_poses"])
+    if poses.dtype.kind != "f":
+        bad(f"'truth_poses' must be float64, got {poses.dtype}")
+    if poses.shape != (t, m, 3):
+        bad(f"'truth_poses' must have shape [{t}, {m}, 3], got {list(poses.shape)}")
+    nan = np.isnan(poses)
+    partial = nan.any(-1) & ~nan.all(-1)
+    if partial.any():
+        i, j = (int(v) for v in np.argwhere(partial)[0])
+        bad(f"'truth_poses' row for object {j} at scan {i} is partly NaN (absent objects need an all-NaN row)")
+    if np.isinf(poses).any():
+        bad("'truth_poses' has an infinite value")
 
 
 # ------------------------------------------------------------------ a log against a model's scanner geometry
