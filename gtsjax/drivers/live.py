@@ -3,7 +3,9 @@ GTD CSV (flushed per scan), optionally JSON lines on stdout or UDP, a raw record
 
 The loop owns nothing numeric: it hands each :class:`~gtsjax.io.serial.LinkFrame`'s ranges to the
 step, writes rows, and measures latency from the moment the frame's last byte was read
-(``LinkFrame.recv_perf``) to the moment its rows are flushed.
+(``LinkFrame.recv_perf``) to the moment its rows are flushed. Its skeleton is shared with the
+several-laser loop's (:mod:`gtsjax.drivers.live_loop`); what is one laser's here is how its frames
+are waited for (:class:`OneLink`).
 
 What crosses between host and device per scan is kept small, since at 40 Hz the host's share of the
 latency matters as much as the step's (:class:`LiveStep`): the frame goes in as one buffer, copied
@@ -31,7 +33,7 @@ from ..core.pipeline import Output, PipelineState, init_state, step
 from ..core.scan import Scan, valid_beams
 from ..errors import InputError
 from ..io import scip
-from ..io.gtd import GTDWriter, format_rows, json_line, rows_from_table
+from ..io.gtd import format_rows, json_line, rows_from_table
 from ..io.logs import frame_dt
 from ..sensors import SensorModel
 from .packing import Packing
@@ -326,6 +328,49 @@ def warm_up(model: Model, sensor: SensorModel):
     return live_step, state
 
 
+class OneLink:
+    """One laser's frames for the live loop (:func:`~gtsjax.drivers.live_loop.run_loop`), read as its
+    link delivers them: with ``keep_warm`` (``warm``, a :class:`~gtsjax.drivers.live_loop.KeepWarm`)
+    the frame is waited for until shortly before it is due, a warm-up run if it has not come, then
+    waited for again; a link that has been reconnecting over ``reconnect_timeout`` seconds ends the
+    run (``gone``)."""
+
+    needs_output = False
+
+    def __init__(self, link, live_step: LiveStep, stats: LiveStats, warm, reconnect_timeout: float | None):
+        self.link, self.step, self.stats, self.warm = link, live_step, stats, warm
+        self.reconnect_timeout = reconnect_timeout
+        self.prev_stamp = None
+        self.gone = None
+
+    def next(self, state):
+        link, warm, lf = self.link, self.warm, None
+        if warm is not None and warm.due[0] is not None:  # the next frame is due then: wait until shortly before
+            ahead = warm.due[0] - warm.lead - time.perf_counter()
+            warm.due[0] = None  # one warm-up per frame: a sensor that stalls is waited for idle
+            if ahead > 0:
+                lf = link.get(timeout=ahead)
+                if lf is None:
+                    warm.warm(0, self.step, state)
+        if lf is None:
+            lf = link.get(timeout=0.2)
+        if lf is None:
+            lost = link.lost_for() if hasattr(link, "lost_for") else 0.0
+            if self.reconnect_timeout is not None and lost > self.reconnect_timeout:
+                self.gone = InputError(str(getattr(link, "port", "sensor")),
+                                       f"the sensor has been gone for {lost:.0f} s and did not come back "
+                                       f"({getattr(link, 'last_error', None) or 'no frames'}; "
+                                       "--reconnect-timeout waits longer)")
+            return None
+        dt = frame_dt(lf.stamp, self.prev_stamp)
+        self.prev_stamp = lf.stamp
+        return lf, 0, self.step, (dt,)
+
+    def count(self, k, lf, o, table, lat: float, degraded: bool) -> None:
+        self.stats.unlike += int(table[-1][2])
+        self.stats.off_envelope += int(table[-1][3])
+
+
 def run_live(link, model: Model, out: Path, *, record: Path | None = None, outputs: Outputs | None = None,
              duration: float | None = None, stop: threading.Event | None = None, on_scan=None,
              with_intensity: bool = False, compiled=None, max_frames: int | None = None,
@@ -350,111 +395,30 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
     (:func:`warm_host`: a data block decoded, the frame buffer, the rows and their CSV text), so that
     the frame finds the step's code and constants, and NumPy's, in the caches and the core awake:
     it leaves the median latency as it is and lowers the p99 (``scripts/ab_keep_warm.py``, figures
-    in ``docs/speed.md``). The cost is one more step per frame, a few per cent of a core."""
-    from ..io.bag_out import LASER, BagOut, LaserGeometry
-    from ..io.record import Recorder
+    in ``docs/speed.md``). The cost is one more step per frame, a few per cent of a core.
+
+    The loop is :func:`~gtsjax.drivers.live_loop.run_loop`'s, with this link's frames (:class:`OneLink`)."""
+    from ..io.bag_out import LASER
+    from .live_loop import LiveSession, run_loop
 
     sensor = link.model
     if not sensor_checked:
         check_sensor(model, sensor, str(getattr(link, "port", "sensor")), intensity=with_intensity)
     live_step, state = compiled if compiled is not None else warm_up(model, sensor)
-    from .diagnose import Tally
-
-    stats = LiveStats(tally=Tally(model))
-    while link.get(timeout=0) is not None:  # frames that queued up while compiling are stale
-        stats.stale += 1
-    outputs = outputs or Outputs()
-    recorder = Recorder(record, model=sensor, intensities=with_intensity and sensor.has_intensity) if record else None
-    bag = BagOut(out_bag, {LASER: LaserGeometry.of_sensor(sensor)}) if out_bag is not None else None
-    t_end = None if duration is None else time.monotonic() + duration
-    prev_stamp = None
-    period_ms = sensor.period * 1000.0
-    due, warm_lead, step_ms, last = None, 0.0, deque(maxlen=50), None
-    sample = decoder_sample(link) if keep_warm else None
-    failed = gone = None
-    try:
-        with GTDWriter(out, units=outputs.csv_units) as writer:
-            while (not (stop is not None and stop.is_set()) and (t_end is None or time.monotonic() < t_end)
-                   and (max_frames is None or stats.frames < max_frames)):
-                lf = None
-                if due is not None:  # the next frame is due then: wait for it until shortly before
-                    ahead = due - warm_lead - time.perf_counter()
-                    due = None  # one warm-up per frame: a sensor that stalls is waited for idle
-                    if ahead > 0:
-                        lf = link.get(timeout=ahead)
-                        if lf is None:
-                            live_step.warm(state)
-                            warm_host(live_step, last, model.classes, sample)
-                            stats.warm_ups += 1
-                if lf is None:
-                    lf = link.get(timeout=0.2)
-                if lf is None:
-                    lost = link.lost_for() if hasattr(link, "lost_for") else 0.0
-                    if reconnect_timeout is not None and lost > reconnect_timeout:
-                        gone = InputError(str(getattr(link, "port", "sensor")),
-                                            f"the sensor has been gone for {lost:.0f} s and did not come back "
-                                            f"({getattr(link, 'last_error', None) or 'no frames'}; "
-                                            "--reconnect-timeout waits longer)")
-                        break
-                    continue
-                dt = frame_dt(lf.stamp, prev_stamp)
-                prev_stamp = lf.stamp
-                t_step = time.perf_counter()
-                state, o, packed = live_step(state, lf.ranges_m, lf.intensities, dt)
-                table = np.asarray(packed).tolist()  # the rest of the frame's path is plain Python
-                last = (lf, table)
-                rows = rows_from_packed(lf.stamp, table, model.classes)
-                writer.write(rows)
-                degraded = table[-1][0] > 0.5
-                outputs.send(rows, lf.stamp, degraded=degraded)
-                t_done = time.perf_counter()
-                lat = (t_done - lf.recv_perf) * 1000.0
-                if keep_warm:
-                    step_ms.append(t_done - t_step)
-                    warm_lead = warm_up_lead(step_ms, sensor.period)
-                    due = lf.recv_perf + sensor.period
-                # Bookkeeping after the latency is taken: the recording and the view are not on the path.
-                if recorder is not None:
-                    recorder.append_frame(lf)
-                if bag is not None or view is not None or on_scan is not None:
-                    o = live_step.output(o)
-                if bag is not None:
-                    bag.write(lf.stamp, lf.ranges_m, lf.intensities, rows, np.asarray(o.sensor_pose, np.float64))
-                if view is not None:
-                    view.scan(lf.stamp, lf.ranges_m, sensor.angle_min, sensor.angle_increment, o, rows,
-                              latency_ms=lat, dropped=getattr(getattr(link, "stats", None), "dropped", None))
-                stats.count(rows, lat, degraded, period_ms)
-                stats.unlike += int(table[-1][2])
-                stats.off_envelope += int(table[-1][3])
-                stats.tally.add_packed(table)
-                if on_scan is not None:
-                    on_scan(stats, o, lf.stamp)
-    except KeyboardInterrupt:
-        pass
-    except InputError as err:  # a write failed (a full disk): stop; what is written stays
-        failed = err
-    finally:
-        outputs.close()
-        # The sensor is stopped (QT) as soon as the loop ends, before the recording is finalised (an
-        # hour's journal takes a while to become a log): it streams no longer than it is read, and the
-        # link's counters end with the loop.
-        if hasattr(link, "stop"):
-            link.stop()
-        if bag is not None:
-            bag.close()
-        if view is not None:
-            view.close()
-        if recorder is not None:
-            # After a failed write the scan log would not fit either: the journal keeps the scans.
-            recorder.close(write_log=failed is None)
+    session = LiveSession({LASER: link}, model, out, named=False, record={LASER: record} if record else None,
+                          outputs=outputs, with_intensity=with_intensity, out_bag=out_bag, view=view, on_scan=on_scan,
+                          keep_warm=keep_warm, duration=duration, stop=stop, max_frames=max_frames)
+    stats, recorder = session.stats, session.recorders[0]
+    frames = OneLink(link, live_step, stats, session.warm, reconnect_timeout)
+    failed = run_loop(session, frames, state)
     if failed is not None:
         kept = (f"; the raw scans are in {recorder.journal} (gtsjax recover it when there is room)"
                 if recorder is not None and failed.where != str(recorder.journal) else "")
         raise InputError(failed.where, f"{failed.problem}; stopped after {stats.frames} frames{kept}")
-    if gone is not None:
+    if frames.gone is not None:
         kept = f" and the raw scans in {record}" if recorder is not None else ""
-        raise InputError(gone.where, f"{gone.problem}; stopped after {stats.frames} frames, their rows kept in "
-                                     f"{out}{kept}")
+        raise InputError(frames.gone.where, f"{frames.gone.problem}; stopped after {stats.frames} frames, their rows "
+                                            f"kept in {out}{kept}")
     return stats
 
 

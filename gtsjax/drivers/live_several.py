@@ -23,9 +23,9 @@ import numpy as np
 from ..core.model import Model
 from ..core.multi import init_several, miss_period, step_several
 from ..errors import InputError
-from ..io.gtd import GTDWriter
 from ..sensors import SensorModel
-from .live import LiveStats, LiveStep, Outputs, check_sensor, decoder_sample, rows_from_packed, warm_host, warm_up_lead
+from .live import LiveStep, Outputs, check_sensor
+from .live_loop import LiveSession, run_loop
 from .several import Disagreement
 
 
@@ -103,6 +103,109 @@ def warm_up_several(model: "Model | tuple[Model, ...]", sensor: "SensorModel | t
     return tuple(steps), steps[0].initial_state()
 
 
+class MergedFrames:
+    """Several lasers' frames for the live loop (:func:`~gtsjax.drivers.live_loop.run_loop`), merged by
+    stamp as the module says, each with its laser's step and index and the time since its laser's
+    last frame; ``keep_warm``'s warm-up (``warm``) runs while no frame waits. Each frame counts in its
+    laser's :class:`LaserStats` and is checked against the other lasers' calibration (its output read:
+    ``needs_output``). A laser gone over ``reconnect_timeout`` is said once through ``warn``; every
+    laser gone ends the run (``gone``)."""
+
+    needs_output = True
+
+    def __init__(self, links: dict, steps: list, period_ms: list, warm, *, hold: float,
+                 reconnect_timeout: float | None, warn):
+        self.names, self.links, self.steps = list(links), list(links.values()), steps
+        self.period_ms, self.warm, self.hold = period_ms, warm, hold
+        self.reconnect_timeout, self.warn = reconnect_timeout, warn
+        self.per = [LaserStats() for _ in self.names]
+        self.heads = [collections.deque() for _ in self.names]
+        self.last_stamp, self.last_own = None, [None] * len(self.names)
+        self.out_of_order = 0
+        self.check = Disagreement()
+        self.lost_checked, self.said_gone = time.monotonic(), set()
+        self.gone = None
+
+    def next(self, state):
+        if self.reconnect_timeout is not None and time.monotonic() - self.lost_checked > 0.25 and self.all_gone():
+            return None
+        heads, last_own, got = self.heads, self.last_own, False
+        for link, queue in zip(self.links, heads, strict=True):
+            while (lf := link.get(timeout=0)) is not None:
+                queue.append(lf)
+                got = True
+        ready = [k for k, queue in enumerate(heads) if queue]
+        if not ready:
+            if not got:
+                self.idle(state)
+            return None
+        k = min(ready, key=lambda x: heads[x][0].stamp)
+        lf = heads[k][0]
+        # A laser with no frame waiting cannot send one stamped before its last plus most of a
+        # period: the head goes now if it is earlier than that for every such laser, else it
+        # waits for them, at most ``hold`` (a stalled or unplugged laser holds the rest no longer).
+        waiting = [m for m, queue in enumerate(heads) if not queue]
+        if waiting and time.time() - lf.stamp < self.hold and not all(
+                last_own[m] is not None and lf.stamp <= last_own[m] + 0.9 * self.period_ms[m] / 1000.0
+                for m in waiting):
+            time.sleep(0.0005)
+            return None
+        heads[k].popleft()
+        dt = 0.0 if self.last_stamp is None else lf.stamp - self.last_stamp
+        if dt < 0:
+            self.out_of_order += 1
+            dt = 0.0
+        self.last_stamp = lf.stamp if self.last_stamp is None else max(self.last_stamp, lf.stamp)
+        span = 0.0 if last_own[k] is None else max(lf.stamp - last_own[k], 0.0)
+        last_own[k] = lf.stamp
+        return lf, k, self.steps[k], (dt, k, span)
+
+    def idle(self, state) -> None:
+        """No frame waits: a laser's warm-up if its next frame is due soon, else a millisecond's sleep."""
+        warm = self.warm
+        if warm is not None:
+            now = time.perf_counter()
+            soon = [m for m, due in enumerate(warm.due) if due is not None and due - warm.lead <= now < due]
+            if soon:
+                warm.warm(soon[0], self.steps[soon[0]], state)
+                return
+        time.sleep(0.001)
+
+    def all_gone(self) -> bool:
+        """Each laser gone over the reconnect timeout said once (again once it has come back); True, and
+        ``gone`` set, when every laser is."""
+        self.lost_checked = time.monotonic()
+        names, links, said_gone = self.names, self.links, self.said_gone
+        lost = [link.lost_for() if hasattr(link, "lost_for") else 0.0 for link in links]
+        said_gone &= {k for k in range(len(names)) if lost[k] > 0}  # back: it may be said again
+        for k, n in enumerate(names):
+            if lost[k] > self.reconnect_timeout and k not in said_gone:
+                said_gone.add(k)
+                self.per[k].gone_warnings += 1
+                if self.warn is not None and len(said_gone) < len(names):
+                    self.warn(f"laser {n} ({getattr(links[k], 'port', 'sensor')}): gone for {lost[k]:.0f} s "
+                              f"({getattr(links[k], 'last_error', None) or 'no frames'}); the other lasers "
+                              "go on, and it rejoins if it comes back")
+        if len(said_gone) < len(names):
+            return False
+        self.gone = InputError(", ".join(str(getattr(links[k], "port", n)) for k, n in enumerate(names)),
+                               f"every laser has been gone for over {self.reconnect_timeout:g} s and none came "
+                               "back (--reconnect-timeout waits longer)")
+        return True
+
+    def count(self, k, lf, o, table, lat: float, degraded: bool) -> None:
+        p = self.per[k]
+        p.frames += 1
+        p.degraded += int(degraded)
+        p.late += int(lat > self.period_ms[k])
+        p.latencies_ms.append(lat)
+        d = self.check.update(k, o.landmark_residual, o.landmark_seen)
+        if p.watch(lf.stamp, d) and self.warn is not None:
+            self.warn(f"laser {self.names[k]}: its map transformation and another laser's put landmarks both see "
+                      f"{d * 100:.0f} cm apart for {CALIBRATION_WARN_S:g} s: a tripod moved? (check the "
+                      "site's sensor poses, or restart once it stands still)")
+
+
 def run_live_several(links: "dict[str, object]", model: "Model | tuple[Model, ...]", poses: np.ndarray, out: Path, *,
                      record: "dict[str, Path] | None" = None, outputs: Outputs | None = None,
                      duration: float | None = None, stop=None, on_scan=None, with_intensity: bool = False,
@@ -125,10 +228,10 @@ def run_live_several(links: "dict[str, object]", model: "Model | tuple[Model, ..
     line (:class:`InputError`) after what was written is closed, as :func:`~gtsjax.drivers.live.run_live`'s.
     ``out_bag``: also a ROS 2 bag, each laser's frames on its own topic and frame
     (:mod:`gtsjax.io.bag_out`); ``view``: a :class:`~gtsjax.viewer.View` shown each frame, each
-    laser's under its name (closed at the end); both written after the frame's latency is taken."""
-    from ..io.bag_out import BagOut, LaserGeometry
-    from ..io.record import Recorder
+    laser's under its name (closed at the end); both written after the frame's latency is taken.
 
+    The loop is :func:`~gtsjax.drivers.live_loop.run_loop`'s, with the lasers' merged frames
+    (:class:`MergedFrames`)."""
     names = list(links)
     sensors = [links[n].model for n in names]
     models = model if isinstance(model, tuple) else (model,)
@@ -138,150 +241,17 @@ def run_live_several(links: "dict[str, object]", model: "Model | tuple[Model, ..
     first_of = [kinds.index(i) for i in range(len(models))]  # a laser of each model: its frames' geometry
     steps, state = compiled if compiled is not None else warm_up_several(
         models, tuple(sensors[k] for k in first_of), poses, kinds)
-    model = models[0]
-    from .diagnose import Tally
-
-    stats, per = LiveStats(tally=Tally(model)), {n: LaserStats() for n in names}
-    for n in names:  # frames that queued up while compiling are stale
-        while links[n].get(timeout=0) is not None:
-            stats.stale += 1
+    session = LiveSession(links, models[0], out, named=True, record=record, outputs=outputs,
+                          with_intensity=with_intensity, out_bag=out_bag, view=view, on_scan=on_scan,
+                          keep_warm=keep_warm, duration=duration, stop=stop, max_frames=max_frames)
     hold = hold_s if hold_s is not None else 1.5 * max(s.period for s in sensors)
-    period_ms = {n: s.period * 1000.0 for n, s in zip(names, sensors, strict=True)}
-    outputs = outputs or Outputs()
-    bag = BagOut(out_bag, {n: LaserGeometry.of_sensor(s) for n, s in zip(names, sensors, strict=True)}
-                 ) if out_bag is not None else None
-    recorders = ({n: Recorder(p, model=links[n].model, intensities=with_intensity and links[n].model.has_intensity)
-                  for n, p in record.items()} if record else {})
-    heads: dict[str, collections.deque] = {n: collections.deque() for n in names}
-    last_stamp, last_own = None, dict.fromkeys(names)
-    out_of_order = 0
-    check = Disagreement()
-    # keep_warm: each laser's next frame is due at its last one's arrival plus its period; a warm-up
-    # runs ``lead`` before it (run_live's, for the shortest period).
-    due, last, step_ms = dict.fromkeys(names), dict.fromkeys(names), collections.deque(maxlen=50)
-    min_period = min(s.period for s in sensors)
-    samples = {n: decoder_sample(links[n]) for n in names} if keep_warm else {}
-    lead = 0.0
-    t_end = None if duration is None else time.monotonic() + duration
-    failed = gone = None
-    lost_checked, said_gone = time.monotonic(), set()
-    try:
-        with GTDWriter(out, units=outputs.csv_units) as writer:
-            while (not (stop is not None and stop.is_set()) and (t_end is None or time.monotonic() < t_end)
-                   and (max_frames is None or stats.frames < max_frames)):
-                if reconnect_timeout is not None and time.monotonic() - lost_checked > 0.25:
-                    lost_checked = time.monotonic()
-                    lost = {n: links[n].lost_for() if hasattr(links[n], "lost_for") else 0.0 for n in names}
-                    said_gone &= {n for n in names if lost[n] > 0}  # back: it may be said again
-                    for n in names:
-                        if lost[n] > reconnect_timeout and n not in said_gone:
-                            said_gone.add(n)
-                            per[n].gone_warnings += 1
-                            if warn is not None and len(said_gone) < len(names):
-                                warn(f"laser {n} ({getattr(links[n], 'port', 'sensor')}): gone for {lost[n]:.0f} s "
-                                     f"({getattr(links[n], 'last_error', None) or 'no frames'}); the other lasers "
-                                     "go on, and it rejoins if it comes back")
-                    if len(said_gone) == len(names):
-                        gone = InputError(", ".join(str(getattr(links[n], "port", n)) for n in names),
-                                          f"every laser has been gone for over {reconnect_timeout:g} s and none came "
-                                          "back (--reconnect-timeout waits longer)")
-                        break
-                got = False
-                for n in names:
-                    while (lf := links[n].get(timeout=0)) is not None:
-                        heads[n].append(lf)
-                        got = True
-                ready = [n for n in names if heads[n]]
-                if not ready:
-                    if not got:
-                        now = time.perf_counter()
-                        soon = [m for m in names if due[m] is not None and due[m] - lead <= now < due[m]]
-                        if soon:
-                            m = soon[0]
-                            due[m] = None  # one warm-up per frame: a laser that stalls is not stepped for
-                            step_m = steps[kinds[names.index(m)]]
-                            step_m.warm(state)
-                            warm_host(step_m, last[m], model.classes, samples[m])
-                            stats.warm_ups += 1
-                        else:
-                            time.sleep(0.001)
-                    continue
-                n = min(ready, key=lambda x: heads[x][0].stamp)
-                lf = heads[n][0]
-                # A laser with no frame waiting cannot send one stamped before its last plus most of a
-                # period: the head goes now if it is earlier than that for every such laser, else it
-                # waits for them, at most ``hold`` (a stalled or unplugged laser holds the rest no longer).
-                waiting = [m for m in names if not heads[m]]
-                if waiting and time.time() - lf.stamp < hold and not all(
-                        last_own[m] is not None and lf.stamp <= last_own[m] + 0.9 * period_ms[m] / 1000.0
-                        for m in waiting):
-                    time.sleep(0.0005)
-                    continue
-                heads[n].popleft()
-                k = names.index(n)
-                dt = 0.0 if last_stamp is None else lf.stamp - last_stamp
-                if dt < 0:
-                    out_of_order += 1
-                    dt = 0.0
-                last_stamp = lf.stamp if last_stamp is None else max(last_stamp, lf.stamp)
-                span = 0.0 if last_own[n] is None else max(lf.stamp - last_own[n], 0.0)
-                last_own[n] = lf.stamp
-                t_step = time.perf_counter()
-                state, o, packed = steps[kinds[k]](state, lf.ranges_m, lf.intensities, dt, k, span)
-                table = np.asarray(packed).tolist()
-                last[n] = (lf, table)
-                rows = rows_from_packed(lf.stamp, table, model.classes)
-                writer.write(rows)
-                degraded = table[-1][0] > 0.5
-                outputs.send(rows, lf.stamp, degraded=degraded, laser=n)
-                t_done = time.perf_counter()
-                lat = (t_done - lf.recv_perf) * 1000.0
-                if keep_warm:
-                    step_ms.append(t_done - t_step)
-                    lead = warm_up_lead(step_ms, min_period)
-                    due[n] = lf.recv_perf + period_ms[n] / 1000.0
-                if n in recorders:
-                    recorders[n].append_frame(lf)
-                o = steps[kinds[k]].output(o)
-                stats.count(rows, lat, degraded, period_ms[n])
-                stats.tally.add_packed(table)
-                late = lat > period_ms[n]
-                p = per[n]
-                p.frames += 1
-                p.degraded += int(degraded)
-                p.late += int(late)
-                p.latencies_ms.append(lat)
-                if bag is not None:
-                    bag.write(lf.stamp, lf.ranges_m, lf.intensities, rows, np.asarray(o.sensor_pose, np.float64),
-                              laser=n)
-                if view is not None:
-                    view.scan(lf.stamp, lf.ranges_m, sensors[k].angle_min, sensors[k].angle_increment, o, rows,
-                              latency_ms=lat, dropped=getattr(getattr(links[n], "stats", None), "dropped", None),
-                              laser=n)
-                d = check.update(k, o.landmark_residual, o.landmark_seen)
-                if p.watch(lf.stamp, d) and warn is not None:
-                    warn(f"laser {n}: its map transformation and another laser's put landmarks both see "
-                         f"{d * 100:.0f} cm apart for {CALIBRATION_WARN_S:g} s: a tripod moved? (check the "
-                         "site's sensor poses, or restart once it stands still)")
-                if on_scan is not None:
-                    on_scan(stats, o, lf.stamp, n)
-    except KeyboardInterrupt:
-        pass
-    except InputError as err:  # a write failed (a full disk): stop; what is written stays
-        failed = err
-    finally:
-        outputs.close()
-        for link in links.values():  # the lasers stop streaming with the loop (see ``run_live``)
-            if hasattr(link, "stop"):
-                link.stop()
-        if bag is not None:
-            bag.close()
-        if view is not None:
-            view.close()
-        for rec in recorders.values():
-            rec.close(write_log=failed is None)
+    frames = MergedFrames(links, [steps[i] for i in kinds], session.period_ms, session.warm, hold=hold,
+                          reconnect_timeout=reconnect_timeout, warn=warn)
+    stats = session.stats
+    failed = run_loop(session, frames, state)
     if failed is not None:
         raise InputError(failed.where, f"{failed.problem}; stopped after {stats.frames} frames")
-    if gone is not None:
-        raise InputError(gone.where, f"{gone.problem}; stopped after {stats.frames} frames, their rows kept in {out}")
-    return stats, per, out_of_order
+    if frames.gone is not None:
+        raise InputError(frames.gone.where, f"{frames.gone.problem}; stopped after {stats.frames} frames, their rows "
+                                            f"kept in {out}")
+    return stats, dict(zip(names, frames.per, strict=True)), frames.out_of_order
