@@ -28,6 +28,7 @@ residual), the temperature and the prior of the side posterior (maximum likeliho
 and the factors that calibrate the covariance ``s² H⁻¹`` (as the GP variances are calibrated).
 """
 
+import dataclasses
 import math
 from collections.abc import Sequence
 
@@ -357,59 +358,104 @@ def fit_outlines(logs: Sequence[ScanLog], ex: Examples, is_held: np.ndarray, cla
     The side hypotheses of a class are the headings its GP's held-out misreads cluster at
     (:func:`misread_modes`): the sides a view is taken for in fact. With fewer than five misreads to
     go by, the outline's own near-symmetries (:func:`self_match`) stand in."""
-    n_c = len(classes)
-    field = np.zeros((n_c, GRID, GRID, 3), np.float32)
-    field[..., 0] = 1.0
-    lo = np.zeros((n_c, 2), np.float32)
-    cell = np.full(n_c, 0.01, np.float32)
-    has = np.zeros(n_c, bool)
-    sides = np.zeros((n_c, SIDES), np.float32)
-    side_mask = np.zeros((n_c, SIDES), bool)
-    side_mask[:, 0] = True
-    prior_right = np.full(n_c, DEFAULT_PRIOR_RIGHT, np.float32)
+    arrays = _OutlineArrays.blank(len(classes))
     report, held = {}, {}
     own = ex.where[:, 0] >= 0
     for name in mobiles:
         k = classes.index(name)
-        sides[k], side_mask[k] = DEFAULT_SIDES, True
+        arrays.sides[k], arrays.side_mask[k] = DEFAULT_SIDES, True
         idx = np.flatnonzero((ex.cls == k) & ~is_held & own)
         if idx.size < 50 or pose[k] is None:
             report[name] = {"outline": False, "why": f"only {idx.size} labelled views"}
             continue
         sub = ex.take(rng.choice(idx, min(idx.size, max_examples), replace=False))
-        pts, mask = candidate_points(logs, sub, window)
-        radii = learn_outline(pts, mask, truth_in_sensor(sub))
+        radii = learn_outline(*candidate_points(logs, sub, window), truth_in_sensor(sub))
         f, lo_k, cell_k = distance_field(radii)
-        # Held-out views (the training ones if fewer than 20 are held out) for the sides and calibration.
-        cal = np.flatnonzero((ex.cls == k) & is_held & own)
-        cal = cal if cal.size >= 20 else np.flatnonzero((ex.cls == k) & own)
-        csub = ex.take(rng.choice(cal, min(cal.size, max_calibration), replace=False))
-        rel, var = regress_one_class(pose[k], jnp.asarray(csub.vectors, _F32))
-        pose_gp, _ = to_sensor_frame(jnp.asarray(csub.origin, _F32), jnp.asarray(csub.heading, _F32), rel, var)
-        pose_gp = np.asarray(pose_gp, np.float64)
-        truth = truth_in_sensor(csub)
-        offs = misread_modes(pose_gp[:, 2] - truth[:, 2])
-        source = "misreads"
-        if not offs:
-            offs, source = side_offsets(self_match(radii, f, lo_k, cell_k)), "outline symmetry"
-        field[k], lo[k], cell[k], has[k] = f, lo_k, cell_k, True
-        sides[k], side_mask[k] = 0.0, False
-        sides[k, 1:1 + len(offs)] = np.radians(offs)
-        side_mask[k, :1 + len(offs)] = True
+        csub, pose_gp, truth = _held_out_poses(ex, k, is_held, own, pose[k], rng, max_calibration)
+        offs, source = _side_hypotheses(pose_gp, truth, radii, f, lo_k, cell_k)
+        arrays.set_class(k, f, lo_k, cell_k, offs)
         held[k] = (*candidate_points(logs, csub, window), pose_gp, truth)
         verts = polyline(radii)
         report[name] = {"outline": True, "views": int(len(sub.cls)),
                         "size_m": [round(float(np.ptp(verts[:, j])), 3) for j in range(2)],
                         "sides_deg": [round(o, 1) for o in offs], "sides_from": source}
-    if not has.any():
+    if not arrays.has.any():
         return None, report
-    outline = Outline(
-        field=jnp.asarray(field), lo=jnp.asarray(lo), cell=jnp.asarray(cell), has=jnp.asarray(has),
-        sides=jnp.asarray(sides), side_mask=jnp.asarray(side_mask),
-        temperature=jnp.zeros(n_c, _F32), prior_right=jnp.asarray(prior_right),
-        max_rms=jnp.full(n_c, 0.05, _F32), cov_scale=jnp.ones((n_c, 3), _F32),
-        robust=jnp.asarray(ROBUST, _F32), free_gap=jnp.asarray(FREE_GAP, _F32),
-        min_points=jnp.asarray(MIN_POINTS, jnp.int32))
+    outline = _calibrate_classes(arrays.outline(), held, classes, report)
+    if not bool(jnp.any(outline.has)):
+        return None, report
+    return outline, report
+
+
+@dataclasses.dataclass
+class _OutlineArrays:
+    """The per-class arrays of an :class:`Outline` (host side) as :func:`fit_outlines` fills them
+    class by class, before the calibration that needs the whole outline."""
+
+    field: np.ndarray
+    lo: np.ndarray
+    cell: np.ndarray
+    has: np.ndarray
+    sides: np.ndarray
+    side_mask: np.ndarray
+    prior_right: np.ndarray
+
+    @classmethod
+    def blank(cls, n_c: int) -> "_OutlineArrays":
+        """No class with an outline: a flat field and the GP's heading as the one side hypothesis."""
+        field = np.zeros((n_c, GRID, GRID, 3), np.float32)
+        field[..., 0] = 1.0
+        side_mask = np.zeros((n_c, SIDES), bool)
+        side_mask[:, 0] = True
+        return cls(field=field, lo=np.zeros((n_c, 2), np.float32), cell=np.full(n_c, 0.01, np.float32),
+                   has=np.zeros(n_c, bool), sides=np.zeros((n_c, SIDES), np.float32), side_mask=side_mask,
+                   prior_right=np.full(n_c, DEFAULT_PRIOR_RIGHT, np.float32))
+
+    def set_class(self, k: int, field: np.ndarray, lo: np.ndarray, cell: float, offs: list[float]) -> None:
+        """Class ``k``'s distance field, and its side hypotheses: the GP's heading, then ``offs`` (degrees)."""
+        self.field[k], self.lo[k], self.cell[k], self.has[k] = field, lo, cell, True
+        self.sides[k], self.side_mask[k] = 0.0, False
+        self.sides[k, 1:1 + len(offs)] = np.radians(offs)
+        self.side_mask[k, :1 + len(offs)] = True
+
+    def outline(self) -> Outline:
+        """The :class:`Outline` with the calibration's figures at their neutral values (set by
+        :func:`calibrate_outline`, class by class)."""
+        n_c = len(self.has)
+        return Outline(
+            field=jnp.asarray(self.field), lo=jnp.asarray(self.lo), cell=jnp.asarray(self.cell),
+            has=jnp.asarray(self.has), sides=jnp.asarray(self.sides), side_mask=jnp.asarray(self.side_mask),
+            temperature=jnp.zeros(n_c, _F32), prior_right=jnp.asarray(self.prior_right),
+            max_rms=jnp.full(n_c, 0.05, _F32), cov_scale=jnp.ones((n_c, 3), _F32),
+            robust=jnp.asarray(ROBUST, _F32), free_gap=jnp.asarray(FREE_GAP, _F32),
+            min_points=jnp.asarray(MIN_POINTS, jnp.int32))
+
+
+def _held_out_poses(ex: Examples, k: int, is_held: np.ndarray, own: np.ndarray, pose_k: PoseRegressor,
+                    rng: np.random.Generator, most: int) -> tuple[Examples, np.ndarray, np.ndarray]:
+    """Class ``k``'s held-out views (the training ones if fewer than 20 are held out), the GP's poses
+    of them and their truth in S: what both the side hypotheses and the calibration are judged on."""
+    cal = np.flatnonzero((ex.cls == k) & is_held & own)
+    cal = cal if cal.size >= 20 else np.flatnonzero((ex.cls == k) & own)
+    csub = ex.take(rng.choice(cal, min(cal.size, most), replace=False))
+    rel, var = regress_one_class(pose_k, jnp.asarray(csub.vectors, _F32))
+    pose_gp, _ = to_sensor_frame(jnp.asarray(csub.origin, _F32), jnp.asarray(csub.heading, _F32), rel, var)
+    return csub, np.asarray(pose_gp, np.float64), truth_in_sensor(csub)
+
+
+def _side_hypotheses(pose_gp: np.ndarray, truth: np.ndarray, radii: np.ndarray, field, lo, cell
+                     ) -> tuple[list[float], str]:
+    """The turns (degrees) a view of the class is taken for, and where they come from: the GP's
+    misreads where there are enough of them, else the outline's own near-symmetries."""
+    offs = misread_modes(pose_gp[:, 2] - truth[:, 2])
+    if offs:
+        return offs, "misreads"
+    return side_offsets(self_match(radii, field, lo, cell)), "outline symmetry"
+
+
+def _calibrate_classes(outline: Outline, held: dict, classes: tuple[str, ...], report: dict) -> Outline:
+    """Each class's refinement calibrated on its held-out views (:func:`calibrate_outline`), and the
+    outline left unused for a class whose refined headings are less precise there than the GP's."""
     for k, (pts, mask, pose_gp, truth) in held.items():
         outline, rep = calibrate_outline(outline, k, pts, mask, pose_gp, truth)
         report[classes[k]]["calibration"] = rep
@@ -425,6 +471,4 @@ def fit_outlines(logs: Sequence[ScanLog], ex: Examples, is_held: np.ndarray, cla
                 outline.side_mask.at[k].set(True), outline.prior_right.at[k].set(DEFAULT_PRIOR_RIGHT)))
         else:
             report[classes[k]]["used"] = True
-    if not bool(jnp.any(outline.has)):
-        return None, report
-    return outline, report
+    return outline
