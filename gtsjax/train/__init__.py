@@ -169,71 +169,164 @@ def train(logs: Sequence[ScanLog], site: "Site | Sequence[Site]", cfg: TrainConf
     first = logs[0]
     n_beams = step_beams(first)
     background = fit_background(first, background, bg_names)
-    site0 = site if isinstance(site, Site) else site[0]
-    classes, landmarks, mobiles = class_list(logs, site0)
-    if not mobiles:
-        raise InputError(names[0], "no labelled object classes in the logs")
-    rng = np.random.default_rng(cfg.seed)  # examples, the held-out split, the open-set supports
-    gps = GPFits(cfg, progress)  # the GP fits' keys, and their summaries
+    run = _Run.begin(logs, site, cfg, names, bool(background), progress, stages)
+    classes, landmarks, mobiles = run.classes, run.landmarks, run.mobiles
 
-    def stage(name: str, available: dict[str, int] | None = None) -> None:
-        if stages is not None:
-            plan = planned_fits(classes, landmarks, mobiles, cfg, background_logs=bool(background), available=available)
-            stages(name, plan[len(gps.fits):])
+    run.stage("labelling")
+    lab = _first_labels(run, logs, site, background, bg_names, n_beams)
+    run.stage("landmark positions", _available(lab.ex1, np.isin(lab.ex1.group, lab.held), classes))
+    pose = _landmark_positions(run, lab)
+    run.stage("labelling, second pass")
+    ex_lab, degraded, n_scans = second_pass(logs, lab.per_log, lab.cls_slots, pose, site, classes, landmarks, cfg)
+    envelope, env_report = fit_envelope(ex_lab.take(np.flatnonzero(~np.isin(ex_lab.group, lab.held))),
+                                        len(classes), first.angle_increment)
+    support, sup_report = _open_set(run, ex_lab, lab)
+    ex, source = _with_background_logs(run, ex_lab, lab, support)
+    is_held = np.isin(ex.group, lab.held)
 
-    stage("labelling")
-
-    # Labels, pass 1 (transforms from raw ORS origins); background logs' examples; the held-out split;
-    # the landmark classes' position GPs; pass 2 (landmark candidates at their predicted centres).
-    per_log, columns = front_end_logs(logs, cfg.frontend, n_beams)
-    ex1, cls_slots, offset = first_pass(logs, per_log, site, classes, cfg)
-    bg_ex, bg_info = background_examples(background, bg_names, cfg, n_beams, columns, offset)
-    held = holdout_groups(rng, np.concatenate([ex1.group, bg_ex.group]), cfg.holdout)
-    pose = [None] * len(classes)
-    stage("landmark positions", _available(ex1, np.isin(ex1.group, held), classes))
-    for k, reg in fit_landmark_positions(ex1, held, classes, landmarks, cfg, rng, gps).items():
-        pose[k] = reg
-    stage("labelling, second pass")
-    ex_lab, degraded, n_scans = second_pass(logs, per_log, cls_slots, pose, site, classes, landmarks, cfg)
-
-    # Shape envelopes and open-set supports from the labelled classes; then the background logs'
-    # examples join the background class, landmark look-alikes left out.
-    is_held_lab = np.isin(ex_lab.group, held)
-    envelope, env_report = fit_envelope(ex_lab.take(np.flatnonzero(~is_held_lab)), len(classes),
-                                        first.angle_increment)
-    support, sup_report = fit_support(Examples.concat([ex_lab, bg_ex]),
-                                      np.isin(np.concatenate([ex_lab.group, bg_ex.group]), held), len(classes), rng,
-                                      size=cfg.support_size)
-    lookalike = landmark_lookalikes(support, bg_ex, bg_info, classes, landmarks)
-    ex = Examples.concat([ex_lab, bg_ex.take(np.flatnonzero(~lookalike))])
-    source = np.concatenate([np.full(len(ex_lab.cls), -1),  # the labelled logs, then each background log
-                             np.repeat(np.arange(len(bg_info)), [i["candidates"] for i in bg_info])[~lookalike]])
-    is_held = np.isin(ex.group, held)
-
-    stage("classifier", _available(ex, is_held, classes))
-    classifier, train_idx, warnings = fit_classifier(ex, is_held, source, len(bg_info), support, classes, mobiles,
-                                                     cfg, rng, gps)
-    stage("pose regressors", _available(ex, is_held, classes))
-    mobile_pose, calibration = fit_pose_regressors(ex, is_held, classes, mobiles, cfg, rng, gps)
+    run.stage("classifier", _available(ex, is_held, classes))
+    classifier, train_idx, notes = fit_classifier(ex, is_held, source, len(lab.bg_info), support, classes, mobiles,
+                                                  cfg, run.rng, run.gps)
+    run.stage("pose regressors", _available(ex, is_held, classes))
+    mobile_pose, calibration = fit_pose_regressors(ex, is_held, classes, mobiles, cfg, run.rng, run.gps)
     for k, reg in mobile_pose.items():
         pose[k] = reg
-    stage("outlines and motion limits")
-    outline, outline_report = fit_outlines(logs, ex, is_held, classes, mobiles, pose, cfg.frontend.window, rng)
+    run.stage("outlines and motion limits")
+    outline, outline_report = fit_outlines(logs, ex, is_held, classes, mobiles, pose, cfg.frontend.window, run.rng)
+    tracker, rate_hz, motion, learnt = _motion_limits(run, logs, env_report, sup_report)
+    notes = notes + [row["warning"] for row in learnt if "warning" in row]
+    model = _assemble(run, first, n_beams, lab.columns, classifier=classifier, envelope=envelope, pose=pose,
+                      tracker=tracker, outline=outline)
+
+    run.stage("held-out evaluation")
+    report = _report(run, model, ex, is_held, ex_lab, lab.bg_info, train_idx=train_idx, calibration=calibration,
+                     env_report=env_report, sup_report=sup_report, motion=motion, learnt=learnt,
+                     outline_report=outline_report, n_scans=n_scans, degraded=degraded, warnings=notes)
+    report["coverage"], where = coverage(logs, per_log_sites(site, len(logs)), mobiles)
+    report["warnings"] = report["warnings"] + where
+    if cfg.check_pipeline:
+        run.stage("tracking check")
+        _tracking_check(report, model, logs, site, ex_lab, lab.held, mobiles, rate_hz, cfg.seed)
+    if len(lab.bg_ex.cls):
+        report["heldout_background_logs"] = evaluate_examples(
+            model, lab.bg_ex.take(np.flatnonzero(np.isin(lab.bg_ex.group, lab.held))))
+    return model, report
+
+
+@dataclasses.dataclass
+class _Run:
+    """What every phase of :func:`train` shares: the configuration, the classes, the one random
+    generator (drawn from in a fixed order, so that a seed repeats a run), the GP fits so far and the
+    caller's ``stages`` callback."""
+
+    cfg: TrainConfig
+    classes: tuple[str, ...]
+    landmarks: tuple[str, ...]
+    mobiles: tuple[str, ...]
+    background_logs: bool
+    rng: np.random.Generator
+    gps: GPFits
+    stages: Callable[[str, list[dict]], None] | None
+
+    @classmethod
+    def begin(cls, logs: Sequence[ScanLog], site: "Site | Sequence[Site]", cfg: TrainConfig, names: Sequence[str],
+              background_logs: bool, progress: Callable[[dict], None] | None,
+              stages: Callable[[str, list[dict]], None] | None) -> "_Run":
+        """The classes to learn (background, the site's landmarks, the logs' labelled objects; logs
+        without the last leave nothing to learn), the random generator and the GP fits' record."""
+        classes, landmarks, mobiles = class_list(logs, site if isinstance(site, Site) else site[0])
+        if not mobiles:
+            raise InputError(names[0], "no labelled object classes in the logs")
+        rng = np.random.default_rng(cfg.seed)  # examples, the held-out split, the open-set supports
+        return cls(cfg, classes, landmarks, mobiles, background_logs, rng, GPFits(cfg, progress), stages)
+
+    def stage(self, name: str, available: dict[str, int] | None = None) -> None:
+        """Tell ``stages`` that stage ``name`` begins, with the GP fits still to come (sized by ``available``)."""
+        if self.stages is not None:
+            plan = planned_fits(self.classes, self.landmarks, self.mobiles, self.cfg,
+                                background_logs=self.background_logs, available=available)
+            self.stages(name, plan[len(self.gps.fits):])
+
+
+@dataclasses.dataclass
+class _FirstPass:
+    """The labelling's first pass: the front end's output per log, the GP input columns, the labelled
+    examples and each log's class per candidate slot, the background logs' examples, the held-out groups."""
+
+    per_log: list[dict]
+    columns: tuple[int, ...]
+    ex1: Examples
+    cls_slots: list[np.ndarray]
+    bg_ex: Examples
+    bg_info: list[dict]
+    held: list
+
+
+def _first_labels(run: _Run, logs: Sequence[ScanLog], site: "Site | Sequence[Site]", background: Sequence[ScanLog],
+                  bg_names: Sequence[str], n_beams: int) -> _FirstPass:
+    """Labels, pass 1 (transforms from raw ORS origins), the background logs' examples and the held-out
+    split by one-second blocks: what the landmark classes' position GPs are learnt from."""
+    per_log, columns = front_end_logs(logs, run.cfg.frontend, n_beams)
+    ex1, cls_slots, offset = first_pass(logs, per_log, site, run.classes, run.cfg)
+    bg_ex, bg_info = background_examples(background, bg_names, run.cfg, n_beams, columns, offset)
+    held = holdout_groups(run.rng, np.concatenate([ex1.group, bg_ex.group]), run.cfg.holdout)
+    return _FirstPass(per_log, columns, ex1, cls_slots, bg_ex, bg_info, held)
+
+
+def _landmark_positions(run: _Run, lab: _FirstPass) -> list:
+    """Each class's pose regressor so far: the landmark classes' position GPs, by which the second pass
+    places landmark candidates at their predicted centres (the mobile classes' come later)."""
+    pose = [None] * len(run.classes)
+    for k, reg in fit_landmark_positions(lab.ex1, lab.held, run.classes, run.landmarks, run.cfg, run.rng,
+                                         run.gps).items():
+        pose[k] = reg
+    return pose
+
+
+def _open_set(run: _Run, ex_lab: Examples, lab: _FirstPass) -> tuple:
+    """The open-set test's supports and thresholds, from the labelled classes and the background logs'
+    examples alike (before the look-alikes of landmarks are taken out of the latter)."""
+    return fit_support(Examples.concat([ex_lab, lab.bg_ex]),
+                       np.isin(np.concatenate([ex_lab.group, lab.bg_ex.group]), lab.held), len(run.classes), run.rng,
+                       size=run.cfg.support_size)
+
+
+def _with_background_logs(run: _Run, ex_lab: Examples, lab: _FirstPass, support) -> tuple[Examples, np.ndarray]:
+    """The examples the classifier and the pose GPs learn from: the labelled logs', then the background
+    logs' as the background class, landmark look-alikes left out; and each one's source (-1: the
+    labelled logs, else the background log's index)."""
+    lookalike = landmark_lookalikes(support, lab.bg_ex, lab.bg_info, run.classes, run.landmarks)
+    ex = Examples.concat([ex_lab, lab.bg_ex.take(np.flatnonzero(~lookalike))])
+    source = np.concatenate([np.full(len(ex_lab.cls), -1),  # the labelled logs, then each background log
+                             np.repeat(np.arange(len(lab.bg_info)), [i["candidates"] for i in lab.bg_info])[~lookalike]])
+    return ex, source
+
+
+def _motion_limits(run: _Run, logs: Sequence[ScanLog], env_report: dict,
+                   sup_report: dict) -> tuple[TrackerParams, float, dict, list[dict]]:
+    """The scanner's rate, each tracked class's speed and turn-rate limits and the tracker they make;
+    with the rows of the learnt-parameter table (the shapes' rows too: the report's one table)."""
+    cfg, classes, mobiles = run.cfg, run.classes, run.mobiles
     rate_hz, rate_row = scan_rate_entry(logs, cfg.scan_rate_hz)
     speed, turn, motion, motion_rows = tracker_limits(logs, classes, mobiles, cfg, period=1.0 / rate_hz)
     tracker = TrackerParams.default([c in mobiles for c in classes], rate_hz=rate_hz, max_speed=speed,
                                     max_turn_rate=turn)
     learnt = [rate_row, confirmation_entry(int(tracker.n_confirm), rate_hz), *motion_rows,
               *shape_rows(env_report, sup_report, classes, mobiles)]
-    warnings = warnings + [row["warning"] for row in learnt if "warning" in row]
+    return tracker, rate_hz, motion, learnt
 
+
+def _assemble(run: _Run, first: ScanLog, n_beams: int, columns: tuple[int, ...], *, classifier, envelope,
+              pose: list, tracker: TrackerParams, outline) -> Model:
+    """The model of the fitted parts and the labelled logs' scanner geometry, as a model file loads."""
+    cfg, classes = run.cfg, run.classes
     model = Model(
         frontend=cfg.frontend,
         classifier=classifier,
         envelope=envelope,
         pose=tuple(pose),
         tracker=tracker,
-        landmark_mask=jnp.asarray([c in landmarks for c in classes]),
+        landmark_mask=jnp.asarray([c in run.landmarks for c in classes]),
         map_gate=jnp.asarray(cfg.map_gate, jnp.float32),
         map_min_spread=jnp.asarray(cfg.map_min_spread, jnp.float32),
         meas_var_floor=jnp.asarray(cfg.meas_var_floor, jnp.float32),
@@ -250,15 +343,21 @@ def train(logs: Sequence[ScanLog], site: "Site | Sequence[Site]", cfg: TrainConf
         range_max=float(first.range_max),
         outline=outline,
     ).with_common_pose_inputs()
-    model = with_scanner(model)  # as a model file loads
-    stage("held-out evaluation")
-    report = {
+    return with_scanner(model)  # as a model file loads
+
+
+def _report(run: _Run, model: Model, ex: Examples, is_held: np.ndarray, ex_lab: Examples, bg_info: list[dict], *,
+            train_idx: np.ndarray, calibration: dict, env_report: dict, sup_report: dict, motion: dict,
+            learnt: list[dict], outline_report: dict, n_scans: int, degraded: int, warnings: list[str]) -> dict:
+    """The report of how the model was made, with its held-out classification and pose errors."""
+    classes = run.classes
+    return {
         "classes": list(classes),
         "examples": {c: int(np.sum(ex.cls == k)) for k, c in enumerate(classes)},
         "examples_labelled_logs": {c: int(np.sum(ex_lab.cls == k)) for k, c in enumerate(classes)},
         "examples_used": {c: int(np.sum(ex.cls[train_idx] == k)) for k, c in enumerate(classes)},
         "background_logs": bg_info,
-        "fits": gps.fits,
+        "fits": run.gps.fits,
         "variance_calibration": calibration,
         "envelopes": {classes[k]: v for k, v in env_report.items()},
         "open_set": {classes[k]: v for k, v in sup_report.items()},
@@ -270,15 +369,13 @@ def train(logs: Sequence[ScanLog], site: "Site | Sequence[Site]", cfg: TrainConf
         "warnings": warnings,
         "heldout": evaluate_examples(model, ex.take(np.flatnonzero(is_held))),
     }
-    report["coverage"], where = coverage(logs, per_log_sites(site, len(logs)), mobiles)
-    report["warnings"] = report["warnings"] + where
-    if cfg.check_pipeline:
-        stage("tracking check")
-        held_scans = [held_mask(log, i, ex_lab.where, ex_lab.group, held) for i, log in enumerate(logs)]
-        report["pipeline"] = check_pipeline(model, logs, per_log_sites(site, len(logs)), held_scans, mobiles)
-        report["pipeline_simulated"] = simulated_checks(model, report["heldout"], mobiles, rate_hz, cfg.seed)
-        report["pipeline_problems"] = verdict(report["pipeline"], report["pipeline_simulated"])
-    if len(bg_ex.cls):
-        report["heldout_background_logs"] = evaluate_examples(
-            model, bg_ex.take(np.flatnonzero(np.isin(bg_ex.group, held))))
-    return model, report
+
+
+def _tracking_check(report: dict, model: Model, logs: Sequence[ScanLog], site: "Site | Sequence[Site]",
+                    ex_lab: Examples, held: list, mobiles: tuple[str, ...], rate_hz: float, seed: int) -> None:
+    """The trained step run over the labelled logs' held-out seconds and on simulated stays and walks
+    with the held-out errors: whether it can track each class, a verdict no single figure gives."""
+    held_scans = [held_mask(log, i, ex_lab.where, ex_lab.group, held) for i, log in enumerate(logs)]
+    report["pipeline"] = check_pipeline(model, logs, per_log_sites(site, len(logs)), held_scans, mobiles)
+    report["pipeline_simulated"] = simulated_checks(model, report["heldout"], mobiles, rate_hz, seed)
+    report["pipeline_problems"] = verdict(report["pipeline"], report["pipeline_simulated"])
