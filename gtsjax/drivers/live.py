@@ -367,8 +367,7 @@ class OneLink:
         return lf, 0, self.step, (dt,)
 
     def count(self, k, lf, o, table, lat: float, degraded: bool) -> None:
-        self.stats.unlike += int(table[-1][2])
-        self.stats.off_envelope += int(table[-1][3])
+        """Nothing of one link's own: the run's counts (``run_loop``) are all there is."""
 
 
 def run_live(link, model: Model, out: Path, *, record: Path | None = None, outputs: Outputs | None = None,

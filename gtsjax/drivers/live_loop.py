@@ -211,6 +211,8 @@ def run_loop(session: LiveSession, frames: Frames, state) -> InputError | None:
                 o = session.emit(k, lf, step, o, rows, lat, unpack)
                 stats.count(rows, lat, degraded, period_ms[k])
                 stats.tally.add_packed(table)
+                stats.unlike += int(table[-1][2])  # the packed status row: one laser or several alike
+                stats.off_envelope += int(table[-1][3])
                 frames.count(k, lf, o, table, lat, degraded)
                 if on_scan is not None:
                     on_scan(stats, o, lf.stamp, *session.scan_args[k])
