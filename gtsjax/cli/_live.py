@@ -6,6 +6,7 @@ from pathlib import Path
 import numpy as np
 from rich.console import Console, Group
 from rich.live import Live
+from rich.markup import escape
 from rich.table import Table
 
 from ..core.geometry import wrap
@@ -17,7 +18,7 @@ def live_view(model, link, stats, output, stamp, laser: str | None = None) -> Gr
     name (a counters line each), ``laser`` naming the one whose scan ``output`` is."""
     t = Table(title="tracks", expand=False)
     for col in ("id", "class", "x [m]", "y [m]", "θ [°]", "σx [cm]", "σθ [°]"):
-        t.add_column(col, justify="right")
+        t.add_column(escape(col), justify="right")  # units in [] are not Rich markup
     if output is not None:
         m = np.asarray(output.track_mask)
         for i in np.flatnonzero(m):

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from ._app import CONFIRM_HELP, MAX_TRACKS_HELP, app, fail
@@ -36,7 +37,7 @@ def _table(title, columns, results):
     t = Table(title=title)
     t.add_column("data")
     for _, head, _ in columns:
-        t.add_column(head, justify="right")
+        t.add_column(escape(head), justify="right")  # units in [] are not Rich markup
     for label, res in results.items():
         t.add_row(label, *(_fmt(k, f, res.get(k)) for k, _, f in columns))
     return t

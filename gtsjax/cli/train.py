@@ -14,6 +14,7 @@ from pathlib import Path
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, Progress, ProgressColumn, TextColumn, TimeElapsedColumn
 from rich.table import Table
 from rich.text import Text
@@ -324,7 +325,7 @@ def _openset_tables(console: Console, rep: dict) -> None:
     t = Table(title="what each class may look like (shape envelopes, open-set test) and do (motion limits)")
     for col in ("class", "width [m]", "depth [m]", "points at 1 m", "open set: d² ≤", "its held-out rejected",
                 "held-out background rejected", "max speed [m/s]", "max turn [rad/s]"):
-        t.add_column(col, justify="right")
+        t.add_column(escape(col), justify="right")  # units in [] are not Rich markup
     for c in rep["classes"][1:]:
         env = rep.get("envelopes", {}).get(c, {})
         op = rep.get("open_set", {}).get(c, {})
