@@ -1,6 +1,7 @@
 """Helpers shared by the test modules (``from tests._utils import ...``): dtype-aware tolerances, the emulator's test frame source, and the command line run as a
 user runs it, importing this tree."""
 
+import dataclasses
 import os
 import select
 import subprocess
@@ -117,3 +118,9 @@ def read_mcap(path) -> list:
 
     with open(path, "rb") as f:
         return [_Msg(*m) for m in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages()]
+
+
+def first_scans(log, n: int):
+    """The first ``n`` scans of a simulated log, its per-scan extras (the truth's ids and classes) cut
+    with them: :meth:`ScanLog.slice` leaves extras alone, as it cannot know a key is per scan."""
+    return dataclasses.replace(log.slice(0, n), extra={k: v[:n] for k, v in log.extra.items()})

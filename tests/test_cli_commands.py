@@ -6,7 +6,6 @@ the exit status 2 of ``run``, ``train``, ``evaluate``, ``plot`` and ``emulate`` 
 Kept small: short simulated logs, the shipped model wherever a model is only used, training capped to
 a few dozen examples. No assertion is on the wall clock; deadlines only stop a test that would hang."""
 
-import dataclasses
 import json
 import math
 import os
@@ -33,7 +32,7 @@ from gtsjax.io.serial import Link
 from gtsjax.sensors import URG_04LX
 from gtsjax.sim import simulate
 from gtsjax.sim.emulator import SensorEmulator, log_source
-from tests._utils import cli_env, popen_cli, read_lines, run_cli
+from tests._utils import cli_env, first_scans, popen_cli, read_lines, run_cli
 
 DEMO_MODEL = demo_model_path()
 PATIENCE_S = 300.0  # a child that compiles the step on a loaded 2-core machine; never a measurement
@@ -417,13 +416,7 @@ def evaluated(tmp_path_factory):
     tmp_path = tmp_path_factory.mktemp("evaluate")
     log, site = simulate("spl-eval", seed=61)  # 8 points × 8 headings × (1 s away + 3 s put down): 2 points
     n = 2 * 8 * 40
-    log = dataclasses.replace(
-        log,
-        ranges=log.ranges[:n],
-        stamps=log.stamps[:n],
-        truth_poses=log.truth_poses[:n],
-        extra={k: v[:n] for k, v in log.extra.items()},
-    )
+    log = first_scans(log, n)
     save_log(log, tmp_path / "eval.npz")
     save_site(site, tmp_path / "site.json")
     out = tmp_path / "eval-out"

@@ -2,7 +2,6 @@
 the robot put down at one point with two headings) and checked on what it writes: ``replay --view-save``, a site's
 ``bounds`` with the tracked robot outside them, and ``evaluate --without-outline``."""
 
-import dataclasses
 import importlib.util
 import json
 
@@ -14,6 +13,7 @@ from gtsjax.cli.demo import demo_model_path
 from gtsjax.io import save_log, save_site
 from gtsjax.io.gtd import read_gtd
 from gtsjax.sim import simulate
+from tests._utils import first_scans
 from tests.conftest import need
 
 DEMO_MODEL = str(demo_model_path())
@@ -25,13 +25,7 @@ def field(tmp_path_factory):
     d = tmp_path_factory.mktemp("paths")
     log, site = simulate("spl-eval", seed=1)  # 1 s away and 3 s put down, 8 headings at each point
     n = 80
-    log = dataclasses.replace(
-        log,
-        ranges=log.ranges[:n],
-        stamps=log.stamps[:n],
-        truth_poses=log.truth_poses[:n],
-        extra={k: v[:n] for k, v in log.extra.items()},
-    )
+    log = first_scans(log, n)
     save_log(log, d / "log.npz")
     save_site(site, d / "site.json")
     return log, d / "site.json", d / "log.npz"
