@@ -34,7 +34,7 @@ from gtsjax.core.g_track import Detections, track_step
 from gtsjax.core.geometry import wrap
 from gtsjax.core.multi import init_several, step_several
 from gtsjax.core.pipeline import init_state, landmark_cap, perceive, step
-from gtsjax.drivers.replay import process_log, process_logs
+from gtsjax.drivers.batch import process_log, process_logs
 from gtsjax.drivers.several import merge_logs, process_several, site_poses
 from gtsjax.io import to_scans
 

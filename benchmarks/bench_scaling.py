@@ -25,7 +25,7 @@ import numpy as np
 
 from gtsjax.core.pipeline import init_state
 from gtsjax.core.scan import Scan
-from gtsjax.drivers.replay import process_log
+from gtsjax.drivers.batch import process_log
 from gtsjax.gp import GP, SparseGP
 from gtsjax.io import to_scans
 from gtsjax.sensors import URG_04LX, UTM_30LX, RangeNoise, SensorModel

@@ -16,7 +16,7 @@ from .core.pipeline import PipelineState as PipelineState
 from .core.pipeline import init_state as init_state
 from .core.pipeline import step as step
 from .core.scan import Scan as Scan
-from .drivers.replay import process_log as process_log
+from .drivers.batch import process_log as process_log
 from .errors import InputError as InputError
 from .errors import InputWarning as InputWarning
 from .sensors import MODELS as MODELS

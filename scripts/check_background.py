@@ -23,7 +23,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from build_demo_model import HELD_OUT, SHARED, load_real  # noqa: E402
 
 from gtsjax.cli.demo import demo_model_path  # noqa: E402
-from gtsjax.drivers.replay import process_log  # noqa: E402
+from gtsjax.drivers.batch import process_log  # noqa: E402
 from gtsjax.io import to_scans  # noqa: E402
 from gtsjax.io.importers import import_log  # noqa: E402
 from gtsjax.io.logs import fit_to_model  # noqa: E402

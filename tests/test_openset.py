@@ -187,7 +187,7 @@ def test_background_log_with_another_step_is_refused(tiny):
 def test_training_on_a_clean_hall_without_background_succeeds_and_tracks(tiny):
     """A hall with the robot, thin posts and long walls only: no background examples at all. Training
     warns and succeeds; the model finds the posts and tracks the robot walking in the same hall."""
-    from gtsjax.drivers.replay import process_log
+    from gtsjax.drivers.batch import process_log
     from gtsjax.io import to_scans
     from gtsjax.sim import simulate
 

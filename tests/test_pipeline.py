@@ -12,7 +12,7 @@ import pytest
 from gtsjax import InputError
 from gtsjax.cli import main
 from gtsjax.core.pipeline import init_state, step
-from gtsjax.drivers.replay import process_log
+from gtsjax.drivers.batch import process_log
 from gtsjax.io import save_log, save_site, to_scans
 from gtsjax.io.gtd import HEADER
 from gtsjax.io.logs import ScanLog, fit_to_model
@@ -80,7 +80,7 @@ def test_step_traced_once_per_model_shape_and_replay_equals_stepping(tiny):
     and gives the tracks of stepping scan by scan (the same computation, compiled apart: ids and
     masks equal, poses to float32 rounding); so does its vectorised form (perception ``vmap``ped over
     groups of scans, one size bucket per group, then the updates in turn)."""
-    from gtsjax.drivers.replay import process_chunk
+    from gtsjax.drivers.batch import run_chunk
 
     log, site = simulate("spl-crossing", seed=21, n_scans=45)
     model = tiny["model"].with_site(site)
@@ -95,10 +95,10 @@ def test_step_traced_once_per_model_shape_and_replay_equals_stepping(tiny):
             if m is model:
                 outs.append(jax.device_get(out))
     assert jitted._cache_size() == 1
-    before = process_chunk._cache_size()
+    before = run_chunk._cache_size()
     final, batch = process_log(model, scans, chunk=16)  # 45 = 16 + 16 + 13: the last chunk is padded
     process_log(retuned, scans, chunk=16)
-    assert process_chunk._cache_size() - before <= 1
+    assert run_chunk._cache_size() - before <= 1
     vfinal, vbatch = process_log(model, scans, chunk=16, vectorise=True, sub=8)
     assert sum(int(o.track_mask.sum()) for o in outs) > 40  # the robots were tracked
     for form, b in (("loop", batch), ("vectorised", vbatch)):
@@ -115,17 +115,17 @@ def test_logs_of_different_lengths_share_one_compiled_chunk(tiny):
     """A log shorter than the chunk is padded to the power of two that holds it (``chunk_for``), so
     logs of 35 and 45 scans run one compiled chunk of 64 (each length had compiled its own); and the
     shorter log's rows are the longer one's first rows, as stepping gives them."""
-    from gtsjax.drivers.replay import chunk_for, process_chunk
+    from gtsjax.drivers.batch import chunk_for, run_chunk
 
     assert [chunk_for(n, 256) for n in (1, 2, 3, 35, 45, 64, 65, 256, 600)] == [1, 2, 4, 64, 64, 64, 128, 256, 256]
     assert chunk_for(45, 16) == 16
     log, site = simulate("spl-crossing", seed=22, n_scans=45)
     model = tiny["model"].with_site(site)
     scans = to_scans(log, model.n_beams)
-    before = process_chunk._cache_size()
+    before = run_chunk._cache_size()
     _, long = process_log(model, scans)
     _, short = process_log(model, jax.tree.map(lambda a: a[:35], scans))
-    assert process_chunk._cache_size() - before <= 1
+    assert run_chunk._cache_size() - before <= 1
     assert long.track_id.shape[0] == 45 and short.track_id.shape[0] == 35
     assert long.track_mask.sum() > 20  # the robots were tracked
     for name in ("track_id", "track_class", "track_mask", "det_mask", "track_pose", "track_var", "det_pose"):
@@ -157,7 +157,7 @@ def test_several_logs_side_by_side_give_each_logs_own_tracks(tiny):
     """``process_logs`` (logs of different lengths side by side, one tracker each, perception of all
     their scans batched) gives each log what ``process_log`` gives it alone, vectorised or step by
     step, and the logs' own final states; a log that ended passes through the later chunks."""
-    from gtsjax.drivers.replay import process_logs
+    from gtsjax.drivers.batch import process_logs
 
     sims = [simulate("spl-crossing", seed=s, n_scans=n) for s, n in ((21, 40), (22, 23), (23, 9))]
     model = tiny["model"].with_site(sims[0][1])

@@ -11,7 +11,7 @@ import pytest
 
 from gtsjax.cli.demo import demo_model_path  # noqa: E402
 from gtsjax.core.pipeline import perceive  # noqa: E402
-from gtsjax.drivers.replay import process_log  # noqa: E402
+from gtsjax.drivers.batch import process_log  # noqa: E402
 from gtsjax.gp import predict_mean  # noqa: E402
 from gtsjax.io import to_scans  # noqa: E402
 from gtsjax.io.modelfile import load_model  # noqa: E402

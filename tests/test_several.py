@@ -396,19 +396,15 @@ def test_occluded_share_counts_robots_behind_robots():
 def test_cross_laser_disagreement_against_a_loop():
     """The sensor CSV's ``disagreement``: per scan, the largest distance between this laser's and another
     laser's latest residuals over the landmarks both saw; NaN before another laser shared one."""
-    from types import SimpleNamespace
-
-    from gtsjax.drivers.several import cross_laser_disagreement
+    from gtsjax.drivers.sink import Disagreement
 
     rng = np.random.default_rng(0)
     T, L = 12, 4
     laser = np.array([0, 1, 0, 1, 1, 0, 0, 1, 0, 1, 0, 1])
     res = rng.normal(0, 0.02, (T, L, 2))
     seen = rng.random((T, L)) < 0.6
-    got = cross_laser_disagreement(
-        SimpleNamespace(log=SimpleNamespace(n_scans=T), laser=laser),
-        SimpleNamespace(landmark_residual=res, landmark_seen=seen),
-    )
+    check = Disagreement()
+    got = [check.update(int(laser[t]), res[t], seen[t]) for t in range(T)]
     for t in range(T):
         prev = [u for u in range(t) if laser[u] != laser[t]]
         u = prev[-1] if prev else None

@@ -305,7 +305,7 @@ def update_view(model: Model, prev_tf: Transform, tracker: TrackerState, p: Perc
 def step(model: Model, state: PipelineState, scan: Scan) -> tuple[PipelineState, Output]:
     """The whole pipeline for one scan (Fig. 1, stages a–g): pure and not jitted. Each driver owns
     its jit: the live loop (``drivers.live``, the model closed over, one frame per call), batch replay
-    (``drivers.replay``, chunks of scans in one compiled loop), the benchmarks; a user's own loop
+    (``drivers.batch``, chunks of scans in one compiled loop), the benchmarks; a user's own loop
     wraps it in ``jax.jit``. The model's shape-fixing integers are static, its thresholds arrays, so
     one compilation serves every model of a shape."""
     return update(model, state, perceive(model, scan), scan)

@@ -34,6 +34,7 @@ import math
 import numpy as np
 
 from ..core.g_track import DEFAULT_MAX_SPEED, DEFAULT_MAX_TURN_RATE, HOLDS
+from ..io.gtd import COLUMN, STATUS_AT
 
 _TOO_FEW, _MAJORITY, _SPEED, _TURN = (HOLDS.index(h) for h in ("too few scans", "majority", "speed", "turn rate"))
 
@@ -98,20 +99,18 @@ class Tally:
     def _flush(self) -> None:
         if not self.pending:
             return
-        from .live import PACKED
-
         t = np.asarray(self.pending, np.float64)  # [n, M + 1, columns]
         self.pending = []
-        col = {c: i for i, c in enumerate(PACKED)}
+        col = COLUMN
         tracks, status = t[:, :-1], t[:, -1]
         cls = tracks[..., col["class"]].astype(np.int64)
         k = np.arange(len(self.classes))
         rep = ((tracks[..., col["reported"]] > 0.5)[..., None] & (cls[..., None] == k)).any(axis=1)
-        bits = status[:, 4].astype(np.int64)
+        bits = status[:, STATUS_AT["detected"]].astype(np.int64)
         det = ((bits[:, None] >> k) & 1).astype(bool)
         self._count(tracks[..., col["track_id"]].astype(np.int64), tracks[..., col["live"]] > 0.5, cls,
                     tracks[..., col["hold"]].astype(np.int64), tracks[..., col["speed"]],
-                    tracks[..., col["turn_rate"]], det, rep, status[:, 0] > 0.5)
+                    tracks[..., col["turn_rate"]], det, rep, status[:, STATUS_AT["degraded"]] > 0.5)
 
     def _count(self, tid, live, cls, hold, speed, turn, detected, reported, degraded) -> None:
         """Stacked scans: per scan and slot ``[n, M]`` (ids, live, class, hold, speed, turn rate), per

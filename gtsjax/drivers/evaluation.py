@@ -26,7 +26,7 @@ import numpy as np
 from ..core.geometry import wrap
 from ..core.model import Model
 from ..io.logs import ScanLog, fit_to_model, to_scans
-from .replay import process_log
+from .batch import process_log
 
 
 def match_scan(truth_xy, truth_ok, track_xy, track_ok, radius):

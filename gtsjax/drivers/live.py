@@ -33,7 +33,7 @@ from ..core.pipeline import Output, PipelineState, init_state, step
 from ..core.scan import Scan, valid_beams
 from ..errors import InputError
 from ..io import scip
-from ..io.gtd import format_rows, json_line, rows_from_table
+from ..io.gtd import PACKED, STATUS, format_rows, json_line, rows_from_table
 from ..io.logs import frame_dt
 from ..sensors import SensorModel
 from .packing import Packing
@@ -53,7 +53,7 @@ class LiveStats:
     unlike: int = 0  # candidates dropped as unlike every training example of their class
     off_envelope: int = 0  # candidates outside their best class's shape envelope
     warm_ups: int = 0  # throwaway steps run just before a frame was due (``run_live``'s ``keep_warm``)
-    track_ids: dict = dataclasses.field(default_factory=dict)  # class name -> ids of reported tracks
+    track_ids: dict = dataclasses.field(default_factory=dict)  # class name -> ids of reported tracks (the sink's)
     latencies_ms: deque = dataclasses.field(default_factory=lambda: deque(maxlen=2000))
     # Every frame's latency since the start, binned (LATENCY_EDGES_MS; first and last bins open-ended).
     latency_counts: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(LATENCY_EDGES_MS.size + 1, np.int64))
@@ -73,8 +73,6 @@ class LiveStats:
         self.frames += 1
         self.rows += len(rows)
         self.degraded += int(degraded)
-        for row in rows:
-            self.track_ids.setdefault(row.cls, set()).add(row.track_id)
         self.late += int(lat_ms > period_ms)
 
     def latency_quantile(self, q: float) -> float:
@@ -109,32 +107,32 @@ def frame_arrays(ranges_m: np.ndarray, intensities: np.ndarray | None, sensor: S
     return r, inten, valid
 
 
-# Columns of :func:`pack_tracks`.
-PACKED = ("track_id", "class", "x", "y", "theta", "var_x", "var_y", "var_theta", "cov_xy", "reported", "live", "hold",
-          "speed", "turn_rate")
 # Classes a status row's bit field of detected classes can hold (exact in float32 below 2^24).
 _CLASS_BITS = 24
 
 
 def pack_tracks(o: Output):
-    """The GTD rows' fields of one output as a single ``[M + 1, 14]`` float32 array (columns
-    :data:`PACKED`; track ids and classes are exact in float32 below 2^24), so that one transfer
-    brings a scan's rows to the host, with what the run's diagnosis counts (each slot's live flag,
-    hold and estimated motion: :mod:`gtsjax.drivers.diagnose`). The last row holds the scan's
-    status: degraded, objects, candidates unlike their class's examples, candidates outside their
-    best class's envelope, and the classes detected in the scan as a bit field (bit ``c``: class
-    ``c``, for the first 24 classes)."""
+    """The GTD rows' fields of one output as a single ``[M + 1, 14]`` float32 array (the layout
+    :data:`~gtsjax.io.gtd.PACKED`, defined beside its reader; track ids and classes are exact in
+    float32 below 2^24), so that one transfer brings a scan's rows to the host, with what the run's
+    diagnosis counts (each slot's live flag, hold and estimated motion:
+    :mod:`gtsjax.drivers.diagnose`). The last row holds the scan's status
+    (:data:`~gtsjax.io.gtd.STATUS`): degraded, objects, candidates unlike their class's examples,
+    candidates outside their best class's envelope, and the classes detected in the scan as a bit
+    field (bit ``c``: class ``c``, for the first 24 classes)."""
     f32 = jnp.float32
-    col = lambda a: a[:, None].astype(f32)  # noqa: E731
-    tracks = jnp.concatenate([
-        col(o.track_id), col(o.track_class), o.track_pose.astype(f32), o.track_var.astype(f32), col(o.track_cov_xy),
-        col(o.track_mask), col(o.track_live), col(o.track_hold), col(o.track_speed), col(o.track_turn_rate)], axis=1)
+    pose, var = o.track_pose.astype(f32), o.track_var.astype(f32)
+    columns = {"track_id": o.track_id, "class": o.track_class, "x": pose[:, 0], "y": pose[:, 1], "theta": pose[:, 2],
+               "var_x": var[:, 0], "var_y": var[:, 1], "var_theta": var[:, 2], "cov_xy": o.track_cov_xy,
+               "reported": o.track_mask, "live": o.track_live, "hold": o.track_hold, "speed": o.track_speed,
+               "turn_rate": o.track_turn_rate}
+    tracks = jnp.stack([columns[c].astype(f32) for c in PACKED], axis=1)
     bit = jnp.arange(_CLASS_BITS, dtype=jnp.int32)
     seen = jnp.any(o.det_mask[:, None] & (o.det_class[:, None] == bit[None, :]), axis=0)
     detected = jnp.sum(jnp.where(seen, jnp.left_shift(1, bit), 0), dtype=jnp.int32)
-    status = jnp.zeros((1, len(PACKED)), f32).at[0, :5].set(jnp.stack([
-        o.degraded.astype(f32), o.n_objects.astype(f32), o.unlike.astype(f32), o.off_envelope.astype(f32),
-        detected.astype(f32)]))
+    fields = {"degraded": o.degraded, "n_objects": o.n_objects, "unlike": o.unlike, "off_envelope": o.off_envelope,
+              "detected": detected}
+    status = jnp.zeros((1, len(PACKED)), f32).at[0, :len(STATUS)].set(jnp.stack([fields[f].astype(f32) for f in STATUS]))
     return jnp.concatenate([tracks, status], axis=0)
 
 

@@ -18,8 +18,12 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..io.gtd import GTDWriter
+from ..io.gtd import STATUS_AT
 from .live import LiveStats, Outputs, decoder_sample, rows_from_packed, warm_host, warm_up_lead
+from .sink import Sink
+
+# Where the packed table's status row (its last) holds what the loop reads.
+DEGRADED, UNLIKE, OFF_ENVELOPE = (STATUS_AT[f] for f in ("degraded", "unlike", "off_envelope"))
 
 
 class Frames:
@@ -100,15 +104,18 @@ class LiveSession:
     ):
         from ..io.bag_out import BagOut, LaserGeometry
         from ..io.record import Recorder
-        from .diagnose import Tally
 
         names = list(links)
         self.links = [links[n] for n in names]
-        self.stats = LiveStats(tally=Tally(model))
+        self.outputs = outputs or Outputs()
+        bag = BagOut(out_bag, {n: LaserGeometry.of_sensor(links[n].model) for n in names}) if out_bag is not None else None
+        self.sink = Sink(model, out, names=tuple(names) if named else None, bag=bag, view=view,
+                         csv_units=self.outputs.csv_units)
+        self.stats = LiveStats(tally=self.sink.tally, track_ids=self.sink.track_ids)
         for link in self.links:  # frames that queued up while compiling are stale
             while link.get(timeout=0) is not None:
                 self.stats.stale += 1
-        self.out, self.classes, self.outputs = out, model.classes, outputs or Outputs()
+        self.classes = model.classes
         self.period_ms = [link.model.period * 1000.0 for link in self.links]
         recorders = {
             n: Recorder(p, model=links[n].model, intensities=with_intensity and links[n].model.has_intensity)
@@ -116,14 +123,7 @@ class LiveSession:
         }
         self.recorders = [recorders.get(n) for n in names]
         self.all_recorders = list(recorders.values())
-        self.bag = (
-            BagOut(out_bag, {n: LaserGeometry.of_sensor(links[n].model) for n in names})
-            if out_bag is not None
-            else None
-        )
-        self.view, self.on_scan = view, on_scan
-        self.bag_names = names
-        self.view_names = names if named else [None] * len(names)
+        self.on_scan = on_scan
         self.tags = [{"laser": n} if named else {} for n in names]  # what each frame's JSON line adds
         self.scan_args = [(n,) if named else () for n in names]  # what ``on_scan`` gets after the stamp
         self.warm = KeepWarm(self.links, self.stats, model.classes) if keep_warm else None
@@ -132,27 +132,15 @@ class LiveSession:
 
     def emit(self, k: int, lf, step, o, rows, lat: float, unpack: bool):
         """Laser ``k``'s frame after its latency is taken: recorded, its output unpacked on the host when
-        something reads it (``unpack``), in the bag and the view. Returns the output."""
+        something reads it (``unpack``), in the bag and the view (the sink's). Returns the output."""
         if self.recorders[k] is not None:
             self.recorders[k].append_frame(lf)
         if unpack:
             o = step.output(o)
-        if self.bag is not None:
-            pose = np.asarray(o.sensor_pose, np.float64)
-            self.bag.write(lf.stamp, lf.ranges_m, lf.intensities, rows, pose, laser=self.bag_names[k])
-        if self.view is not None:
-            sensor, link = self.links[k].model, self.links[k]
-            self.view.scan(
-                lf.stamp,
-                lf.ranges_m,
-                sensor.angle_min,
-                sensor.angle_increment,
-                o,
-                rows,
-                latency_ms=lat,
-                dropped=getattr(getattr(link, "stats", None), "dropped", None),
-                laser=self.view_names[k],
-            )
+        if self.sink.wants_output:
+            sensor = self.links[k].model
+            self.sink.show(k, lf.stamp, rows, lf.ranges_m, lf.intensities, sensor.angle_min, sensor.angle_increment, o,
+                           latency_ms=lat, dropped=getattr(getattr(self.links[k], "stats", None), "dropped", None))
         return o
 
     def close(self, failed: InputError | None) -> None:
@@ -164,10 +152,7 @@ class LiveSession:
         for link in self.links:
             if hasattr(link, "stop"):
                 link.stop()
-        if self.bag is not None:
-            self.bag.close()
-        if self.view is not None:
-            self.view.close()
+        self.sink.close()
         for rec in self.all_recorders:
             rec.close(write_log=failed is None)
 
@@ -181,41 +166,42 @@ def run_loop(session: LiveSession, frames: Frames, state) -> InputError | None:
     stats, classes, tags, period_ms = session.stats, session.classes, session.tags, session.period_ms
     send, warm, on_scan = session.outputs.send, session.warm, session.on_scan
     stop, t_end, max_frames = session.stop, session.t_end, session.max_frames
-    unpack = frames.needs_output or session.bag is not None or session.view is not None or on_scan is not None
+    sink = session.sink
+    unpack = frames.needs_output or sink.wants_output or on_scan is not None
     failed = None
     try:
-        with GTDWriter(session.out, units=session.outputs.csv_units) as writer:
-            while (
-                not (stop is not None and stop.is_set())
-                and (t_end is None or time.monotonic() < t_end)
-                and (max_frames is None or stats.frames < max_frames)
-            ):
-                got = frames.next(state)
-                if got is None:
-                    if frames.gone is not None:
-                        break
-                    continue
-                lf, k, step, args = got
-                t_step = time.perf_counter()
-                state, o, packed = step(state, lf.ranges_m, lf.intensities, *args)
-                table = np.asarray(packed).tolist()  # the rest of the frame's path is plain Python
-                rows = rows_from_packed(lf.stamp, table, classes)
-                writer.write(rows)
-                degraded = table[-1][0] > 0.5
-                send(rows, lf.stamp, degraded=degraded, **tags[k])
-                t_done = time.perf_counter()
-                lat = (t_done - lf.recv_perf) * 1000.0
-                if warm is not None:
-                    warm.ran(k, lf, table, t_step, t_done)
-                # Bookkeeping after the latency is taken: the recording, the bag and the view are not on the path.
-                o = session.emit(k, lf, step, o, rows, lat, unpack)
-                stats.count(rows, lat, degraded, period_ms[k])
-                stats.tally.add_packed(table)
-                stats.unlike += int(table[-1][2])  # the packed status row: one laser or several alike
-                stats.off_envelope += int(table[-1][3])
-                frames.count(k, lf, o, table, lat, degraded)
-                if on_scan is not None:
-                    on_scan(stats, o, lf.stamp, *session.scan_args[k])
+        while (
+            not (stop is not None and stop.is_set())
+            and (t_end is None or time.monotonic() < t_end)
+            and (max_frames is None or stats.frames < max_frames)
+        ):
+            got = frames.next(state)
+            if got is None:
+                if frames.gone is not None:
+                    break
+                continue
+            lf, k, step, args = got
+            t_step = time.perf_counter()
+            state, o, packed = step(state, lf.ranges_m, lf.intensities, *args)
+            table = np.asarray(packed).tolist()  # the rest of the frame's path is plain Python
+            rows = rows_from_packed(lf.stamp, table, classes)
+            sink.write(rows)
+            degraded = table[-1][DEGRADED] > 0.5
+            send(rows, lf.stamp, degraded=degraded, **tags[k])
+            t_done = time.perf_counter()
+            lat = (t_done - lf.recv_perf) * 1000.0
+            if warm is not None:
+                warm.ran(k, lf, table, t_step, t_done)
+            # Bookkeeping after the latency is taken: the recording, the bag and the view are not on the path.
+            o = session.emit(k, lf, step, o, rows, lat, unpack)
+            stats.count(rows, lat, degraded, period_ms[k])
+            sink.count(rows, k, degraded)
+            sink.tally.add_packed(table)
+            stats.unlike += int(table[-1][UNLIKE])  # the packed status row: one laser or several alike
+            stats.off_envelope += int(table[-1][OFF_ENVELOPE])
+            frames.count(k, lf, o, table, lat, degraded)
+            if on_scan is not None:
+                on_scan(stats, o, lf.stamp, *session.scan_args[k])
     except KeyboardInterrupt:
         pass
     except InputError as err:

@@ -26,7 +26,7 @@ from ..errors import InputError
 from ..sensors import SensorModel
 from .live import LiveStep, Outputs, check_sensor
 from .live_loop import LiveSession, run_loop
-from .several import Disagreement
+from .sink import Disagreement
 
 
 @dataclasses.dataclass
@@ -37,7 +37,7 @@ class LaserStats:
     degraded: int = 0
     late: int = 0
     latencies_ms: collections.deque = dataclasses.field(default_factory=lambda: collections.deque(maxlen=2000))
-    # The calibration check (:class:`~gtsjax.drivers.several.Disagreement`) of this laser's scans that
+    # The calibration check (:class:`~gtsjax.drivers.sink.Disagreement`) of this laser's scans that
     # shared a landmark with another laser's latest (metres), the largest, and how many times it stayed
     # above ``CALIBRATION_WARN_M`` for ``CALIBRATION_WARN_S`` (each such spell warned once).
     disagreement_m: collections.deque = dataclasses.field(default_factory=lambda: collections.deque(maxlen=2000))

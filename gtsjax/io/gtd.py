@@ -91,23 +91,45 @@ def wrap_angle(a: float) -> float:
     return math.pi - (math.pi - a) % (2.0 * math.pi)
 
 
+#: The columns of a scan's track table as the live step hands it to the host in one transfer
+#: (:func:`gtsjax.drivers.live.pack_tracks`), one row per track slot: the GTD row's fields first
+#: (:func:`rows_from_table` reads them), then what the run's diagnosis counts.
+PACKED = ("track_id", "class", "x", "y", "theta", "var_x", "var_y", "var_theta", "cov_xy", "reported", "live", "hold",
+          "speed", "turn_rate")
+#: The packed table's last row, the scan's status, in its first columns: degraded (no new map
+#: transformation), objects, candidates unlike their class's examples, candidates outside their
+#: class's envelope, the classes detected as a bit field.
+STATUS = ("degraded", "n_objects", "unlike", "off_envelope", "detected")
+#: Where each column and status field lies.
+COLUMN = {c: i for i, c in enumerate(PACKED)}
+STATUS_AT = {c: i for i, c in enumerate(STATUS)}
+_ID, _CLS, _X, _Y, _TH, _VX, _VY, _VT, _CXY, _REP = (
+    COLUMN[c] for c in ("track_id", "class", "x", "y", "theta", "var_x", "var_y", "var_theta", "cov_xy", "reported"))
+
+
 def rows_from_table(stamp: float, table, class_names) -> list[TrackRow]:
-    """Rows for one scan from its track slots as lists ``[id, class, x, y, θ, var_x, var_y, var_θ,
-    cov_xy, confirmed, ...]`` (numbers; ``confirmed`` above 0.5 for a reported track), confirmed
-    tracks only, in id order. Plain Python: the live loop calls it right after the step, where each NumPy call costs
+    """Rows for one scan from its track slots as lists in the :data:`PACKED` layout (numbers;
+    ``reported`` above 0.5 for a reported track), reported tracks only, in id
+    order. Plain Python: the live loop calls it right after the step, where each NumPy call costs
     many times what it does in a tight loop (see :func:`gtsjax.drivers.live.rows_from_packed`)."""
-    rows = [TrackRow(float(stamp), int(r[0]), class_names[int(r[1])], r[2], r[3], wrap_angle(r[4]), r[5], r[6], r[7],
-                     r[8]) for r in table if r[9] > 0.5]
+    rows = [TrackRow(float(stamp), int(r[_ID]), class_names[int(r[_CLS])], r[_X], r[_Y], wrap_angle(r[_TH]), r[_VX],
+                     r[_VY], r[_VT], r[_CXY]) for r in table if r[_REP] > 0.5]
     rows.sort(key=lambda row: row.track_id)
     return rows
 
 
 def rows_from_output(stamp: float, track_id, cls_index, pose, var, mask, class_names, cov_xy=None) -> list[TrackRow]:
     """Rows for one scan from the step's fixed-size track arrays (NumPy or JAX), confirmed tracks only
-    (:func:`rows_from_table` of the slots side by side, in float64); ``cov_xy`` 0 where not given."""
-    col = lambda a: np.asarray(a, np.float64).reshape(len(mask), -1)  # noqa: E731
-    cov = np.zeros(len(mask)) if cov_xy is None else cov_xy
-    table = np.concatenate([col(track_id), col(cls_index), col(pose), col(var), col(cov), col(mask)], axis=1)
+    (:func:`rows_from_table` of the slots laid out as :data:`PACKED`, in float64); ``cov_xy`` 0 where
+    not given."""
+    pose, var = np.asarray(pose, np.float64), np.asarray(var, np.float64)
+    columns = {"track_id": track_id, "class": cls_index, "x": pose[:, 0], "y": pose[:, 1], "theta": pose[:, 2],
+               "var_x": var[:, 0], "var_y": var[:, 1], "var_theta": var[:, 2], "reported": mask}
+    if cov_xy is not None:
+        columns["cov_xy"] = cov_xy
+    table = np.zeros((len(mask), len(PACKED)))
+    for name, values in columns.items():
+        table[:, COLUMN[name]] = np.asarray(values, np.float64)
     return rows_from_table(stamp, table.tolist(), class_names)
 
 

@@ -32,7 +32,7 @@ from ..core.g_track import HOLDS, Detections, TrackerState, reported, track_step
 from ..core.geometry import wrap
 from ..core.model import Model
 from ..core.pipeline import REASONS
-from ..drivers.replay import process_log
+from ..drivers.batch import process_log
 from ..io.logs import ScanLog, to_scans
 from ..io.site import Site
 from .labels import scan_groups
