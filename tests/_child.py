@@ -1,4 +1,4 @@
-"""``python -m tests._child ARGS``: ``gtsjax ARGS`` in a child process under the checks the in-process
+"""``python -m tests._child ARGS``: ``gtsjax ARGS`` (or ``--module NAME ARGS``) in a child process under the checks the in-process
 tests run with (:func:`install_checks`, which ``tests/conftest.py`` calls too): the core's and the GP
 library's annotations checked at run time by beartype, strict dtype promotion and rank promotion that
 raises. Without them a command run as a subprocess would pass a float64 leaking into the float32 step,
@@ -32,10 +32,15 @@ def install_checks() -> None:
 
 
 def main() -> None:
+    """``gtsjax ARGS``; or ``--module NAME ARGS``: another module's command line (``python -m NAME``)."""
     signal.signal(signal.SIGINT, signal.default_int_handler)
     install_checks()
-    sys.argv[0] = "gtsjax"
-    runpy.run_module("gtsjax", run_name="__main__", alter_sys=True)
+    module = "gtsjax"
+    if sys.argv[1:2] == ["--module"]:
+        module = sys.argv[2]
+        del sys.argv[1:3]
+    sys.argv[0] = module
+    runpy.run_module(module, run_name="__main__", alter_sys=True)
 
 
 if __name__ == "__main__":

@@ -16,6 +16,7 @@ from gtsjax.errors import InputError
 from gtsjax.io.logs import load_log
 from gtsjax.io.record import Recorder, journal_path, main, read_journal, recover
 from gtsjax.sensors import URG_04LX, UTM_30LX
+from tests._utils import CHILD as CHILD_CLI
 from tests._utils import cli_env, run_cli
 
 
@@ -174,7 +175,7 @@ def test_recovery_command_line(tmp_path, capsys):
     for k in range(n):
         np.testing.assert_array_equal(log.ranges[k], _scan(k, UTM_30LX.n_beams))
         assert log.intensities[k, 0] == k and log.stamps[k] == 1000.0 + 0.025 * k
-    cmd = [sys.executable, "-m", "gtsjax.io.record", str(journal), str(tmp_path / "again.npz")]
+    cmd = [*CHILD_CLI, "--module", "gtsjax.io.record", str(journal), str(tmp_path / "again.npz")]
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=60, env=cli_env())
     assert done.returncode == 0, done.stderr
     assert load_log(tmp_path / "again.npz").n_scans == n
