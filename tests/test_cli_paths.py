@@ -1,6 +1,8 @@
-"""Command-line paths no other test ran, each run for real on a short simulated log (the first 8 s of spl-eval:1,
-the robot put down at one point with two headings) and checked on what it writes: ``replay --view-save``, a site's
-``bounds`` with the tracked robot outside them, and ``evaluate --without-outline``."""
+"""Command-line paths no other test ran, each run for real and checked on what it writes against the simulation's
+truth or values typed from the spec: ``replay --view-save``, a site's ``bounds`` with the tracked robot outside them,
+``evaluate --without-outline`` (on the first 8 s of spl-eval:1, the robot put down at one point with two headings);
+``run --no-intensity`` from an emulated UTM-30LX (``MD`` asked for, no intensities recorded); the one-laser run's
+terminal view on a real pseudo-terminal; ``evaluate --scenario spl-match-2`` with a match model."""
 
 import dataclasses
 import importlib.util
