@@ -85,6 +85,18 @@ def run_cli(*args, timeout: float = 600, **kwargs) -> subprocess.CompletedProces
     )
 
 
+def cli(capsys, *args) -> subprocess.CompletedProcess:
+    """``gtsjax ARGS`` in this process, its stdout and stderr as pytest's ``capsys`` captured them, as
+    :func:`run_cli` gives them: for a command whose test needs no child (no signal, terminal or fresh
+    interpreter), so that it shares the worker's compiled programs instead of compiling its own."""
+    from gtsjax.cli import main
+
+    capsys.readouterr()
+    code = main([str(a) for a in args])
+    got = capsys.readouterr()
+    return subprocess.CompletedProcess([str(a) for a in args], code, got.out, got.err)
+
+
 def popen_cli(*args, **kwargs) -> subprocess.Popen:
     """``gtsjax ARGS`` started in the background (stdout a pipe of text lines), under the tests' checks
     and with Ctrl-C as a user's terminal delivers it (``tests._child`` restores SIGINT's handler)."""

@@ -32,7 +32,7 @@ from gtsjax.io.serial import Link
 from gtsjax.sensors import URG_04LX
 from gtsjax.sim import simulate
 from gtsjax.sim.emulator import SensorEmulator, log_source
-from tests._utils import cli_env, first_scans, popen_cli, read_lines, run_cli
+from tests._utils import cli, cli_env, first_scans, popen_cli, read_lines, run_cli
 
 DEMO_MODEL = demo_model_path()
 PATIENCE_S = 300.0  # a child that compiles the step on a loaded 2-core machine; never a measurement
@@ -94,7 +94,7 @@ def test_demo_without_a_confirmed_track_fails(tmp_path, capsys):
 # ------------------------------------------------------------------------------------------ train
 
 
-def test_train_command_line_takes_several_logs_and_caps(tmp_path):
+def test_train_command_line_takes_several_logs_and_caps(tmp_path, capsys):
     """``gtsjax train A.npz B.npz ... --max-pose N``: both logs' scans are used, the pose GPs hold the
     N examples asked for, the classifier and landmark GPs their caps, and the model names the scanner.
     With ``--pose-kernels 2`` the robot's pose GPs are two groups of one kernel (position, heading), with
@@ -104,7 +104,8 @@ def test_train_command_line_takes_several_logs_and_caps(tmp_path):
     save_log(a, tmp_path / "a.npz")
     save_log(b, tmp_path / "b.npz")
     save_site(site, tmp_path / "site.json")
-    res = run_cli(
+    res = cli(
+        capsys,
         "train",
         tmp_path / "a.npz",
         tmp_path / "b.npz",
@@ -130,7 +131,6 @@ def test_train_command_line_takes_several_logs_and_caps(tmp_path):
         "robot=0.7",
         "--max-turn-rate",
         "robot=2.5",
-        timeout=PATIENCE_S,
     )
     assert res.returncode == 0, res.stderr
     assert "training on 350 scans from 2 log(s)" in " ".join(res.stderr.split())
@@ -150,7 +150,8 @@ def test_train_command_line_takes_several_logs_and_caps(tmp_path):
     reg = model.pose[robot]
     assert reg.shared is not None and [g.n_outputs for g in reg.shared] == [2, 2] and reg.sin is None
     assert (
-        run_cli(
+        cli(
+            capsys,
             "replay",
             tmp_path / "b.npz",
             "--site",

@@ -19,7 +19,7 @@ from gtsjax.io.logs import ScanLog, fit_to_model
 from gtsjax.io.modelfile import load_model, read_header
 from gtsjax.sensors import UTM_30LX
 from gtsjax.sim import simulate
-from tests._utils import run_cli
+from tests._utils import cli
 
 
 def test_training_report_is_complete(tiny):
@@ -174,7 +174,7 @@ def test_several_logs_side_by_side_give_each_logs_own_tracks(tiny):
     assert none is None and len(some.track_id) == 9
 
 
-def test_replay_of_several_logs_writes_one_csv_each(tiny, tmp_path):
+def test_replay_of_several_logs_writes_one_csv_each(tiny, tmp_path, capsys):
     """``gtsjax replay A B --out FOLDER`` writes FOLDER/A.csv and FOLDER/B.csv with the rows each log's
     own replay writes; two logs of one name, or a file as the folder, are one line and exit 2 before
     anything is written."""
@@ -185,10 +185,10 @@ def test_replay_of_several_logs_writes_one_csv_each(tiny, tmp_path):
         save_log(log, paths[-1])
     save_site(site, tmp_path / "site.json")
     common = ("--site", tmp_path / "site.json", "--model", tiny["path"])
-    res = run_cli("replay", *paths, *common, "--out", tmp_path / "gtd", "--sensor-out", tmp_path / "sensor")
+    res = cli(capsys, "replay", *paths, *common, "--out", tmp_path / "gtd", "--sensor-out", tmp_path / "sensor")
     assert res.returncode == 0, res.stderr
     for p in paths:
-        alone = run_cli("replay", p, *common, "--out", tmp_path / f"{p.stem}-alone.csv")
+        alone = cli(capsys, "replay", p, *common, "--out", tmp_path / f"{p.stem}-alone.csv")
         assert alone.returncode == 0, alone.stderr
         with open(tmp_path / "gtd" / f"{p.stem}.csv") as f, open(tmp_path / f"{p.stem}-alone.csv") as g:
             both, one = list(csv.reader(f)), list(csv.reader(g))
@@ -203,17 +203,17 @@ def test_replay_of_several_logs_writes_one_csv_each(tiny, tmp_path):
     for args, words in (((paths[0], twin), "both write walk41.csv"), ((*paths,), "is a file")):
         out = tmp_path / "afile.csv"
         out.write_text("")
-        res = run_cli("replay", *args, *common, "--out", out if words == "is a file" else tmp_path / "new")
+        res = cli(capsys, "replay", *args, *common, "--out", out if words == "is a file" else tmp_path / "new")
         lines = res.stderr.strip().splitlines()
         assert res.returncode == 2 and len(lines) == 1 and words in lines[0], res.stderr
     assert not (tmp_path / "new").exists()
 
 
-def test_replay_writes_spec_csv(tiny, tmp_path):
+def test_replay_writes_spec_csv(tiny, tmp_path, capsys):
     log, site = simulate("spl-trajectory", seed=31, n_scans=60)
     save_log(log, tmp_path / "log.npz")
     save_site(site, tmp_path / "site.json")
-    res = run_cli("replay", tmp_path / "log.npz", "--site", tmp_path / "site.json", "--model", tiny["path"],
+    res = cli(capsys, "replay", tmp_path / "log.npz", "--site", tmp_path / "site.json", "--model", tiny["path"],
                   "--out", tmp_path / "gtd.csv", "--sensor-out", tmp_path / "sensor.csv")
     assert res.returncode == 0, res.stderr
     with open(tmp_path / "gtd.csv", newline="") as f:
@@ -238,7 +238,7 @@ def test_replay_writes_spec_csv(tiny, tmp_path):
     assert np.sqrt(np.mean(e_pos**2)) <= 0.03 and np.degrees(np.sqrt(np.mean(e_th**2))) <= 6.0, (e_pos, e_th)
 
 
-def _replay_with(tiny, tmp_path, scenario: str, seed: int, n_scans: int, option: str, values):
+def _replay_with(tiny, tmp_path, capsys, scenario: str, seed: int, n_scans: int, option: str, values):
     """``replay`` of a simulated log with ``option`` at each of ``values`` (``None``: left off): the
     log and each value's GTD rows (without the header); and that ``option 0`` is a usage error (exit 2,
     naming the option)."""
@@ -249,19 +249,19 @@ def _replay_with(tiny, tmp_path, scenario: str, seed: int, n_scans: int, option:
     rows = {}
     for n in values:
         out = tmp_path / f"gtd-{n}.csv"
-        res = run_cli(*args, "--out", out, *(() if n is None else (option, str(n))))
+        res = cli(capsys, *args, "--out", out, *(() if n is None else (option, str(n))))
         assert res.returncode == 0, res.stderr
         with open(out, newline="") as f:
             rows[n] = list(csv.reader(f))[1:]
-    res = run_cli(*args, "--out", tmp_path / "x.csv", option, "0")
+    res = cli(capsys, *args, "--out", tmp_path / "x.csv", option, "0")
     assert res.returncode == 2 and option.lstrip("-") in res.stderr
     return log, rows
 
 
-def test_replay_confirm_scans_delays_the_first_row_only(tiny, tmp_path):
+def test_replay_confirm_scans_delays_the_first_row_only(tiny, tmp_path, capsys):
     """``--confirm-scans N``: a track is reported from its N-th scan of detections on, later than with
     the model's own confirmation, and from then on in the same scans; 0 is a usage error (exit 2)."""
-    log, rows = _replay_with(tiny, tmp_path, "spl-trajectory", 33, 60, "--confirm-scans", (None, 12))
+    log, rows = _replay_with(tiny, tmp_path, capsys, "spl-trajectory", 33, 60, "--confirm-scans", (None, 12))
     first, stamps = {}, {}
     for n, r in rows.items():
         assert r, "the robot is tracked"
@@ -272,17 +272,17 @@ def test_replay_confirm_scans_delays_the_first_row_only(tiny, tmp_path):
     assert stamps[12] == [t for t in stamps[None] if t >= stamps[12][0]]
 
 
-def test_replay_max_tracks_bounds_the_robots_tracked_at_once(tiny, tmp_path):
+def test_replay_max_tracks_bounds_the_robots_tracked_at_once(tiny, tmp_path, capsys):
     """``--max-tracks N`` (the model's track slots, 8 as trained): three robots crossing fill three
     slots; with two slots no scan reports more than two, and with twelve the rows are the trained
     model's (the slots are array sizes, nothing learnt). 0 is a usage error (exit 2)."""
-    _, rows = _replay_with(tiny, tmp_path, "spl-crossing", 35, 120, "--max-tracks", (None, 2, 12))
+    _, rows = _replay_with(tiny, tmp_path, capsys, "spl-crossing", 35, 120, "--max-tracks", (None, 2, 12))
     per_scan = {n: np.unique([x[0] for x in r], return_counts=True)[1] for n, r in rows.items()}
     assert per_scan[None].max() == 3 and per_scan[2].max() == 2
     assert [x[:3] for x in rows[12]] == [x[:3] for x in rows[None]]
 
 
-def test_replay_bad_inputs_exit_2_with_one_line(tiny, tmp_path):
+def test_replay_bad_inputs_exit_2_with_one_line(tiny, tmp_path, capsys):
     log, site = simulate("spl-eval", seed=1, n_scans=5)
     good_log, good_site = tmp_path / "log.npz", tmp_path / "site.json"
     save_log(log, good_log)
@@ -305,7 +305,7 @@ def test_replay_bad_inputs_exit_2_with_one_line(tiny, tmp_path):
         (utm_log, good_site, tiny["path"], "trained for sensor URG-04LX"),
     ]
     for log_p, site_p, model_p, match in cases:
-        res = run_cli("replay", log_p, "--site", site_p, "--model", model_p, "--out", tmp_path / "o.csv")
+        res = cli(capsys, "replay", log_p, "--site", site_p, "--model", model_p, "--out", tmp_path / "o.csv")
         lines = res.stderr.strip().splitlines()
         assert res.returncode == 2, (match, res.stderr)
         assert len(lines) == 1 and match in lines[0] and "Traceback" not in res.stderr, (match, res.stderr)
