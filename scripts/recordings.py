@@ -48,8 +48,8 @@ def main() -> None:
             ev, es = check_scene(case["site"], kind, seed=check_seed, rate_hz=case["rate_hz"], outline=case["outline"],
                                  clutter=case["clutter"])
             scores[kind] = evaluate_log(model.with_site(es), ev)
-        said = sorted({"unseen sides" if "is seen from" in w else "unseen field" if "is labelled in" in w
-                       else "implausible value" if "plausible range" in w else "other" for w in report["warnings"]}
+        said = sorted({"unseen sides" if "is seen from" in w else "half-turn symmetric" if "half a turn" in w
+                       else "unseen field" if "is labelled in" in w else "implausible value" if "plausible range" in w else "other" for w in report["warnings"]}
                       | {"detected in few scans" for p in report["pipeline_problems"] if "detected in only" in p})
         motion = report["motion_limits"]["robot"]
         row = (f"| {name} | {log.n_scans} | {seconds:.0f} s | {motion['max_speed']:.2f} ({motion['max_speed_from']}) | "

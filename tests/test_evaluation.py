@@ -42,7 +42,7 @@ def _scene():
     out = SimpleNamespace(track_pose=pose, track_mask=mask, track_id=tid, track_class=np.full((T, M), ROBOT),
                           det_pose=det_pose, det_mask=det_mask, det_class=np.full((T, 3), ROBOT),
                           degraded=np.zeros(T, bool))
-    model = SimpleNamespace(classes=("background", "post", "robot"),
+    model = SimpleNamespace(classes=("background", "post", "robot"), pose=(None, None, None),
                             site=SimpleNamespace(bounds=np.array([0.0, 0.0, 6.0, 4.0]), has_bounds=True))
     return log, out, model, present
 

@@ -148,3 +148,36 @@ def test_pose_gps_over_one_training_set_read_their_inputs_once():
     fit = gp.fit(x, 0.1 * x[:, 0], key=jax.random.key(9), restarts=1)
     assert CommonInputsGP.of((gps[0], fit.sparse(40, 20).astype(jnp.float32))) is None
     assert PoseRegressor(gps[0], fit.sparse(40, 20).astype(jnp.float32)).with_common_inputs().common is None
+
+
+def test_a_class_alike_turned_half_a_turn_reads_its_heading_modulo_pi():
+    """Heading GPs on ``(sin 2θ̃, cos 2θ̃)`` (``turns`` 2, a rectangular base): the read is θ̃ modulo π, half
+    the angle the same GPs give read as ``(sin θ̃, cos θ̃)``, with a quarter of its variance; it follows the
+    true heading modulo π, and calibration does not charge a read for the half-turn it cannot tell."""
+    rng = np.random.default_rng(3)
+    x = rng.uniform(-2, 2, (80, 2))
+    th = 1.4 * x[:, 0]  # headings over ±160°: the same view for θ and θ + π
+    noise = 0.03 * rng.normal(size=(4, len(x)))
+    fits = [gp.fit(x, t + e, key=jax.random.key(10 + i), restarts=1)
+            for i, (t, e) in enumerate(zip([0.1 * x[:, 0], 0.05 * x[:, 1], np.sin(2 * th), np.cos(2 * th)], noise,
+                                           strict=True))]
+    plain = PoseRegressor(*[f.sparse(80, 20).astype(jnp.float32) for f in fits])
+    half = eqx.tree_at(lambda r: r.turns, plain, jnp.asarray(2, jnp.int32), is_leaf=lambda v: v is None)
+    xs = rng.uniform(-1.9, 1.9, (400, 2)).astype(np.float32)
+    rel_p, var_p = map(np.asarray, regress_one_class(plain, jnp.asarray(xs)))
+    rel_h, var_h = map(np.asarray, regress_one_class(half, jnp.asarray(xs)))
+    np.testing.assert_allclose(rel_h[:, 2], rel_p[:, 2] / 2, atol=1e-6)
+    below = var_p[:, 2] < np.pi**2 / 3 - 1e-6  # the cap (no information) applies after the quarter
+    assert below.mean() > 0.9
+    np.testing.assert_allclose(var_h[below, 2], var_p[below, 2] / 4, rtol=1e-5)
+    np.testing.assert_array_equal(rel_h[:, :2], rel_p[:, :2])
+    truth = 1.4 * xs[:, 0]
+    off = np.angle(np.exp(2j * (rel_h[:, 2] - truth))) / 2  # modulo π, by hand
+    assert np.degrees(np.sqrt(np.mean(off**2))) < 3.0
+    # Held-out targets with the truth's heading, a third of them given as the other half-turn: the
+    # same calibration either way (modulo π), where a class without the symmetry would be charged for it.
+    target = np.stack([0.1 * xs[:, 0], 0.05 * xs[:, 1], truth], -1) + 0.02 * rng.normal(size=(len(xs), 3))
+    flipped = target.copy()
+    flipped[rng.uniform(size=len(xs)) < 0.33, 2] += np.pi
+    np.testing.assert_allclose(np.asarray(calibrate(half, xs, flipped).var_scale),
+                               np.asarray(calibrate(half, xs, target).var_scale), rtol=1e-5)

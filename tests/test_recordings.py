@@ -17,8 +17,11 @@ import re
 import pytest
 
 from gtsjax.drivers.evaluation import evaluate_log
+from gtsjax.io import save_log, save_site
+from gtsjax.io.modelfile import save_model
 from gtsjax.sim import check_scene, recording
 from gtsjax.train import TrainConfig, train
+from tests._utils import cli
 
 # Small models: enough views for 2 cm, few enough for about a minute of training on 2 cores.
 SMALL = dataclasses.replace(TrainConfig(), max_per_class=100, max_pose_examples=300, max_pose_fit=150, n_inducing=300,
@@ -39,7 +42,9 @@ CASES = {
     "walking, SPL field, 10 Hz, Nao, clutter": dict(site="spl", style="walk", rate_hz=None, outline="nao",
                                                     clutter=True, seconds=120.0,
                                                     position_short="heading misread from sides a walk never "
-                                                                   "showed: 3.5 cm (issue 38, item 5)"),
+                                                                   "showed: 3.5 cm (issue 38, item 5)",
+                                                    heading_short={k: "sides a walk never showed misread: 68–78° "
+                                                                      "(issue 38, item 5)" for k in ("static", "walking")}),
     # Carried from pose to pose over the whole field (450 s, 18 points): fewer points leave the robot
     # unseen where the check scenes put it, and training warns so.
     "carried between poses, SPL field, 10 Hz, Nao": dict(site="spl", style="carried", rate_hz=None, outline="nao",
@@ -84,6 +89,11 @@ def test_training_checks_that_its_model_tracks(trained):
     # The walk's labels see the robot side-on, and training says so; the others see it from every side.
     side_warnings = [w for w in report["warnings"] if "sides" in w]
     assert bool(side_warnings) == (case["style"] == "walk"), report["warnings"]
+    # The box looks the same turned half a turn (its outline typed in gtsjax.sim.scene, a rectangle), the
+    # Nao and the cart do not: training says which, and reads the box's heading modulo π.
+    half = [w for w in report["warnings"] if "half a turn" in w]
+    assert bool(half) == (case["outline"] == "box"), report["warnings"]
+    assert (model.pose[model.classes.index("robot")].turns is not None) == (case["outline"] == "box")
 
 
 @pytest.fixture(scope="module", params=["static", "walking"])
@@ -102,8 +112,34 @@ def test_the_model_finds_the_robot_in_held_out_scenes(scored, request):
     assert res["false_tracks_per_scan"] <= 0.01, res
 
 
+def test_the_model_reads_the_heading(scored, request):
+    """Issue 38's heading targets on a held-out scene: RMSE at most 3° put down, 4° walking (the box's
+    modulo a half-turn, all its outline can tell: ``drivers.evaluation.heading_error``)."""
+    case, kind, res = scored
+    if kind in case.get("heading_short", {}):  # a known shortfall: strict, so that its fix is noticed
+        request.applymarker(pytest.mark.xfail(strict=True, reason=case["heading_short"][kind]))
+    assert res["heading_rmse_deg"] <= (3.0 if kind == "static" else 4.0), res
+
+
 def test_the_model_places_the_robot_within_2_cm(scored, request):
     case, _, res = scored
     if "position_short" in case:  # a known shortfall: strict, so that its fix is noticed
         request.applymarker(pytest.mark.xfail(strict=True, reason=case["position_short"]))
     assert res["position_rmse_m"] <= 0.02, res
+
+
+def test_evaluate_says_when_headings_are_judged_modulo_a_half_turn(trained, tmp_path, capsys):
+    """``gtsjax evaluate`` with a model of a class alike turned half a turn (the box) says that its
+    headings are judged modulo 180°, in the terminal and in results.md; with the others it says nothing."""
+    case, model, _ = trained
+    log, site = check_scene(case["site"], "static", seed=case.get("seeds", (1, 2))[1], rate_hz=case["rate_hz"],
+                            outline=case["outline"], clutter=case["clutter"])
+    save_model(model, tmp_path / "m.npz")
+    save_log(log, tmp_path / "check.npz")
+    save_site(site, tmp_path / "site.json")
+    res = cli(capsys, "evaluate", "--model", tmp_path / "m.npz", tmp_path / "check.npz", "--site", tmp_path / "site.json",
+              "--out-dir", tmp_path / "out")
+    assert res.returncode == 0, res.stderr
+    said = "judged modulo 180°" in " ".join(res.stdout.split())
+    written = "judged modulo 180°" in (tmp_path / "out" / "results.md").read_text()
+    assert said == written == (case["outline"] == "box"), res.stdout

@@ -508,3 +508,22 @@ def test_learn_outline_undoes_label_errors():
     learnt = np.mean(np.abs(learn_outline(pts, mask, labels) - exact))
     assert learnt < plain
     assert learnt < 3e-3
+
+
+def test_only_an_outline_alike_turned_half_a_turn_counts_as_half_turn_symmetric():
+    """``half_turn_distance`` of outlines typed in the simulator (``gtsjax.sim.scene``), their edges sampled
+    densely: the 36 × 24 cm box is its own half-turn; the cart (front corners cut 6 cm) and the Nao-like
+    outline are not, by more than the threshold training uses; and turned by any angle the box stays so."""
+    from gtsjax.sim.scene import BOX_OUTLINE, CART_OUTLINE
+    from gtsjax.train.outline import HALF_TURN_M, half_turn_distance
+
+    def radii(vertices, turn=0.0):
+        c, s = math.cos(turn), math.sin(turn)
+        v = np.asarray(vertices) @ np.array([[c, s], [-s, c]])
+        edges = [v[i] + (v[(i + 1) % len(v)] - v[i]) * t for i in range(len(v)) for t in np.linspace(0, 1, 300)]
+        return outline_radii(np.asarray(edges))
+
+    assert half_turn_distance(radii(BOX_OUTLINE)) < 0.5e-3
+    assert half_turn_distance(radii(BOX_OUTLINE, 0.7)) < 1e-3
+    assert half_turn_distance(radii(CART_OUTLINE)) > 1.5 * HALF_TURN_M
+    assert half_turn_distance(radii(NAO_OUTLINE)) > 3 * HALF_TURN_M

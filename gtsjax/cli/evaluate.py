@@ -133,9 +133,17 @@ def evaluate_cmd(
     what = " and ".join(map(str, models)) + (" without its outlines" if without_outline else "")
     console.print(_table(f"ground truth (confirmed tracks) of {what}", COLUMNS, results))
     console.print(_table("per scan, before tracking (the paper's per-sample errors)", DET_COLUMNS, results))
+    from ..drivers.evaluation import heading_turns
+
+    half = [c for c, n in zip(base.classes, heading_turns(base), strict=True) if n == 2]
+    note = (f"headings of {', '.join(half)} judged modulo 180°: the outline looks the same turned half a turn"
+            if half else None)
+    if note:
+        console.print(note, soft_wrap=True)
     (out_dir / "results.json").write_text(json.dumps(results, indent=1) + "\n")
     md = (["Ground truth (confirmed tracks):", ""] + _markdown(COLUMNS, results)
-          + ["", "Per scan, before tracking (the paper's per-sample errors):", ""] + _markdown(DET_COLUMNS, results))
+          + ["", "Per scan, before tracking (the paper's per-sample errors):", ""] + _markdown(DET_COLUMNS, results)
+          + (["", note[0].upper() + note[1:] + "."] if note else []))
     (out_dir / "results.md").write_text("\n".join(md) + "\n")
     Console(stderr=True).print(f"wrote {out_dir / 'results.md'} and {out_dir / 'results.json'}")
     from ._common import print_warnings

@@ -36,6 +36,9 @@ class PoseRegressor(eqx.Module):
     variance of a read the tracker trusts for the heading; a candidate above it is *vague* and updates
     a track's position only (set by the same calibration; ``None``: every heading is used).
 
+    ``turns``: the heading GPs regress ``(sin nθ̃, cos nθ̃)`` for a class whose outline looks the same
+    turned by ``2π/n`` (set at training, ``n`` = 2; ``None``: 1), the heading read modulo ``2π/n``.
+
     ``common``: the separate GPs again, as one :class:`~gtsjax.gp.sparse.CommonInputsGP` whose
     inducing inputs are stored and read once (:meth:`with_common_inputs`; a model file's loader makes
     it, its writer leaves it out). Where it is set, :meth:`predict` uses it and the separate GPs
@@ -49,6 +52,10 @@ class PoseRegressor(eqx.Module):
     heading_var_max: Float[Array, ""] | None = None
     shared: tuple[SharedSparseGP, ...] | None = None
     common: CommonInputsGP | None = None
+    # The outline's half-turn symmetry: 2 where the class looks the same turned by 180° (a rectangular
+    # base), its heading then regressed as ``(sin 2θ̃, cos 2θ̃)`` and known up to a half-turn (the other
+    # side is a hypothesis of its own, as likely: stage e′, the tracker's mixture); ``None``: 1.
+    turns: Int[Array, ""] | None = None
 
     @property
     def has_heading(self) -> bool:
@@ -107,6 +114,9 @@ def regress_one_class(
     r2 = ms**2 + mc**2
     r2_safe = jnp.where(r2 > 1e-6, r2, 1.0)
     vt = jnp.where(r2 > 1e-6, (mc**2 * vs + ms**2 * vc) / r2_safe**2, MAX_THETA_VAR)
+    if reg.turns is not None:  # the GPs read n·θ̃: θ̃ modulo 2π/n, its variance 1/n² of theirs
+        n = reg.turns.astype(dt)
+        theta, vt = theta / n, vt / (n * n)
     var = jnp.stack([vx, vy, vt], -1)
     if reg.var_scale is not None:
         var = var * reg.var_scale.astype(var.dtype)[None, :]

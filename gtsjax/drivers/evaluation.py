@@ -29,6 +29,17 @@ from ..io.logs import ScanLog, fit_to_model, to_scans
 from .batch import process_log
 
 
+def heading_turns(model: Model) -> list[int]:
+    """Per class, the half-turn symmetry its heading is read modulo (``PoseRegressor.turns``: 2 for a class
+    that looks the same turned half a turn, else 1)."""
+    return [1 if reg is None or reg.turns is None else int(reg.turns) for reg in model.pose]
+
+
+def heading_error(d, turns: int):
+    """A heading error modulo ``2π/turns``: what a class alike turned by that can be held to."""
+    return wrap(turns * np.asarray(d, np.float64)) / turns if turns != 1 else wrap(d)
+
+
 def match_scan(truth_xy, truth_ok, track_xy, track_ok, radius):
     """Greedy one-to-one matching by distance. Returns, per truth object, the track index or -1."""
     out = np.full(truth_xy.shape[0], -1)
@@ -55,10 +66,10 @@ def evaluate_outputs(model: Model, log: ScanLog, out, *, match_radius: float = 0
     T = log.n_scans
     classes = [model.classes.index(str(c)) for c in log.truth_classes]
     present, since = _presence(model, log)
-    tally = _score_tracks(log, out, classes, present, since, match_radius, settle_s, appear_s)
+    tally = _score_tracks(log, out, classes, present, since, match_radius, settle_s, appear_s, heading_turns(model))
     e_pos, e_th = np.asarray(tally.e_pos), np.asarray(tally.e_th)
     settled = present & (since >= settle_s)
-    d_pos, d_th, d_found = _detection_errors(log, out, classes, present, match_radius)
+    d_pos, d_th, d_found = _detection_errors(log, out, classes, present, match_radius, heading_turns(model))
     res = {
         "scans": T,
         "objects_present": int(present.sum()),
@@ -136,9 +147,10 @@ def _match_classes(out, t: int, truth_t: np.ndarray, present_t: np.ndarray, clas
     return m
 
 
-def _score_tracks(log: ScanLog, out, classes, present, since, radius, settle_s, appear_s) -> _TrackTally:
+def _score_tracks(log: ScanLog, out, classes, present, since, radius, settle_s, appear_s, turns) -> _TrackTally:
     """Scan by scan, the confirmed tracks against the labelled objects: a pass of its own since the
-    id switches and the appearances' headings depend on the scans before."""
+    id switches and the appearances' headings depend on the scans before. Headings modulo
+    ``2π/turns[class]`` (:func:`heading_error`)."""
     truth = log.truth_poses
     # Each appearance's heading error ``appear_s`` after it (NaN: no track reported for it yet).
     crossed = (since >= appear_s) & np.vstack([np.zeros((1, present.shape[1]), bool), since[:-1] < appear_s])
@@ -151,8 +163,8 @@ def _score_tracks(log: ScanLog, out, classes, present, since, radius, settle_s, 
         for i in np.flatnonzero(~present[t]):
             ids.pop(i, None)  # gone (picked up, left the field): a new track when it is back is no switch
         for i in np.flatnonzero(crossed[t]):
-            tally.e_appear.append(abs(wrap(float(out.track_pose[t, m[i], 2]) - truth[t, i, 2])) if m[i] >= 0
-                                  else np.nan)
+            tally.e_appear.append(abs(heading_error(float(out.track_pose[t, m[i], 2]) - truth[t, i, 2],
+                                                    turns[classes[i]])) if m[i] >= 0 else np.nan)
         for i in np.flatnonzero(m >= 0):
             tally.matched[t, i] = True
             tid = int(out.track_id[t, m[i]])
@@ -162,7 +174,7 @@ def _score_tracks(log: ScanLog, out, classes, present, since, radius, settle_s, 
             if since[t, i] >= settle_s:
                 p = np.asarray(out.track_pose[t, m[i]], np.float64)
                 tally.e_pos.append(np.linalg.norm(p[:2] - truth[t, i, :2]))
-                tally.e_th.append(wrap(p[2] - truth[t, i, 2]))
+                tally.e_th.append(heading_error(p[2] - truth[t, i, 2], turns[classes[i]]))
                 tally.obj_of_err.append(i)
                 tally.scan_of_err.append(t)
     return tally
@@ -202,9 +214,10 @@ def _sensor_figures(log: ScanLog, out, sensor_truth: np.ndarray) -> dict:
     return res
 
 
-def _detection_errors(log: ScanLog, out, classes, present, radius):
+def _detection_errors(log: ScanLog, out, classes, present, radius, turns):
     """Per object-scan, the nearest detection of the object's class (before tracking) within
-    ``radius``: position errors, heading errors and how many object-scans had one."""
+    ``radius``: position errors, heading errors (modulo ``2π/turns[class]``) and how many object-scans
+    had one."""
     truth = log.truth_poses
     e_pos, e_th, found = [], [], 0
     for t, i in zip(*np.nonzero(present), strict=True):
@@ -219,7 +232,7 @@ def _detection_errors(log: ScanLog, out, classes, present, radius):
             continue
         found += 1
         e_pos.append(d[j])
-        e_th.append(wrap(pose[j, 2] - truth[t, i, 2]))
+        e_th.append(heading_error(pose[j, 2] - truth[t, i, 2], turns[classes[i]]))
     return np.asarray(e_pos), np.asarray(e_th), found
 
 

@@ -14,8 +14,8 @@ its field's jaxtyping annotation. Dimension names bind to the model's configurat
 them (``classes``: the class list; ``features``/``inputs``: the GP inputs, ``gp_columns``) and
 otherwise to the size most leaves of the same node agree on (``points``, ``inducing``, ``bins``, …),
 so a leaf that differs is named: ``leaf classifier.gps[1].z has shape (5, 21), expected (5, 22)``.
-Fields added after version 3 came out (a pose regressor's ``heading_var_max``) have defaults, and a
-file without them loads.
+Fields added after version 3 came out (a pose regressor's ``heading_var_max`` and ``turns``) have defaults,
+and a file without them loads.
 """
 
 import dataclasses
@@ -47,7 +47,7 @@ from ..sensors import with_scanner
 from .npz import check_npz
 
 FORMAT = "gtsjax-model"
-VERSION = 3  # 3: scanner geometry, open-set supports, shape envelopes, per-class motion limits (and, optional, the pose regressors' heading_var_max)
+VERSION = 3  # 3: scanner geometry, open-set supports, shape envelopes, per-class motion limits (and, optional, the pose regressors' heading_var_max and turns)
 _HEADER_KEY = "gtsjax_model"
 _TYPES = {
     c.__name__: c

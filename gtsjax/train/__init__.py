@@ -58,7 +58,7 @@ from .labels import label_log as label_log
 from .labels import run_front_end as run_front_end
 from .motion import confirmation_entry, scan_rate_entry, tracker_limits
 from .motion import motion_limits as motion_limits
-from .outline import fit_outlines
+from .outline import fit_outlines, half_turn_symmetry
 from .pose import POSE_GROUPS, fit_landmark_positions, fit_pose_regressors
 from .report import evaluate_examples as evaluate_examples
 
@@ -188,11 +188,16 @@ def train(logs: Sequence[ScanLog], site: "Site | Sequence[Site]", cfg: TrainConf
     classifier, train_idx, notes = fit_classifier(ex, is_held, source, len(lab.bg_info), support, classes, mobiles,
                                                   cfg, run.rng, run.gps)
     run.stage("pose regressors", _available(ex, is_held, classes))
-    mobile_pose, calibration = fit_pose_regressors(ex, is_held, classes, mobiles, cfg, run.rng, run.gps)
+    turns, half_turn_mm = half_turn_symmetry(logs, ex, is_held, classes, mobiles, cfg.frontend.window)
+    notes = notes + [f"{name}: its outline looks the same turned half a turn (within {half_turn_mm[name]:.1f} mm): "
+                     "its heading is read only up to a half-turn, and each track keeps the side it started on "
+                     "(its heading may be the robot's back)" for name in turns]
+    mobile_pose, calibration = fit_pose_regressors(ex, is_held, classes, mobiles, cfg, run.rng, run.gps, turns)
     for k, reg in mobile_pose.items():
         pose[k] = reg
     run.stage("outlines and motion limits")
-    outline, outline_report = fit_outlines(logs, ex, is_held, classes, mobiles, pose, cfg.frontend.window, run.rng)
+    outline, outline_report = fit_outlines(logs, ex, is_held, classes, mobiles, pose, cfg.frontend.window, run.rng,
+                                           turns=turns)
     tracker, rate_hz, motion, learnt = _motion_limits(run, logs, env_report, sup_report)
     notes = notes + [row["warning"] for row in learnt if "warning" in row]
     model = _assemble(run, first, n_beams, lab.columns, classifier=classifier, envelope=envelope, pose=pose,
@@ -202,6 +207,7 @@ def train(logs: Sequence[ScanLog], site: "Site | Sequence[Site]", cfg: TrainConf
     report = _report(run, model, ex, is_held, ex_lab, lab.bg_info, train_idx=train_idx, calibration=calibration,
                      env_report=env_report, sup_report=sup_report, motion=motion, learnt=learnt,
                      outline_report=outline_report, n_scans=n_scans, degraded=degraded, warnings=notes)
+    report["half_turn_mm"] = half_turn_mm  # per mobile class: how far its outline is from its half-turn
     report["coverage"], where = coverage(logs, per_log_sites(site, len(logs)), mobiles)
     report["warnings"] = report["warnings"] + where
     if cfg.check_pipeline:

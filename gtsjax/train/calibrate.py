@@ -67,7 +67,8 @@ def calibrate(reg: PoseRegressor, vectors, target, *, good_deg: float = 15.0,
                                  jnp.asarray(vectors, jnp.float32))
     rel, var, target = np.asarray(rel, np.float64), np.asarray(var, np.float64), np.asarray(target, np.float64)
     err = rel - target
-    err[:, 2] = wrap(err[:, 2])
+    n = 1.0 if reg.turns is None else float(reg.turns)
+    err[:, 2] = wrap(n * err[:, 2]) / n  # the heading modulo 2π/n (a class alike turned by 2π/n)
     scale = np.ones(3)
     for j in range(3 if reg.has_heading else 2):
         ok = np.isfinite(err[:, j]) & (var[:, j] > 0)

@@ -33,6 +33,7 @@ from ..core.geometry import wrap
 from ..core.model import Model
 from ..core.pipeline import REASONS
 from ..drivers.batch import process_log
+from ..drivers.evaluation import heading_error, heading_turns
 from ..io.logs import ScanLog, to_scans
 from ..io.site import Site
 from .labels import scan_groups
@@ -170,6 +171,7 @@ def check_log(model: Model, log: ScanLog, held: np.ndarray, tracked: Sequence[st
     in_view = present & seen(log, np.asarray(out.sensor_pose, np.float64), np.nan_to_num(truth[..., :2]), present,
                              np.asarray(model.site.landmark_xy, np.float64), radius)
     res: dict[str, dict] = {}
+    turns = heading_turns(model)
     for i, name in enumerate(log.truth_classes):
         name = str(name)
         if name not in tracked:
@@ -183,7 +185,8 @@ def check_log(model: Model, log: ScanLog, held: np.ndarray, tracked: Sequence[st
             rows = np.asarray(out.track_mask[t]) & (np.asarray(out.track_class[t]) == c)
             d = np.where(rows, np.linalg.norm(out.track_pose[t][:, :2] - xy, axis=1), np.inf)
             j = int(np.argmin(d))
-            row = (float(d[j]), float(wrap(out.track_pose[t][j, 2] - truth[t, i, 2]))) if d[j] <= radius else None
+            row = (float(d[j]), float(heading_error(out.track_pose[t][j, 2] - truth[t, i, 2], turns[c]))
+                   ) if d[j] <= radius else None
             _score(r, found, since[t, i] >= settle, row, lambda t=t, xy=xy, c=c: _lost_at(out, t, xy, c, radius))
     return res
 

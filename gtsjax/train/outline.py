@@ -183,6 +183,53 @@ def side_offsets(match: np.ndarray, most: int = SIDES - 1, apart_deg: float = 30
     return [float(((i + 180) % 360) - 180) for i in chosen]
 
 
+# An outline whose half-turn lies within this of itself (mean distance, m, at the best shift) looks the
+# same from the front and the back: a 36 × 24 cm box is within 0.1 mm (1–1.5 mm as learnt from labelled
+# views, their labels' errors blurring it), a base with its front corners
+# cut off 6 cm is 6 mm away, the Nao-like outline 18 mm.
+HALF_TURN_M = 0.003
+# Training views of a class the symmetry is judged on (evenly spaced: no random draw).
+SYMMETRY_VIEWS = 2000
+# The sides of a class alike turned half a turn where no outline is used: the GP's heading and its
+# half-turn, as likely.
+HALF_TURN_SIDES = (0.0, math.pi, 0.0, 0.0)
+HALF_TURN_MASK = (True, True, False, False)
+
+
+def half_turn_distance(radii: np.ndarray) -> float:
+    """How far (m) the outline turned by 180° lies from itself: :func:`self_match` at 180° alone."""
+    f, lo, cell = distance_field(radii)
+    verts = polyline(radii)
+    ts = np.arange(-0.06, 0.06 + 1e-9, 0.01)
+    tx, ty = np.meshgrid(ts, ts, indexing="ij")
+    m = -verts[None] + np.stack([tx.ravel(), ty.ravel()], -1)[:, None]  # Rot(π) v, shifted
+    return float(np.min(np.mean(np.abs(_lookup_np(f, lo, cell, m)), -1)))
+
+
+def half_turn_symmetry(logs: Sequence[ScanLog], ex: Examples, is_held: np.ndarray, classes: tuple[str, ...],
+                       mobiles: tuple[str, ...], window: int) -> tuple[dict[str, int], dict[str, float]]:
+    """Which mobile classes look the same turned by half a turn (their outline from the training views
+    at their labelled poses, :func:`outline_radii`, within :data:`HALF_TURN_M` of its half-turn): the
+    heading's symmetry order per class (2 for those; the rest are left out) and the distance per class
+    (mm). A view of such a class tells its heading only up to a half-turn, so its heading is regressed
+    modulo π (:func:`~gtsjax.train.pose.fit_pose_regressors`) and the other half-turn kept as a side
+    hypothesis as likely as the read (:func:`fit_outlines`)."""
+    turns, dist = {}, {}
+    own = ex.where[:, 0] >= 0
+    for name in mobiles:
+        idx = np.flatnonzero((ex.cls == classes.index(name)) & ~is_held & own)
+        if idx.size < 50:
+            continue
+        idx = idx[np.linspace(0, idx.size - 1, min(idx.size, SYMMETRY_VIEWS)).astype(int)]
+        sub = ex.take(idx)
+        pts, mask = candidate_points(logs, sub, window)
+        d = half_turn_distance(outline_radii(object_points(pts, mask, truth_in_sensor(sub))))
+        dist[name] = round(1000 * d, 2)
+        if d <= HALF_TURN_M:
+            turns[name] = 2
+    return turns, dist
+
+
 _fit = jax.jit(fit)
 
 
@@ -283,9 +330,11 @@ def _side_nll(cost, right, usable, temperature, prior_right):
     return -np.mean(np.log(np.maximum(np.sum(np.where(right, p, 0.0), 1), 1e-12)))
 
 
-def calibrate_outline(outline: Outline, k: int, pts, mask, pose_gp, truth, right_deg: float = 20.0) -> tuple[Outline, dict]:
+def calibrate_outline(outline: Outline, k: int, pts, mask, pose_gp, truth, right_deg: float = 20.0,
+                      turns: int = 1) -> tuple[Outline, dict]:
     """Calibrate class ``k``'s refinement on held-out examples (see the module docstring); returns the
-    outline and a summary: GP and refined errors side by side."""
+    outline and a summary: GP and refined errors side by side (headings modulo ``2π/turns``: a class
+    alike turned half a turn is judged on what its views can tell)."""
     poses, cost, H = refine_examples(outline, k, pts, mask, pose_gp)
     usable = np.asarray(outline.side_mask[k])
     n_pts = np.minimum(mask.sum(1), POINTS).astype(float)  # as many as the fit uses (e_refine.compact)
@@ -334,7 +383,7 @@ def calibrate_outline(outline: Outline, k: int, pts, mask, pose_gp, truth, right
     e_gp[:, 2] = wrap(e_gp[:, 2])
 
     def summary(e):
-        th = np.degrees(np.abs(e[:, 2]))
+        th = np.degrees(np.abs(wrap(turns * e[:, 2]) / turns))
         return {"position_rmse_cm": round(100 * float(np.sqrt(np.mean(np.sum(e[:, :2] ** 2, 1)))), 2),
                 "heading_median_deg": round(float(np.median(th)), 2),
                 "heading_rmse_deg": round(float(np.sqrt(np.mean(th**2))), 2),
@@ -349,7 +398,7 @@ def calibrate_outline(outline: Outline, k: int, pts, mask, pose_gp, truth, right
 def fit_outlines(logs: Sequence[ScanLog], ex: Examples, is_held: np.ndarray, classes: tuple[str, ...],
                  mobiles: tuple[str, ...], pose: Sequence[PoseRegressor | None], window: int,
                  rng: np.random.Generator, *, max_examples: int = 6000,
-                 max_calibration: int = 4000) -> tuple[Outline | None, dict]:
+                 max_calibration: int = 4000, turns: "dict[str, int] | None" = None) -> tuple[Outline | None, dict]:
     """Outline, side hypotheses and calibration of each mobile class (see the module docstring).
     Returns the :class:`Outline` (``None`` if no class has enough views) and a summary per class. A
     mobile class without an outline gets the default side hypotheses (the GP's heading's quarter
@@ -357,13 +406,21 @@ def fit_outlines(logs: Sequence[ScanLog], ex: Examples, is_held: np.ndarray, cla
 
     The side hypotheses of a class are the headings its GP's held-out misreads cluster at
     (:func:`misread_modes`): the sides a view is taken for in fact. With fewer than five misreads to
-    go by, the outline's own near-symmetries (:func:`self_match`) stand in."""
+    go by, the outline's own near-symmetries (:func:`self_match`) stand in.
+
+    A class alike turned half a turn (``turns``, :func:`half_turn_symmetry`) has its half-turn as a side
+    hypothesis, as likely as the read (its GP reads the heading modulo π); its held-out heading errors
+    are judged modulo π. Where no class has an outline but such a class exists, the outline is kept,
+    used by none, for its side hypotheses."""
+    turns = turns or {}
     arrays = _OutlineArrays.blank(len(classes))
     report, held = {}, {}
     own = ex.where[:, 0] >= 0
     for name in mobiles:
         k = classes.index(name)
         arrays.sides[k], arrays.side_mask[k] = DEFAULT_SIDES, True
+        if name in turns:
+            arrays.sides[k], arrays.side_mask[k], arrays.prior_right[k] = HALF_TURN_SIDES, HALF_TURN_MASK, 0.5
         idx = np.flatnonzero((ex.cls == k) & ~is_held & own)
         if idx.size < 50 or pose[k] is None:
             report[name] = {"outline": False, "why": f"only {idx.size} labelled views"}
@@ -373,6 +430,8 @@ def fit_outlines(logs: Sequence[ScanLog], ex: Examples, is_held: np.ndarray, cla
         f, lo_k, cell_k = distance_field(radii)
         csub, pose_gp, truth = _held_out_poses(ex, k, is_held, own, pose[k], rng, max_calibration)
         offs, source = _side_hypotheses(pose_gp, truth, radii, f, lo_k, cell_k)
+        if name in turns:  # the half-turn first, then the misreads' other sides
+            offs, source = [180.0] + [o for o in offs if abs(abs(o) - 180.0) >= 30.0][:SIDES - 2], "half-turn symmetry"
         arrays.set_class(k, f, lo_k, cell_k, offs)
         held[k] = (*candidate_points(logs, csub, window), pose_gp, truth)
         verts = polyline(radii)
@@ -380,9 +439,10 @@ def fit_outlines(logs: Sequence[ScanLog], ex: Examples, is_held: np.ndarray, cla
                         "size_m": [round(float(np.ptp(verts[:, j])), 3) for j in range(2)],
                         "sides_deg": [round(o, 1) for o in offs], "sides_from": source}
     if not arrays.has.any():
-        return None, report
-    outline = _calibrate_classes(arrays.outline(), held, classes, report)
-    if not bool(jnp.any(outline.has)):
+        return (arrays.outline() if turns else None), report
+    outline = _calibrate_classes(arrays.outline(), held, classes, report,
+                                 {classes.index(n): t for n, t in turns.items()})
+    if not bool(jnp.any(outline.has)) and not turns:
         return None, report
     return outline, report
 
@@ -453,11 +513,14 @@ def _side_hypotheses(pose_gp: np.ndarray, truth: np.ndarray, radii: np.ndarray, 
     return side_offsets(self_match(radii, field, lo, cell)), "outline symmetry"
 
 
-def _calibrate_classes(outline: Outline, held: dict, classes: tuple[str, ...], report: dict) -> Outline:
+def _calibrate_classes(outline: Outline, held: dict, classes: tuple[str, ...], report: dict,
+                       turns: "dict[int, int] | None" = None) -> Outline:
     """Each class's refinement calibrated on its held-out views (:func:`calibrate_outline`), and the
-    outline left unused for a class whose refined headings are less precise there than the GP's."""
+    outline left unused for a class whose refined headings are less precise there than the GP's
+    (modulo π for a class alike turned half a turn, ``turns``)."""
+    turns = turns or {}
     for k, (pts, mask, pose_gp, truth) in held.items():
-        outline, rep = calibrate_outline(outline, k, pts, mask, pose_gp, truth)
+        outline, rep = calibrate_outline(outline, k, pts, mask, pose_gp, truth, turns=turns.get(k, 1))
         report[classes[k]]["calibration"] = rep
         # The outline is used only where its headings are at least as precise as the GP's on held-out
         # views (the median error: the tracker's mixture takes care of the gross misreads either way).
@@ -466,9 +529,12 @@ def _calibrate_classes(outline: Outline, held: dict, classes: tuple[str, ...], r
             report[classes[k]]["used"] = False
             report[classes[k]]["why"] = (f"held-out heading median {rep['refined']['heading_median_deg']:.2f}° "
                                          f"against the GP's {rep['gp']['heading_median_deg']:.2f}°")
+            half = k in turns
             outline = eqx.tree_at(lambda o: (o.has, o.sides, o.side_mask, o.prior_right), outline, (
-                outline.has.at[k].set(False), outline.sides.at[k].set(jnp.asarray(DEFAULT_SIDES, _F32)),
-                outline.side_mask.at[k].set(True), outline.prior_right.at[k].set(DEFAULT_PRIOR_RIGHT)))
+                outline.has.at[k].set(False),
+                outline.sides.at[k].set(jnp.asarray(HALF_TURN_SIDES if half else DEFAULT_SIDES, _F32)),
+                outline.side_mask.at[k].set(jnp.asarray(HALF_TURN_MASK) if half else True),
+                outline.prior_right.at[k].set(0.5 if half else DEFAULT_PRIOR_RIGHT)))
         else:
             report[classes[k]]["used"] = True
     return outline
