@@ -94,6 +94,8 @@ def test_training_checks_that_its_model_tracks(trained):
     half = [w for w in report["warnings"] if "half a turn" in w]
     assert bool(half) == (case["outline"] == "box"), report["warnings"]
     assert (model.pose[model.classes.index("robot")].turns is not None) == (case["outline"] == "box")
+    (row,) = [r for r in report["learnt"] if r["parameter"] == "distance from its half-turn"]
+    assert row["source"] == "learnt" and (row["value"] <= 3.0) == (case["outline"] == "box"), row
 
 
 @pytest.fixture(scope="module", params=["static", "walking"])
@@ -143,3 +145,21 @@ def test_evaluate_says_when_headings_are_judged_modulo_a_half_turn(trained, tmp_
     said = "judged modulo 180°" in " ".join(res.stdout.split())
     written = "judged modulo 180°" in (tmp_path / "out" / "results.md").read_text()
     assert said == written == (case["outline"] == "box"), res.stdout
+
+
+def test_heading_turns_overrides_what_the_outline_shows(tmp_path, capsys):
+    """``--heading-turns robot=1`` for the box: its heading is regressed as any other's, without the warning,
+    and the table of learnt values says it was set; a value other than 1 or 2 is one line, exit 2."""
+    log, site = recording("hall", "hold", seed=1, outline="box", seconds=200.0)
+    model, report = train([log], site, dataclasses.replace(SMALL, heading_turns={"robot": 1}, check_pipeline=False))
+    assert model.pose[model.classes.index("robot")].turns is None
+    assert not [w for w in report["warnings"] if "half a turn" in w], report["warnings"]
+    (row,) = [r for r in report["learnt"] if r["parameter"] == "distance from its half-turn"]
+    assert row["source"] == "set" and row["value"] <= 3.0, row  # the box is alike turned, as measured
+    save_log(log, tmp_path / "box.npz")
+    save_site(site, tmp_path / "site.json")
+    res = cli(capsys, "train", tmp_path / "box.npz", "--site", tmp_path / "site.json", "--out", tmp_path / "m.npz",
+              "--heading-turns", "robot=3")
+    lines = res.stderr.strip().splitlines()
+    assert res.returncode == 2 and len(lines) == 1 and "--heading-turns" in lines[0], res.stderr
+    assert not (tmp_path / "m.npz").exists()

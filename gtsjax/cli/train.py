@@ -76,6 +76,10 @@ def train_cmd(
     max_speed: list[str] = typer.Option([], "--max-speed", metavar="CLASS=M_PER_S",
                                         help="A class's maximum speed (default: from its labelled motion, else "
                                              "0.6 m/s)."),
+    heading_turns: list[str] = typer.Option([], "--heading-turns", metavar="CLASS=1|2",
+                                            help="A class's heading symmetry: 2 if it looks the same turned half a "
+                                                 "turn (its heading then read modulo 180°), 1 if not (default: from "
+                                                 "its outline)."),
     max_turn_rate: list[str] = typer.Option([], "--max-turn-rate", metavar="CLASS=RAD_PER_S",
                                             help="A class's maximum turn rate (default: from its labelled motion, "
                                                  "else 3 rad/s)."),
@@ -118,6 +122,7 @@ def train_cmd(
                               restarts=restarts, seed=seed, max_tracks=max_tracks, max_background=max_background, max_mobile=max_mobile,
                               max_speed=_per_class(max_speed, "--max-speed"),
                               max_turn_rate=_per_class(max_turn_rate, "--max-turn-rate"), scan_rate_hz=scan_rate,
+                              heading_turns=_turns(heading_turns),
                               check_pipeline=check)
     loaded = [load_log(p) for p in logs]
     bg = [load_input(p, background_topic if _is_bag(p) else None, console) for p in background]
@@ -266,6 +271,17 @@ def _per_class(items: list[str], option: str) -> dict[str, float]:
         if not sep or not name or not (v > 0) or v == float("inf"):
             raise InputError(option, f"expected CLASS=VALUE with a positive value, got {item!r}")
         out[name] = v
+    return out
+
+
+def _turns(items: list[str]) -> dict[str, int]:
+    """``--heading-turns CLASS=1|2`` as a dict."""
+    out = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or not name or value.strip() not in ("1", "2"):
+            raise InputError("--heading-turns", f"expected CLASS=1 or CLASS=2, got {item!r}")
+        out[name] = int(value)
     return out
 
 

@@ -188,10 +188,12 @@ def train(logs: Sequence[ScanLog], site: "Site | Sequence[Site]", cfg: TrainConf
     classifier, train_idx, notes = fit_classifier(ex, is_held, source, len(lab.bg_info), support, classes, mobiles,
                                                   cfg, run.rng, run.gps)
     run.stage("pose regressors", _available(ex, is_held, classes))
-    turns, half_turn_mm = half_turn_symmetry(logs, ex, is_held, classes, mobiles, cfg.frontend.window)
+    turns, half_turn_mm, half_turn_rows = half_turn_symmetry(logs, ex, is_held, classes, mobiles, cfg.frontend.window,
+                                                             cfg.heading_turns)
     notes = notes + [f"{name}: its outline looks the same turned half a turn (within {half_turn_mm[name]:.1f} mm): "
                      "its heading is read only up to a half-turn, and each track keeps the side it started on "
-                     "(its heading may be the robot's back)" for name in turns]
+                     f"(its heading may be the robot's back; --heading-turns {name}=1 if it is not)"
+                     for name in turns if name not in cfg.heading_turns and name in half_turn_mm]
     mobile_pose, calibration = fit_pose_regressors(ex, is_held, classes, mobiles, cfg, run.rng, run.gps, turns)
     for k, reg in mobile_pose.items():
         pose[k] = reg
@@ -199,6 +201,7 @@ def train(logs: Sequence[ScanLog], site: "Site | Sequence[Site]", cfg: TrainConf
     outline, outline_report = fit_outlines(logs, ex, is_held, classes, mobiles, pose, cfg.frontend.window, run.rng,
                                            turns=turns)
     tracker, rate_hz, motion, learnt = _motion_limits(run, logs, env_report, sup_report)
+    learnt = learnt + half_turn_rows
     notes = notes + [row["warning"] for row in learnt if "warning" in row]
     model = _assemble(run, first, n_beams, lab.columns, classifier=classifier, envelope=envelope, pose=pose,
                       tracker=tracker, outline=outline)

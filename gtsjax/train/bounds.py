@@ -51,6 +51,12 @@ WIDTH = Bound("width", "m", 0.0, 3.0, (0.03, 2.0), None,
               "a robot seen as one segment is between 3 cm and 2 m wide")
 
 
+# How far a mobile class's outline lies from its own half-turn (mm): within ``train.outline.HALF_TURN_M``
+# the class is taken as alike turned half a turn. Any distance is plausible; the row says what it decided.
+HALF_TURN = Bound("distance from its half-turn", "mm", 0.0, 1e3, (0.0, 1e3), "--heading-turns",
+                  "within 3 mm of its half-turn a class's heading is read modulo 180°")
+
+
 def clamp(bound: Bound, value: float) -> float:
     return float(min(max(value, bound.floor), bound.ceiling))
 

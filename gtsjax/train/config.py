@@ -60,6 +60,9 @@ class TrainConfig:
     # (``g_track.DEFAULT_MAX_SPEED``, ``DEFAULT_MAX_TURN_RATE``), gives.
     max_speed: dict[str, float] = dataclasses.field(default_factory=dict)
     max_turn_rate: dict[str, float] = dataclasses.field(default_factory=dict)
+    # A class's heading symmetry, overriding what its outline shows (``train.outline.half_turn_symmetry``):
+    # 1, its front told from its back; 2, alike turned half a turn (its heading read modulo 180°).
+    heading_turns: dict[str, int] = dataclasses.field(default_factory=dict)
     scan_rate_hz: float | None = None  # the scanner's rate (None: from the logs, ``train.motion.scan_rate_entry``)
     # After fitting, replay the labelled logs through the whole step and score tracking (``train.check``).
     check_pipeline: bool = True

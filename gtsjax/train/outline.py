@@ -207,27 +207,42 @@ def half_turn_distance(radii: np.ndarray) -> float:
 
 
 def half_turn_symmetry(logs: Sequence[ScanLog], ex: Examples, is_held: np.ndarray, classes: tuple[str, ...],
-                       mobiles: tuple[str, ...], window: int) -> tuple[dict[str, int], dict[str, float]]:
+                       mobiles: tuple[str, ...], window: int, given: "dict[str, int] | None" = None
+                       ) -> tuple[dict[str, int], dict[str, float], list[dict]]:
     """Which mobile classes look the same turned by half a turn (their outline from the training views
-    at their labelled poses, :func:`outline_radii`, within :data:`HALF_TURN_M` of its half-turn): the
-    heading's symmetry order per class (2 for those; the rest are left out) and the distance per class
-    (mm). A view of such a class tells its heading only up to a half-turn, so its heading is regressed
-    modulo π (:func:`~gtsjax.train.pose.fit_pose_regressors`) and the other half-turn kept as a side
+    at their labelled poses, :func:`outline_radii`, within :data:`HALF_TURN_M` of its half-turn), or
+    as ``given`` (``--heading-turns``: 1 or 2 per class): the heading's symmetry order per class (2
+    for those; the rest are left out), the distance per class (mm) and the rows of the training
+    report's table of learnt values (:func:`~gtsjax.train.bounds.entry`). A view of such a class tells
+    its heading only up to a half-turn, so its heading is regressed modulo π
+    (:func:`~gtsjax.train.pose.fit_pose_regressors`) and the other half-turn kept as a side
     hypothesis as likely as the read (:func:`fit_outlines`)."""
-    turns, dist = {}, {}
+    from . import bounds
+
+    given = given or {}
+    turns, dist, rows = {}, {}, []
     own = ex.where[:, 0] >= 0
     for name in mobiles:
         idx = np.flatnonzero((ex.cls == classes.index(name)) & ~is_held & own)
-        if idx.size < 50:
-            continue
-        idx = idx[np.linspace(0, idx.size - 1, min(idx.size, SYMMETRY_VIEWS)).astype(int)]
-        sub = ex.take(idx)
-        pts, mask = candidate_points(logs, sub, window)
-        d = half_turn_distance(outline_radii(object_points(pts, mask, truth_in_sensor(sub))))
-        dist[name] = round(1000 * d, 2)
-        if d <= HALF_TURN_M:
+        d = math.nan
+        if idx.size >= 50:
+            idx = idx[np.linspace(0, idx.size - 1, min(idx.size, SYMMETRY_VIEWS)).astype(int)]
+            sub = ex.take(idx)
+            pts, mask = candidate_points(logs, sub, window)
+            d = half_turn_distance(outline_radii(object_points(pts, mask, truth_in_sensor(sub))))
+            dist[name] = round(1000 * d, 2)
+        n = given.get(name, 2 if d <= HALF_TURN_M else 1)
+        if n == 2:
             turns[name] = 2
-    return turns, dist
+        decided = "heading read modulo 180°" if n == 2 else "front told from back"
+        if name in given:
+            rows.append(bounds.entry(bounds.HALF_TURN, name, round(1000 * d, 2) if math.isfinite(d) else 0.0,
+                                     "set", f"--heading-turns {name}={n}: {decided}"))
+        elif math.isfinite(d):
+            rows.append(bounds.entry(bounds.HALF_TURN, name, round(1000 * d, 2), "learnt",
+                                     f"its outline from {idx.size} labelled views: {decided} "
+                                     f"({'within' if n == 2 else 'over'} {1000 * HALF_TURN_M:g} mm)"))
+    return turns, dist, rows
 
 
 _fit = jax.jit(fit)
