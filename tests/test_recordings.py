@@ -132,7 +132,8 @@ def test_the_model_places_the_robot_within_2_cm(scored, request):
 
 def test_evaluate_says_when_headings_are_judged_modulo_a_half_turn(trained, tmp_path, capsys):
     """``gtsjax evaluate`` with a model of a class alike turned half a turn (the box) says that its
-    headings are judged modulo 180°, in the terminal and in results.md; with the others it says nothing."""
+    headings are judged modulo 180°, in the terminal and in results.md, and ``gtsjax info`` that the
+    model reads it so; with the others neither says it."""
     case, model, _ = trained
     log, site = check_scene(case["site"], "static", seed=case.get("seeds", (1, 2))[1], rate_hz=case["rate_hz"],
                             outline=case["outline"], clutter=case["clutter"])
@@ -145,6 +146,9 @@ def test_evaluate_says_when_headings_are_judged_modulo_a_half_turn(trained, tmp_
     said = "judged modulo 180°" in " ".join(res.stdout.split())
     written = "judged modulo 180°" in (tmp_path / "out" / "results.md").read_text()
     assert said == written == (case["outline"] == "box"), res.stdout
+    shown = cli(capsys, "info", tmp_path / "m.npz")
+    modulo = "heading modulo 180°" in " ".join(shown.stdout.split())
+    assert shown.returncode == 0 and modulo == (case["outline"] == "box"), shown.stdout
 
 
 def test_heading_turns_overrides_what_the_outline_shows(tmp_path, capsys):

@@ -193,7 +193,11 @@ def describe_model(path: Path) -> list[str]:
     gps = model.classifier.gps
     sizes = sorted({int((gp.z if hasattr(gp, "z") else gp.x).shape[0]) for gp in gps})  # sparse: inducing points
     points = str(sizes[0]) if len(sizes) == 1 else f"{sizes[0]}–{sizes[-1]}"
-    poses = ", ".join(f"{c} ({'x, y, heading' if reg.has_heading else 'x, y'}{'; one kernel' if reg.shared is not None else ''})"
+    def heading(reg) -> str:
+        return "x, y" if not reg.has_heading else "x, y, heading" if reg.turns is None else (
+            f"x, y, heading modulo {360 // int(reg.turns)}°")
+
+    poses = ", ".join(f"{c} ({heading(reg)}{'; one kernel' if reg.shared is not None else ''})"
                       for c, reg in zip(model.classes, model.pose, strict=True) if reg is not None)
     lines = [
         f"{path}: gtsjax model (format version {header['version']}) for {model.sensor_model}, {model.n_beams} beams"
