@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from .gtd import read_text
 
 #: A position beyond this (m) from the field's origin is no robot's on a field: most likely millimetres.
 MAX_POSITION_M = 100.0
@@ -56,16 +57,8 @@ class Beliefs:
 def read_beliefs(path: str | os.PathLike, name: str | None = None) -> Beliefs:
     """A belief file (TUM or CSV, see the module) of robot ``name`` (default: the file's stem), checked."""
     path = Path(path)
-    if not path.exists():
-        raise InputError(path, "no such file")
-    if path.is_dir():
-        raise InputError(path, "is a folder, not a file of a robot's poses")
-    try:
-        text = path.read_text()
-    except UnicodeDecodeError:
-        raise InputError(path, "not a text file: a robot's poses are read as TUM or CSV text") from None
-    except OSError as err:
-        raise InputError(path, f"cannot be read ({err.strerror or err})") from None
+    text = read_text(path, "is a folder, not a file of a robot's poses",
+                     "not a text file: a robot's poses are read as TUM or CSV text")
     lines = [(k, line) for k, line in enumerate(text.splitlines(), start=1) if line.strip()]
     first = next((line for _, line in lines if not line.lstrip().startswith("#")), "")
     is_csv = path.suffix.lower() == ".csv" or "," in first
@@ -89,10 +82,7 @@ def _read_tum(path: Path, text: str, lines) -> tuple[np.ndarray, np.ndarray]:
         except ValueError:
             raise InputError(path, f"line {k} has a non-numeric field") from None
         where.append(k)
-    if not rows:
-        raise InputError(path, "holds no poses")
-    a = np.asarray(rows, np.float64)
-    _finite(path, a, where)
+    a = _table(path, rows, where)
     q = a[:, 4:8]
     norm = np.linalg.norm(q, axis=1)
     bad = np.flatnonzero(np.abs(norm - 1.0) > QUATERNION_TOLERANCE)
@@ -124,19 +114,22 @@ def _read_csv(path: Path, text: str, lines) -> tuple[np.ndarray, np.ndarray]:
         except ValueError:
             raise InputError(path, f"line {k} has a non-numeric stamp, x, y or theta") from None
         where.append(k)
-    if not rows:
-        raise InputError(path, "holds no poses")
-    a = np.asarray(rows, np.float64)
-    _finite(path, a, where)
+    a = _table(path, rows, where)
     return a[:, 0], a[:, 1:4]
 
 
-def _finite(path: Path, a: np.ndarray, where: list[int]) -> None:
+def _table(path: Path, rows: list, where: list[int]) -> np.ndarray:
+    """The lines read as one float64 array, checked: some poses, every value finite (``where``: each
+    row's line number)."""
+    if not rows:
+        raise InputError(path, "holds no poses")
+    a = np.asarray(rows, np.float64)
     bad = np.flatnonzero(~np.all(np.isfinite(a), axis=1))
     if bad.size:
         raise InputError(path, f"line {where[bad[0]]} has a value that is not a number (NaN or infinite); "
                                f"{bad.size} such line{'s' if bad.size > 1 else ''} in all: leave out the poses the "
                                "robot did not have")
+    return a
 
 
 def _check(path: Path, stamps: np.ndarray, poses: np.ndarray, is_csv: bool) -> None:

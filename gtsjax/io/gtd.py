@@ -196,20 +196,26 @@ def json_line(rows: list[TrackRow], stamp: float, **extra) -> str:
     return json.dumps({"stamp": stamp, "tracks": [r.as_dict() for r in rows], **extra}, separators=(",", ":"))
 
 
+def read_text(path: Path, folder: str, binary: str) -> str:
+    """A text file's contents, or one line (:class:`InputError`) for a path that is missing, a folder
+    (``folder`` says what was expected), not text (``binary``) or unreadable."""
+    if not path.exists():
+        raise InputError(path, "no such file")
+    if path.is_dir():
+        raise InputError(path, folder)
+    try:
+        return path.read_text()
+    except UnicodeDecodeError:
+        raise InputError(path, binary) from None
+    except OSError as err:  # a socket, a file without read permission
+        raise InputError(path, f"cannot be read ({err.strerror or err})") from None
+
+
 def read_gtd(path: str | os.PathLike) -> list[TrackRow]:
     """Read a GTD CSV back (either header, :data:`HEADER` or :data:`UNITS_HEADER`, and the spec's
     header followed by ``cov_xy``); a file that does not follow the format is an :class:`InputError`."""
     path = Path(path)
-    if not path.exists():
-        raise InputError(path, "no such file")
-    if path.is_dir():
-        raise InputError(path, "is a folder, not a ground-truth CSV")
-    try:
-        text = path.read_text()
-    except UnicodeDecodeError:
-        raise InputError(path, "not a text CSV file") from None
-    except OSError as err:  # a socket, a file without read permission
-        raise InputError(path, f"cannot be read ({err.strerror or err})") from None
+    text = read_text(path, "is a folder, not a ground-truth CSV", "not a text CSV file")
     reader = csv.reader(io.StringIO(text))
     header = next(reader, None)
     names = None if header is None else tuple(h.strip() for h in header)

@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..core.e_pose import MAX_THETA_VAR, PoseRegressor, regress_one_class
-from ..core.geometry import wrap
+from ..drivers.evaluation import heading_error
 
 # Median of χ² with one degree of freedom, and its 0.999 quantile: the tracker's heading gate.
 _CHI2_1_MEDIAN = 0.45493642311957283
@@ -67,8 +67,7 @@ def calibrate(reg: PoseRegressor, vectors, target, *, good_deg: float = 15.0,
                                  jnp.asarray(vectors, jnp.float32))
     rel, var, target = np.asarray(rel, np.float64), np.asarray(var, np.float64), np.asarray(target, np.float64)
     err = rel - target
-    n = 1.0 if reg.turns is None else float(reg.turns)
-    err[:, 2] = wrap(n * err[:, 2]) / n  # the heading modulo 2π/n (a class alike turned by 2π/n)
+    err[:, 2] = heading_error(err[:, 2], 1 if reg.turns is None else int(reg.turns))  # modulo 2π/turns
     scale = np.ones(3)
     for j in range(3 if reg.has_heading else 2):
         ok = np.isfinite(err[:, j]) & (var[:, j] > 0)

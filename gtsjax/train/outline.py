@@ -40,6 +40,7 @@ import numpy as np
 from ..core.e_pose import PoseRegressor, regress_one_class, to_sensor_frame
 from ..core.e_refine import DEFAULT_PRIOR_RIGHT, DEFAULT_SIDES, POINTS, SIDES, Outline, fit
 from ..core.geometry import compose, relative, wrap
+from ..drivers.evaluation import heading_error
 from ..io.logs import ScanLog
 from .calibrate import robust_variance_scale
 from .labels import Examples
@@ -398,7 +399,7 @@ def calibrate_outline(outline: Outline, k: int, pts, mask, pose_gp, truth, right
     e_gp[:, 2] = wrap(e_gp[:, 2])
 
     def summary(e):
-        th = np.degrees(np.abs(wrap(turns * e[:, 2]) / turns))
+        th = np.degrees(np.abs(heading_error(e[:, 2], turns)))
         return {"position_rmse_cm": round(100 * float(np.sqrt(np.mean(np.sum(e[:, :2] ** 2, 1)))), 2),
                 "heading_median_deg": round(float(np.median(th)), 2),
                 "heading_rmse_deg": round(float(np.sqrt(np.mean(th**2))), 2),
