@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from gtsjax import InputError
-from gtsjax.io.beliefs import read_beliefs
+from gtsjax.io.beliefs import read_beliefs, read_beliefs_source
 from gtsjax.io.gtd import write_tum
 
 HEADINGS = [0.0, 1.0, -2.5, math.pi - 1e-4, -math.pi + 1e-4]
@@ -78,3 +78,167 @@ def test_a_folder_or_binary_file_is_refused_in_one_line(tmp_path):
                         (tmp_path / "gone.csv", "no such file")):
         with pytest.raises(InputError, match=words):
             read_beliefs(path)
+
+
+# ------------------------------------------------------------------------------------------ ROS bags
+
+POSE_T, COV_T, ODOM_T, TF_T = ("geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/PoseWithCovarianceStamped",
+                               "nav_msgs/msg/Odometry", "tf2_msgs/msg/TFMessage")
+
+
+def write_pose_bag(path, kind, topics):
+    """A bag written with rosbags' writers: ``kind`` ``ros1`` (a ``.bag`` file), ``sqlite3`` or ``mcap`` (a ROS 2
+    bag's folder). ``topics`` maps a topic to (message type, rows): rows of (stamp, x, y, θ), for TFMessage
+    (stamp, child frame, x, y, θ), one transform a message; any other type gets ``std_msgs/String`` messages."""
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    ros1 = kind == "ros1"
+    ts = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.LATEST)
+    if ros1:  # ROS 1's own Header (with seq); its store lacks tf2_msgs, whose one message is this
+        ts.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms", TF_T))
+    T = ts.types
+    ser = ts.serialize_ros1 if ros1 else ts.serialize_cdr
+
+    def header(stamp, frame="map"):
+        sec = int(stamp)
+        t = T["builtin_interfaces/msg/Time"](sec=sec, nanosec=round((stamp - sec) * 1e9))
+        hdr = T["std_msgs/msg/Header"]
+        return hdr(seq=0, stamp=t, frame_id=frame) if ros1 else hdr(stamp=t, frame_id=frame)
+
+    def quat(th):  # a turn θ about z, by hand
+        return T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(th / 2), w=math.cos(th / 2))
+
+    def pose(x, y, th):
+        return T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=x, y=y, z=0.0), orientation=quat(th))
+
+    def with_cov(x, y, th):
+        return T["geometry_msgs/msg/PoseWithCovariance"](pose=pose(x, y, th), covariance=np.zeros(36))
+
+    def message(msgtype, row):
+        if msgtype == POSE_T:
+            return T[msgtype](header=header(row[0]), pose=pose(*row[1:]))
+        if msgtype == COV_T:
+            return T[msgtype](header=header(row[0]), pose=with_cov(*row[1:]))
+        if msgtype == ODOM_T:
+            twist = T["geometry_msgs/msg/TwistWithCovariance"](twist=T["geometry_msgs/msg/Twist"](
+                linear=T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0),
+                angular=T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)), covariance=np.zeros(36))
+            return T[msgtype](header=header(row[0], "odom"), child_frame_id="base_link", pose=with_cov(*row[1:]),
+                              twist=twist)
+        stamp, child, x, y, th = row
+        tf = T["geometry_msgs/msg/TransformStamped"](
+            header=header(stamp), child_frame_id=child,
+            transform=T["geometry_msgs/msg/Transform"](
+                translation=T["geometry_msgs/msg/Vector3"](x=x, y=y, z=0.0), rotation=quat(th)))
+        return T[msgtype](transforms=[tf])
+
+    if ros1:
+        from rosbags.rosbag1 import Writer
+
+        writer = Writer(path)
+    else:
+        from rosbags.rosbag2 import StoragePlugin, Writer
+
+        plugin = StoragePlugin.MCAP if kind == "mcap" else StoragePlugin.SQLITE3
+        writer = Writer(path, version=9, storage_plugin=plugin)
+    with writer as w:
+        for topic, (msgtype, rows) in topics.items():
+            if msgtype not in (POSE_T, COV_T, ODOM_T, TF_T):
+                msgtype, rows = "std_msgs/msg/String", [T["std_msgs/msg/String"](data=str(r)) for r in rows]
+            else:
+                rows = [message(msgtype, r) for r in rows]
+            conn = w.add_connection(topic, msgtype, typestore=ts)
+            for i, msg in enumerate(rows):
+                w.write(conn, (600 + i) * 10**9, ser(msg, msgtype))
+    return path
+
+
+ROWS = [(1700000000.0 + 0.1 * k, 0.5 * k - 1.0, 0.25 * k, th) for k, th in enumerate(HEADINGS)]
+
+
+def assert_rows(b, rows):
+    np.testing.assert_allclose(b.stamps, [r[0] for r in rows], rtol=0, atol=1e-6)
+    np.testing.assert_allclose(b.poses[:, :2], [r[1:3] for r in rows], atol=1e-9)
+    np.testing.assert_allclose(np.angle(np.exp(1j * (b.poses[:, 2] - [r[3] for r in rows]))), 0.0, atol=1e-9)
+    assert np.all(np.diff(b.stamps) > 0) and np.all(np.abs(b.poses[:, 2]) <= math.pi)
+
+
+@pytest.mark.parametrize("kind", ["ros1", "sqlite3", "mcap"])
+def test_bag_topics_of_each_pose_type_read_back_as_written(tmp_path, kind):
+    bag = write_pose_bag(tmp_path / ("run.bag" if kind == "ros1" else "run"), kind, {
+        "/amcl_pose": (COV_T, ROWS), "/robot/pose": (POSE_T, ROWS[:3]), "/odom": (ODOM_T, ROWS[1:]),
+        "/chatter": ("std_msgs/msg/String", range(3))})
+    for topic, rows in (("/amcl_pose", ROWS), ("/robot/pose", ROWS[:3]), ("/odom", ROWS[1:])):
+        source = f"{bag}:{topic}"
+        b = read_beliefs_source(source, "nao3")
+        assert (b.name, b.source, b.n) == ("nao3", source, len(rows))
+        assert_rows(b, rows)
+    if kind != "ros1":  # a ROS 2 bag named by the storage file or metadata.yaml in its folder
+        store = next(p for p in bag.iterdir() if p.suffix in (".mcap", ".db3"))
+        for inner in (store, bag / "metadata.yaml"):
+            assert_rows(read_beliefs_source(f"{inner}:/amcl_pose", "nao3"), ROWS)
+    # A file that is no bag is read as TUM/CSV, as read_beliefs reads it.
+    csv = tmp_path / "beliefs.csv"
+    csv.write_text("stamp,x,y,theta\n" + "\n".join(",".join(map(str, r)) for r in ROWS) + "\n")
+    assert_rows(read_beliefs_source(str(csv), "nao3"), ROWS)
+
+
+def test_ros1_topic_stored_without_its_slash(tmp_path):
+    bag = write_pose_bag(tmp_path / "old.bag", "ros1", {"odom": (ODOM_T, ROWS)})
+    assert_rows(read_beliefs_source(f"{bag}:/odom", "r"), ROWS)
+
+
+@pytest.mark.parametrize("kind", ["ros1", "mcap"])
+def test_tf_reads_only_the_named_child_frame(tmp_path, kind):
+    mine = [(s, "base_link", x, y, th) for s, x, y, th in ROWS]
+    other = [(s + 0.05, "/ball", 9.0, -9.0, 0.3) for s, *_ in ROWS]
+    rows = [r for pair in zip(mine, other, strict=True) for r in pair]  # interleaved, one transform a message
+    bag = write_pose_bag(tmp_path / ("tf.bag" if kind == "ros1" else "tf"), kind, {"/tf": (TF_T, rows)})
+    for child in ("base_link", "/base_link"):
+        b = read_beliefs_source(f"{bag}:/tf:{child}", "nao3")
+        assert b.source == f"{bag}:/tf:{child}"
+        assert_rows(b, ROWS)
+    assert_rows(read_beliefs_source(f"{bag}:/tf:ball", "nao3"), [(s + 0.05, 9.0, -9.0, 0.3) for s, *_ in ROWS])
+    for source, words in ((f"{bag}:/tf:odom", "no transforms to child frame odom; its child frames: ball, base_link"),
+                          (f"{bag}:/tf", "needs a child frame, as BAG:/tf:CHILD; its child frames: ball, base_link")):
+        with pytest.raises(InputError) as err:
+            read_beliefs_source(source, "nao3")
+        msg = str(err.value)
+        assert "\n" not in msg and msg.startswith(str(bag)) and words in msg, msg
+
+
+@pytest.mark.parametrize("kind", ["ros1", "sqlite3"])
+def test_a_bad_bag_topic_is_one_line_naming_the_bag(tmp_path, kind):
+    late = ROWS[:2] + [(ROWS[0][0] + 0.05, 0.0, 0.0, 0.0)]
+    mm = [(s, 1000 * x, 1000 * y, th) for s, x, y, th in ROWS]
+    nan = ROWS[:2] + [(ROWS[2][0], math.nan, 0.0, 0.0)]
+    bag = write_pose_bag(tmp_path / ("bad.bag" if kind == "ros1" else "bad"), kind, {
+        "/late": (POSE_T, late), "/mm": (ODOM_T, mm), "/nan": (COV_T, nan), "/empty": (POSE_T, []),
+        "/chatter": ("std_msgs/msg/String", range(2)), "/tf": (TF_T, [(ROWS[0][0], "base_link", 0.0, 0.0, 0.0)])})
+    cases = [
+        ("/late", "message 2 (stamp 1700000000.05) is not after the one before (1700000000.1)"),
+        ("/mm", "in millimetres?"),
+        ("/nan", "message 2 has a value that is not a number"),
+        ("/empty", "topic /empty has no messages"),
+        ("/chatter", "topic /chatter carries std_msgs/msg/String, not a pose: the poses are read from "
+                     "geometry_msgs/msg/PoseWithCovarianceStamped, geometry_msgs/msg/PoseStamped, nav_msgs/msg/Odometry"),
+        ("/gone", "no topic /gone in the bag; its pose topics: /empty (geometry_msgs/msg/PoseStamped), /late "
+                  "(geometry_msgs/msg/PoseStamped), /mm (nav_msgs/msg/Odometry), /nan "
+                  "(geometry_msgs/msg/PoseWithCovarianceStamped), /tf (tf2_msgs/msg/TFMessage: name the child frame"),
+        ("/mm:base_link", "topic /mm carries nav_msgs/msg/Odometry, not transforms"),
+    ]
+    for topic, words in cases:
+        with pytest.raises(InputError) as err:
+            read_beliefs_source(f"{bag}:{topic}", "nao3")
+        msg = str(err.value)
+        assert "\n" not in msg and msg.startswith(str(bag)) and words in msg, (topic, msg)
+    # A bag without a topic, a topic of a missing bag, a file that is no bag.
+    (tmp_path / "poses.csv").write_text("stamp,x,y,theta\n1,0,0,0\n")
+    for source, where, words in ((str(bag), bag, "is a ROS bag: name the topic of the poses as"),
+                                 (f"{tmp_path / 'gone.bag'}:/odom", tmp_path / "gone.bag", "no such file"),
+                                 (f"{bag}:late", bag, f"a bag's topic starts with /: name it as {bag}:/late"),
+                                 (f"{tmp_path / 'poses.csv'}:/odom", tmp_path / "poses.csv", "is not a ROS bag")):
+        with pytest.raises(InputError) as err:
+            read_beliefs_source(source, "nao3")
+        msg = str(err.value)
+        assert "\n" not in msg and msg.startswith(f"{where}: ") and words in msg, msg
