@@ -89,7 +89,7 @@ POSE_T, COV_T, ODOM_T, TF_T = ("geometry_msgs/msg/PoseStamped", "geometry_msgs/m
 def write_pose_bag(path, kind, topics):
     """A bag written with rosbags' writers: ``kind`` ``ros1`` (a ``.bag`` file), ``sqlite3`` or ``mcap`` (a ROS 2
     bag's folder). ``topics`` maps a topic to (message type, rows): rows of (stamp, x, y, θ), for TFMessage
-    (stamp, child frame, x, y, θ), one transform a message; any other type gets ``std_msgs/String`` messages."""
+    (stamp, child frame, x, y, θ), one transform a message (θ None: a zero quaternion); any other type gets ``std_msgs/String`` messages."""
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
     ros1 = kind == "ros1"
@@ -105,7 +105,9 @@ def write_pose_bag(path, kind, topics):
         hdr = T["std_msgs/msg/Header"]
         return hdr(seq=0, stamp=t, frame_id=frame) if ros1 else hdr(stamp=t, frame_id=frame)
 
-    def quat(th):  # a turn θ about z, by hand
+    def quat(th):  # a turn θ about z, by hand; None: an orientation never set, all zeros
+        if th is None:
+            return T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=0.0)
         return T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(th / 2), w=math.cos(th / 2))
 
     def pose(x, y, th):
@@ -213,18 +215,20 @@ def test_a_bad_bag_topic_is_one_line_naming_the_bag(tmp_path, kind):
     mm = [(s, 1000 * x, 1000 * y, th) for s, x, y, th in ROWS]
     nan = ROWS[:2] + [(ROWS[2][0], math.nan, 0.0, 0.0)]
     bag = write_pose_bag(tmp_path / ("bad.bag" if kind == "ros1" else "bad"), kind, {
-        "/late": (POSE_T, late), "/mm": (ODOM_T, mm), "/nan": (COV_T, nan), "/empty": (POSE_T, []),
+        "/late": (POSE_T, late), "/mm": (ODOM_T, mm), "/unset": (ODOM_T, ROWS[:1] + [(ROWS[1][0], 0.0, 0.0, None)]), "/nan": (COV_T, nan), "/empty": (POSE_T, []),
         "/chatter": ("std_msgs/msg/String", range(2)), "/tf": (TF_T, [(ROWS[0][0], "base_link", 0.0, 0.0, 0.0)])})
     cases = [
         ("/late", "message 2 (stamp 1700000000.05) is not after the one before (1700000000.1)"),
         ("/mm", "in millimetres?"),
         ("/nan", "message 2 has a value that is not a number"),
         ("/empty", "topic /empty has no messages"),
+        ("/unset", "message 1: the quaternion (x y z w) has length 0, not 1"),
         ("/chatter", "topic /chatter carries std_msgs/msg/String, not a pose: the poses are read from "
                      "geometry_msgs/msg/PoseWithCovarianceStamped, geometry_msgs/msg/PoseStamped, nav_msgs/msg/Odometry"),
         ("/gone", "no topic /gone in the bag; its pose topics: /empty (geometry_msgs/msg/PoseStamped), /late "
                   "(geometry_msgs/msg/PoseStamped), /mm (nav_msgs/msg/Odometry), /nan "
-                  "(geometry_msgs/msg/PoseWithCovarianceStamped), /tf (tf2_msgs/msg/TFMessage: name the child frame"),
+                  "(geometry_msgs/msg/PoseWithCovarianceStamped), /tf (tf2_msgs/msg/TFMessage: name the child frame "
+                  "as /tf:CHILD), /unset (nav_msgs/msg/Odometry)"),
         ("/mm:base_link", "topic /mm carries nav_msgs/msg/Odometry, not transforms"),
     ]
     for topic, words in cases:
