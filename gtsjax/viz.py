@@ -209,3 +209,60 @@ def coverage_figure(site, models, title: str = ""):
     ax.set_title(title)
     fig.tight_layout()
     return fig
+
+
+def grade_figure(site, g, t0: float, title: str = ""):
+    """One robot's grade (:class:`gtsjax.grade.RobotGrade`): the field with the ground truth's path of
+    the robot (grey, thick) and its belief's (blue, at its clock offset, in the field's frame), then
+    its position and heading error over time against the ground truth's own 2-σ band and the lost
+    limits, with the belief's jumps marked."""
+    from .grade.metrics import LOST_M, LOST_RAD
+
+    e = g.errors
+    fig = plt.figure(figsize=(9, 9), constrained_layout=True)
+    gs = fig.add_gridspec(3, 1, height_ratios=[3, 1.1, 1.1])
+    ax = fig.add_subplot(gs[0])
+    if site is not None:
+        draw_site(ax, site)
+    else:
+        ax.set_aspect("equal")
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [m]")
+    t = e.t - t0
+    # Break the lines where rows are more than half a second apart (the robot unseen meanwhile).
+    cut = np.concatenate([[0], np.flatnonzero(np.diff(e.t) > 0.5) + 1, [e.t.size]])
+    for k, (a, b) in enumerate(zip(cut[:-1], cut[1:], strict=True)):
+        ax.plot(e.truth[a:b, 0], e.truth[a:b, 1], "-", c="#888", lw=3.5, alpha=0.6,
+                label="ground truth" if k == 0 else None)
+        ax.plot(e.belief[a:b, 0], e.belief[a:b, 1], "-", c="#1f77b4", lw=1, label="belief" if k == 0 else None)
+    lost = (e.pos > LOST_M) | (np.abs(e.head) > LOST_RAD)
+    if lost.any():
+        ax.scatter(e.belief[lost, 0], e.belief[lost, 1], s=4, c="#d62728", zorder=3, label="belief, lost")
+    if e.t.size:  # the robot's part of the field, with room about it
+        both = np.concatenate([e.truth[:, :2], e.belief[:, :2]])
+        lo, hi = both.min(0) - 0.5, both.max(0) + 0.5
+        ax.set_xlim(lo[0], hi[0])
+        ax.set_ylim(lo[1], hi[1])
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
+    ax.set_title(title or g.name)
+    ax2 = fig.add_subplot(gs[1])
+    ax2.fill_between(t, 0, 100 * e.band_pos, color="#aaa", alpha=0.5, lw=0, label="ground truth's 2σ")
+    ax2.plot(t, 100 * e.pos, ".", ms=1.5, c="#1f77b4", label="position error")
+    ax2.axhline(100 * LOST_M, c="#d62728", lw=0.8, ls="--", label=f"lost ({100 * LOST_M:.0f} cm)")
+    ax2.set_ylabel("position error [cm]")
+    ax2.set_yscale("symlog", linthresh=10.0)
+    ax3 = fig.add_subplot(gs[2], sharex=ax2)
+    ax3.fill_between(t, 0, np.degrees(e.band_head), color="#aaa", alpha=0.5, lw=0)
+    ax3.plot(t, np.degrees(np.abs(e.head)), ".", ms=1.5, c="#9467bd")
+    ax3.axhline(math.degrees(LOST_RAD), c="#d62728", lw=0.8, ls="--")
+    ax3.set_ylabel("|heading error| [°]")
+    ax3.set_xlabel("time from the ground truth's first row [s]")
+    for j in g.jumps:
+        for a in (ax2, ax3):
+            a.axvline(j.stamp - t0, c="#ff7f0e", lw=0.8, alpha=0.8)
+    if g.jumps:
+        ax2.plot([], [], c="#ff7f0e", lw=0.8, label="jump of the belief")
+    ax2.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), fontsize=7, ncol=4, frameon=False)
+    for a in (ax2, ax3):
+        a.grid(alpha=0.3)
+    return fig

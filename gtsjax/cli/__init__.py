@@ -13,6 +13,7 @@ from . import convert as _convert  # noqa: E402,F401
 from . import demo as _demo  # noqa: E402,F401
 from . import evaluate as _evaluate  # noqa: E402,F401
 from . import export as _export  # noqa: E402,F401
+from . import grade as _grade  # noqa: E402,F401
 from . import info as _info  # noqa: E402,F401
 from . import plot as _plot  # noqa: E402,F401
 from . import replay as _replay  # noqa: E402,F401

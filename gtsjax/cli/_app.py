@@ -80,6 +80,8 @@ EXAMPLES = {
     "plot": ["gtsjax plot gtd.csv --site site.json --truth truth.npz --out gtd.png",
              "gtsjax plot --coverage site.json"],
     "export-tum": ["gtsjax export-tum gtd.csv --out-dir tum"],
+    "grade": ["gtsjax grade gtd.csv --robot nao3=nao3.tum --robot nao5=nao5.csv --site site.json",
+              "gtsjax grade gtd.csv --robot nao3=match.mcap:/nao3/pose --frame nao3=mirrored --site site.json"],
 }
 
 

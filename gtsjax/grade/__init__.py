@@ -1,0 +1,162 @@
+"""Grading a robot's own localisation against the ground truth (``gtsjax grade``).
+
+A team records what each robot believed (its self-localisation, in its own clock and perhaps its own
+frame) while gtsjax records where the robots were. :func:`grade` answers, per robot: which tracks were
+it and when (:mod:`.associate`), its clock against the laptop's (:mod:`.clock`), its frame against
+the field's where asked (:mod:`.frame`), and how wrong it was (:mod:`.metrics`).
+
+The order matters and is fixed: coarse clock offsets first (each robot against every track, nobody
+yet known), then the frames to fit, then one association of all robots at once (a track is one
+robot at a time), then each robot's fine clock offset and frame against its own rows, then the
+association again with those, then the errors.
+"""
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..io.beliefs import Beliefs
+from ..io.gtd import TrackRow
+from .associate import associate, spans, windows
+from .clock import CAP_M, FINE_HALF_S, Belief, Clock, Rows, coarse_curve, coarse_offset, fine_offset
+from .frame import ransac_frame, refine_frame
+from .metrics import ape, jumps, summarise
+from .series import mirror_frame
+from .truth import GroundTruth, from_rows, profiles
+
+#: A belief is not interpolated across a gap longer than this (s): the robot was not localising.
+BELIEF_GAP_S = 1.0
+#: Rows taken for the coarse searches: at most one per track per this much time (s).
+COARSE_ROW_S = 0.5
+#: Bins (s) in which a robot's time counts as seen when a row of it falls in them.
+SEEN_BIN_S = 0.25
+FRAMES = ("field", "mirrored", "fit")
+
+
+@dataclass(frozen=True)
+class RobotSpec:
+    beliefs: Beliefs
+    frame: str = "field"  # one of FRAMES
+    offset: float | None = None  # the clock offset, given (s)
+
+
+@dataclass(frozen=True)
+class RobotGrade:
+    name: str
+    source: str
+    frame_kind: str
+    frame: tuple[float, float, float]  # from the robot's frame to the field's
+    frame_support: float  # for a fitted frame: the share of windows that agreed with it
+    clock: Clock
+    spans: list[tuple[int, float, float]]  # (track id, first, last stamp)
+    rows: np.ndarray  # the ground-truth rows graded
+    errors: object  # metrics.Errors
+    jumps: list
+    summary: dict
+    hint: str  # why it was not seen, where it was not
+
+
+def _coarse_rows(gt: GroundTruth, window: np.ndarray, n_w: int, speed: np.ndarray, turn: np.ndarray) -> Rows:
+    if gt.n == 0:
+        return Rows(gt.stamps, gt.track, gt.poses, window, speed, turn, gt.ids.size, n_w)
+    b = np.floor((gt.stamps - gt.stamps[0]) / COARSE_ROW_S).astype(np.int64)
+    _, keep = np.unique(gt.track * (int(b.max()) + 1) + b, return_index=True)
+    keep = np.sort(keep)
+    return Rows(gt.stamps[keep], gt.track[keep], gt.poses[keep], window[keep], speed[keep], turn[keep],
+                gt.ids.size, n_w)
+
+
+def _seen_share(gt: GroundTruth, rows: np.ndarray, belief: Beliefs, offset: float) -> tuple[float, float]:
+    """The share of the robot's time (its beliefs' span on the laptop's clock, within the log's) that
+    has a ground-truth row of it, and that time (s)."""
+    if gt.n == 0 or belief.n == 0 or not math.isfinite(offset):
+        return 0.0, 0.0
+    lo = max(belief.stamps[0] - offset, gt.stamps[0])
+    hi = min(belief.stamps[-1] - offset, gt.stamps[-1])
+    if hi <= lo:
+        return 0.0, 0.0
+    n_bins = max(1, int(math.ceil((hi - lo) / SEEN_BIN_S)))
+    t = gt.stamps[rows]
+    t = t[(t >= lo) & (t <= hi)]
+    seen = np.unique(np.minimum(((t - lo) / SEEN_BIN_S).astype(np.int64), n_bins - 1)).size
+    return seen / n_bins, hi - lo
+
+
+def grade(rows: list[TrackRow], robots: list[RobotSpec], *, centre: tuple[float, float] = (0.0, 0.0),
+          max_offset: float = 5.0, classes: set[str] | None = None, seed: int = 0) -> list[RobotGrade]:
+    """Grade each robot's beliefs against the GTD rows (see the module for the order of the steps).
+    ``centre``: the field's centre, about which a ``mirrored`` frame is turned."""
+    rng = np.random.default_rng(seed)
+    gt = from_rows(rows, classes)
+    window, n_w = windows(gt.stamps)
+    need_profiles = any(r.frame == "fit" for r in robots)
+    speed, turn = profiles(gt) if need_profiles else (np.full(gt.n, np.nan), np.full(gt.n, np.nan))
+    coarse = _coarse_rows(gt, window, n_w, speed, turn)
+
+    beliefs, offsets, support = [], [], []
+    for spec in robots:
+        b = spec.beliefs
+        frame = mirror_frame(centre) if spec.frame == "mirrored" else (0.0, 0.0, 0.0)
+        belief = Belief(b.stamps, b.poses, frame, BELIEF_GAP_S)
+        share = math.nan
+        if spec.offset is not None:
+            d = spec.offset
+        else:
+            d, _, _ = coarse_offset(coarse, belief, max_offset, profile=spec.frame == "fit")
+        if spec.frame == "fit" and math.isfinite(d):
+            fitted, share = ransac_frame(coarse, b.stamps, b.poses, BELIEF_GAP_S, d, rng)
+            if fitted is not None:
+                belief = belief.with_frame(fitted)
+                if spec.offset is None:  # the clock again, now by pose, near the motion's answer
+                    d, _, _ = coarse_offset(coarse, belief, 0.5, profile=False, centre=d)
+        beliefs.append(belief)
+        offsets.append(d if math.isfinite(d) else 0.0)
+        support.append(share)
+
+    clocks: list[Clock] = [Clock(o, math.nan, (0.0, 0.0, 0.0), s.offset is not None) for o, s in zip(offsets, robots, strict=True)]
+    for first in (True, False):
+        assoc = associate(gt.track, gt.stamps, gt.poses, gt.ids.size, list(zip(beliefs, [c.offset for c in clocks], strict=True)))
+        for r, spec in enumerate(robots):
+            mine = assoc.rows[r]
+            if mine.size < 10:
+                continue
+            t, truth = gt.stamps[mine], gt.poses[mine]
+            clocks[r] = fine_offset(t, truth, window[mine], beliefs[r], clocks[r].offset, rng, spec.offset,
+                                    half=FINE_HALF_S if first else 0.05)
+            if spec.frame == "fit":
+                fitted = refine_frame(t, truth, beliefs[r], clocks[r].offset, clocks[r].bias)
+                beliefs[r] = beliefs[r].with_frame(fitted)
+    assoc = associate(gt.track, gt.stamps, gt.poses, gt.ids.size, list(zip(beliefs, [c.offset for c in clocks], strict=True)))
+
+    out = []
+    for r, spec in enumerate(robots):
+        mine = assoc.rows[r]
+        clock = clocks[r]
+        b, ok = beliefs[r].at(gt.stamps[mine], clock.offset)
+        mine, b = mine[ok], b[ok]
+        e = ape(gt.stamps[mine], b, gt.poses[mine], gt.var[mine])
+        share, _ = _seen_share(gt, mine, spec.beliefs, clock.offset)
+        js = jumps(spec.beliefs.stamps, spec.beliefs.poses, clock.offset, e)
+        summary = summarise(e, js, share, gt.var[mine])
+        hint = "" if share >= 0.5 else _hint(spec, coarse, beliefs[r], clock.offset, centre, share)
+        out.append(RobotGrade(spec.beliefs.name, spec.beliefs.source, spec.frame, beliefs[r].frame, support[r], clock,
+                              spans(mine, gt.track, gt.stamps, gt.ids), mine, e, js, summary, hint))
+    return out
+
+
+def _hint(spec: RobotSpec, coarse: Rows, belief: Belief, offset: float, centre, share: float) -> str:
+    """Why a robot was seen so little, where the data says: its poses agree with the tracks turned half
+    a turn (the other team's frame), or with none at all."""
+    if spec.frame == "field" and coarse.stamps.size:
+        as_is = coarse_curve(coarse, belief, np.array([offset]), profile=False)[0]
+        turned = Belief(belief.stamps, belief.poses, mirror_frame(centre), belief.max_gap)
+        d, _, curve = coarse_offset(coarse, turned, 5.0, profile=False)
+        if np.isfinite(curve).any() and np.nanmin(curve) < 0.5 * (as_is if math.isfinite(as_is) else 1.0):
+            return (f"its poses agree with the tracks turned half a turn about the field's centre: "
+                    f"--frame {spec.beliefs.name}=mirrored")
+    if share == 0.0:
+        return (f"its poses are within {CAP_M:g} m of no track at any clock offset tried: off the field, in view of "
+                f"no laser, or in a frame of its own (--frame {spec.beliefs.name}=fit)")
+    return (f"a ground-truth row for {100 * share:.0f} % of its time: in view of no laser the rest, or matched "
+            f"no track (--frame {spec.beliefs.name}=fit if it localises in a frame of its own)")
