@@ -26,7 +26,8 @@ stamps, so a replayed log can be scrubbed):
 * with several lasers, those four per laser under ``field/lasers/NAME/`` (``field/lasers/north/scan``,
   each laser's returns in a colour of its own), so that one laser's scan does not replace another's;
 * ``field/tracks/CLASS_ID``: each confirmed track: an arrow along its heading, its 2-σ position
-  ellipse (with the x–y covariance: tilted where the error is) and its trail, labelled ``CLASS ID``;
+  ellipse (with the x–y covariance: tilted where the error is) and its trail, labelled ``CLASS ID``
+  (``CLASS ID ROBOT`` once ``run --beliefs`` has named it);
   a track that ended is cleared;
 * ``stats/latency_ms`` (live), ``stats/tracks``, ``stats/landmark_residual_cm``, ``stats/dropped``
   (live: frames the link dropped): time series; the last two per laser with several
@@ -88,6 +89,11 @@ def _rr():
 
 
 _colour = track_colour
+
+
+def _track_label(row) -> str:
+    """A track's label: its class and id, and its robot's name where the live association gave one."""
+    return f"{row.cls} {row.track_id} {row.robot}" if row.robot else f"{row.cls} {row.track_id}"
 
 
 def ellipse(x: float, y: float, var_x: float, var_y: float, n_sigma: float = 2.0, n: int = 32,
@@ -283,7 +289,7 @@ class View:
             c = _colour(row.track_id)
             rr.log(f"field/tracks/{key}/pose", rr.Arrows2D(
                 origins=[(row.x, row.y)], vectors=[(0.25 * math.cos(row.theta), 0.25 * math.sin(row.theta))],
-                colors=[c], radii=0.015, labels=[f"{row.cls} {row.track_id}"]), recording=rec)
+                colors=[c], radii=0.015, labels=[_track_label(row)]), recording=rec)
             rr.log(f"field/tracks/{key}/ellipse", rr.LineStrips2D(
                 [ellipse(row.x, row.y, row.var_x, row.var_y, cov_xy=row.cov_xy)], colors=[c], radii=0.005), recording=rec)
             rr.log(f"field/tracks/{key}/trail", rr.LineStrips2D([list(trail)], colors=[c], radii=0.006), recording=rec)

@@ -12,20 +12,23 @@ from rich.table import Table
 from ..core.geometry import wrap
 
 
-def live_view(model, link, stats, output, stamp, laser: str | None = None) -> Group:
+def live_view(model, link, stats, output, stamp, laser: str | None = None, names: "dict | None" = None) -> Group:
     """The terminal view: confirmed tracks, latency, the sensor pose as the map transformation sees it,
     frame and fault counters. ``link``: the sensor's link, or with several lasers a dict of them by
-    name (a counters line each), ``laser`` naming the one whose scan ``output`` is."""
+    name (a counters line each), ``laser`` naming the one whose scan ``output`` is. ``names``: with
+    ``--beliefs``, each track's robot by track id (a ``robot`` column, empty where none yet)."""
     t = Table(title="tracks", expand=False)
-    for col in ("id", "class", "x [m]", "y [m]", "θ [°]", "σx [cm]", "σθ [°]"):
+    for col in ("id", "class", "x [m]", "y [m]", "θ [°]", "σx [cm]", "σθ [°]") + (("robot",) if names is not None else ()):
         t.add_column(escape(col), justify="right")  # units in [] are not Rich markup
     if output is not None:
         m = np.asarray(output.track_mask)
         for i in np.flatnonzero(m):
             p, v = np.asarray(output.track_pose[i]), np.asarray(output.track_var[i])
-            t.add_row(str(int(output.track_id[i])), model.classes[int(output.track_class[i])], f"{p[0]:.3f}",
+            tid = int(output.track_id[i])
+            t.add_row(str(tid), model.classes[int(output.track_class[i])], f"{p[0]:.3f}",
                       f"{p[1]:.3f}", f"{np.degrees(wrap(p[2])):.1f}",
-                      f"{100 * np.sqrt(v[0]):.1f}", f"{np.degrees(np.sqrt(v[2])):.1f}")
+                      f"{100 * np.sqrt(v[0]):.1f}", f"{np.degrees(np.sqrt(v[2])):.1f}",
+                      *((escape(names.get(tid, "")),) if names is not None else ()))
     med, p99 = stats.latency()
     lines = [f"frames {stats.frames}  rows {stats.rows}  latency median {med:.2f} ms  p99 {p99:.2f} ms  "
              f"late {stats.late}"]
@@ -84,9 +87,13 @@ def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Pa
                frames: int | None = None, intensity: bool = True, view: bool = True, console: Console | None = None,
                confirm_scans: int | None = None, sensor: str | None = None, max_tracks: int | None = None,
                out_bag: Path | None = None, rerun_view: str | None = None, view_save: Path | None = None,
-               keep_warm: bool = True, reconnect_timeout: float | None = None, csv_units: bool = False):
+               keep_warm: bool = True, reconnect_timeout: float | None = None, csv_units: bool = False,
+               beliefs=None):
     """Open the sensor, run the live loop, show the view (the terminal's table; with ``rerun_view`` or
-    ``view_save``, Rerun's: :mod:`gtsjax.viewer`); returns (live stats, link stats, the model run)."""
+    ``view_save``, Rerun's: :mod:`gtsjax.viewer`); returns (live stats, link stats, the model run).
+    ``beliefs``: a bound :class:`~gtsjax.io.beliefs_udp.BeliefListener` (``--beliefs``): each track
+    named with its robot (:class:`~gtsjax.grade.online.OnlineIdentity`), the per-robot report in
+    the stats' ``beliefs``; the caller stops it."""
     from ..drivers.live import Outputs, run_live, warm_up
     from ..drivers.setup import check_sensor, load
     from ..io.serial import Link
@@ -102,6 +109,8 @@ def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Pa
     from ._common import open_view
 
     shown = open_view(model, rerun_view, view_save, console)
+    identity = start_identity(beliefs)
+    names = identity.names if identity is not None else None
     link = Link(port, intensity=intensity)
     link.start()
     last = {"t": 0.0}
@@ -115,22 +124,66 @@ def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Pa
                     now = time.monotonic()
                     if now - last["t"] > 0.25:
                         last["t"] = now
-                        live.update(live_view(model, link, stats, o, stamp))
+                        live.update(live_view(model, link, stats, o, stamp, names=names))
 
                 stats = run_live(link, model, out, record=record, outputs=Outputs(json_lines, udp, csv_units),
                                  duration=duration, on_scan=on_scan, with_intensity=intensity,
                                  compiled=compiled, max_frames=frames, out_bag=out_bag, view=shown,
-                                 keep_warm=keep_warm, reconnect_timeout=reconnect_timeout, sensor_checked=True)
+                                 keep_warm=keep_warm, reconnect_timeout=reconnect_timeout, sensor_checked=True,
+                                 identity=identity)
             if not console.is_terminal:  # rich ends the last view with a newline only on a terminal
                 console.line()
         else:
             stats = run_live(link, model, out, record=record, outputs=Outputs(json_lines, udp, csv_units), duration=duration,
                              with_intensity=intensity, compiled=compiled, max_frames=frames, out_bag=out_bag,
                              view=shown, keep_warm=keep_warm, reconnect_timeout=reconnect_timeout,
-                             sensor_checked=True)
+                             sensor_checked=True, identity=identity)
     finally:
         link.stop()
+    if identity is not None:
+        stats.beliefs = beliefs_report(beliefs, identity)
     return stats, link.stats, model
+
+
+def start_identity(beliefs):
+    """The live association over a bound listener, which starts listening now (``None``: no ``--beliefs``)."""
+    if beliefs is None:
+        return None
+    from ..grade.online import OnlineIdentity
+
+    beliefs.start()
+    return OnlineIdentity(beliefs)
+
+
+def beliefs_report(beliefs, identity) -> dict:
+    """Per robot heard from: poses received, malformed lines that named it, the share of the time it
+    sent beliefs that a track held its name (``None`` where it never sent for a whole window); and the
+    malformed lines by reason, which name no robot as often as one."""
+    counts = beliefs.counts_copy()
+    share = identity.named_share()
+    robots = sorted(set(counts.poses) | set(counts.malformed_by_robot))
+    return {"listen": f"udp:{beliefs.host}:{beliefs.port}", "datagrams": counts.datagrams,
+            "malformed": dict(sorted(counts.malformed.items())), "out_of_order": counts.out_of_order,
+            "robots_refused": counts.robots_refused, "renames": identity.renames,
+            "robots": {r: {"poses": counts.poses.get(r, 0), "malformed": counts.malformed_by_robot.get(r, 0),
+                           "named_share": share.get(r)} for r in robots}}
+
+
+def print_beliefs(console: Console, report: "dict | None") -> None:
+    """The end-of-run lines of ``--beliefs``: one per robot, and what was malformed by reason."""
+    if report is None:
+        return
+    bad = report["malformed"]
+    console.print(f"beliefs on {report['listen']}: {report['datagrams']} datagrams, "
+                  f"{sum(bad.values())} malformed lines"
+                  + (f" ({', '.join(f'{k} {v}' for k, v in bad.items())})" if bad else "")
+                  + (f", {report['out_of_order']} out of order" if report["out_of_order"] else ""), soft_wrap=True)
+    if not report["robots"]:
+        console.print("  no robot's beliefs received", soft_wrap=True)
+    for r, d in report["robots"].items():
+        named = "never a whole window" if d["named_share"] is None else f"{100 * d['named_share']:.0f} % of its time"
+        console.print(f"  {escape(r)}: {d['poses']} poses, {d['malformed']} malformed lines; named on a track "
+                      f"{named}", soft_wrap=True)
 
 
 def track_live_several(lasers: "dict[str, str]", model_paths: "list[Path]", site: Path, out: Path, *, record: Path | None,
@@ -138,12 +191,12 @@ def track_live_several(lasers: "dict[str, str]", model_paths: "list[Path]", site
                        intensity: bool, view: bool, confirm_scans: int | None, summary: Path | None,
                        console: Console | None = None, max_tracks: int | None = None, keep_warm: bool = True,
                        csv_units: bool = False, reconnect_timeout: float | None = None, out_bag: Path | None = None,
-                       rerun_view: str | None = None, view_save: Path | None = None):
+                       rerun_view: str | None = None, view_save: Path | None = None, beliefs=None):
     """``run --port NAME=PORT ...``: every laser's link, one track table (see
     :mod:`gtsjax.drivers.live_several`); per-laser status when it stops, and in ``summary``. One
     model for every laser, or one per scanner model (each laser gets the one for the scanner the
     site names for it). ``out_bag``, ``rerun_view``, ``view_save``: the bag and Rerun's view, each
-    laser's scans under its name."""
+    laser's scans under its name. ``beliefs``: as :func:`track_live`'s."""
     import dataclasses
     import json
 
@@ -166,6 +219,8 @@ def track_live_several(lasers: "dict[str, str]", model_paths: "list[Path]", site
     compiled = (warm_up_several(models, tuple(MODELS[m.sensor_model] for m in models), poses, kinds)
                 if all(m.sensor_model in MODELS for m in models) else None)
     shown = open_view(models[0], rerun_view, view_save, console)
+    identity = start_identity(beliefs)
+    names_of = identity.names if identity is not None else None
     links = {}
     record_paths = ({n: record.with_name(f"{record.stem}-{n}{record.suffix or '.npz'}") for n in names}
                     if record is not None else None)
@@ -181,7 +236,7 @@ def track_live_several(lasers: "dict[str, str]", model_paths: "list[Path]", site
             now = time.monotonic()
             if live is not None and now - last["t"] > 0.25:
                 last["t"] = now
-                live.update(live_view(models[0], links, stats, o, stamp, laser))
+                live.update(live_view(models[0], links, stats, o, stamp, laser, names=names_of))
 
         def warn(msg: str) -> None:
             (live.console if live is not None else console).print(f"warning: {msg}", soft_wrap=True)
@@ -192,7 +247,8 @@ def track_live_several(lasers: "dict[str, str]", model_paths: "list[Path]", site
             stats, per, out_of_order = run_live_several(
                 links, models, poses, out, record=record_paths, kinds=kinds, outputs=Outputs(json_lines, udp, csv_units),
                 duration=duration, on_scan=on_scan, with_intensity=intensity, compiled=compiled, max_frames=frames,
-                warn=warn, keep_warm=keep_warm, reconnect_timeout=reconnect_timeout, out_bag=out_bag, view=shown)
+                warn=warn, keep_warm=keep_warm, reconnect_timeout=reconnect_timeout, out_bag=out_bag, view=shown,
+                identity=identity)
         finally:
             if live is not None:
                 live.stop()
@@ -222,6 +278,9 @@ def track_live_several(lasers: "dict[str, str]", model_paths: "list[Path]", site
                       + (f"; calibration check: landmarks shared with another laser at most {p.disagreement_max_m * 100:.1f} cm "
                          "apart" if p.disagreement_m else "; no landmark shared with another laser")
                       + (f"; raw scans -> {record_paths[n]}" if record_paths else ""))
+    if identity is not None:
+        stats.beliefs = doc["beliefs"] = beliefs_report(beliefs, identity)
+        print_beliefs(console, stats.beliefs)
     doc["diagnosis"] = stats.tally.finish() if stats.tally is not None else None
     if summary is not None:
         summary.write_text(json.dumps(doc) + "\n")

@@ -19,7 +19,7 @@ from ._common import (
     print_warnings,
     track_summary,
 )
-from ._live import track_live
+from ._live import print_beliefs, track_live
 
 
 @app.command("run")
@@ -56,6 +56,11 @@ def run_cmd(
                                                  "run with one line; what was written is kept (default 10 s). With "
                                                  "several lasers, one gone is a warning and the others go on; all "
                                                  "gone ends the run."),
+    beliefs: str | None = typer.Option(None, "--beliefs", metavar="udp:[HOST:]PORT",
+                                       help="Listen here for the robots' own poses as JSON lines ({\"robot\", "
+                                            "\"stamp\", \"x\", \"y\", \"theta\"}) and name each track with its "
+                                            "robot: a robot column in the CSV, the table and the view "
+                                            "(docs/live-beliefs.md)."),
     keep_warm: bool = typer.Option(True, "--keep-warm/--no-keep-warm",
                                    help="Shortly before each frame is due, run the step once on the last frame and "
                                         "throw the result away, so the frame finds it in the caches (lower latency "
@@ -77,6 +82,25 @@ def run_cmd(
 
         check_bag_dir(out_bag)
     lasers = _laser_ports(port, site, sensor)
+    listener = None
+    if beliefs is not None:  # bound now: a port in use is one line before seconds of loading
+        from ..io.beliefs_udp import BeliefListener
+
+        listener = BeliefListener(beliefs)
+    try:
+        _run(port, lasers, models, site, out, record=record, json_lines=json_lines, udp=udp, duration=duration,
+             frames=frames, intensity=intensity, quiet=quiet, confirm_scans=confirm_scans, max_tracks=max_tracks,
+             out_bag=out_bag, view=view, view_save=view_save, csv_units=csv_units, summary=summary,
+             reconnect_timeout=reconnect_timeout, keep_warm=keep_warm, sensor=sensor, beliefs=listener)
+    finally:
+        if listener is not None:
+            listener.stop()
+
+
+def _run(port, lasers, models, site, out, *, record, json_lines, udp, duration, frames, intensity, quiet,
+         confirm_scans, max_tracks, out_bag, view, view_save, csv_units, summary, reconnect_timeout, keep_warm,
+         sensor, beliefs) -> None:
+    """``run`` after its options are checked: one laser or several, then the summary."""
     if lasers is not None:
         from ._live import track_live_several
 
@@ -84,20 +108,21 @@ def run_cmd(
                            duration=duration, frames=frames, intensity=intensity, view=not quiet,
                            confirm_scans=confirm_scans, summary=summary, max_tracks=max_tracks, keep_warm=keep_warm,
                            csv_units=csv_units, reconnect_timeout=reconnect_timeout, out_bag=out_bag,
-                           rerun_view=view, view_save=view_save)
+                           rerun_view=view, view_save=view_save, beliefs=beliefs)
         return
     port, model = port[0], one_model(models)
     stats, link_stats, loaded = track_live(port, model, site, out, record=record, json_lines=json_lines, udp=udp,
                                    duration=duration, frames=frames, intensity=intensity, view=not quiet,
                                    confirm_scans=confirm_scans, sensor=sensor, max_tracks=max_tracks,
                                    out_bag=out_bag, rerun_view=view, view_save=view_save, keep_warm=keep_warm,
-                                   reconnect_timeout=reconnect_timeout, csv_units=csv_units)
+                                   reconnect_timeout=reconnect_timeout, csv_units=csv_units, beliefs=beliefs)
     med, p99 = stats.latency()
     Console(stderr=True).print(
         f"{stats.frames} frames, {stats.rows} rows -> {out}; latency median {med:.2f} ms, p99 {p99:.2f} ms; "
         f"link: {link_stats.bad_frames} bad frames, {link_stats.salvaged} salvaged, {link_stats.dropped} dropped, "
         f"{link_stats.reconnects} reconnects"
         + (f"; raw scans -> {record}" if record else ""))
+    print_beliefs(Console(stderr=True), stats.beliefs)
     if summary is not None:
         from ..drivers.live import summary_json
 

@@ -61,6 +61,8 @@ class LiveStats:
     # Why the run reports what it does (:class:`~gtsjax.drivers.diagnose.Tally`, fed each frame's packed
     # table after its latency is taken); None outside the live loops.
     tally: object = None
+    # ``run --beliefs``: per robot, what its beliefs came to (:func:`gtsjax.cli._live.beliefs_report`).
+    beliefs: dict | None = None
 
     def add_latency(self, ms: float) -> None:
         self.latencies_ms.append(ms)
@@ -372,7 +374,7 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
              duration: float | None = None, stop: threading.Event | None = None, on_scan=None,
              with_intensity: bool = False, compiled=None, max_frames: int | None = None,
              out_bag: Path | None = None, view=None, keep_warm: bool = True,
-             reconnect_timeout: float | None = None, sensor_checked: bool = False) -> LiveStats:
+             reconnect_timeout: float | None = None, sensor_checked: bool = False, identity=None) -> LiveStats:
     """Track from a started :class:`~gtsjax.io.serial.Link` until ``duration`` seconds, ``max_frames``
     frames processed, ``stop`` set, or Ctrl-C; then stop the link (QT) and finalise the recording.
     ``on_scan(stats, output, stamp)`` is called after each scan (the live view; ``output`` is the
@@ -385,6 +387,8 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
     (:class:`InputError`) after what was written is closed, instead of retrying for ever.
     ``sensor_checked``: the caller has checked the link's sensor against the model
     (:func:`~gtsjax.drivers.setup.check_sensor`), which is otherwise done here first.
+    ``identity``: the robots' names from their beliefs (``run --beliefs``,
+    :class:`~gtsjax.grade.online.OnlineIdentity`): the CSV's ``robot`` column.
 
     ``keep_warm``: a few milliseconds before each frame is due (the last one's arrival plus the
     sensor's period), if it has not come, the step runs once on the last frame and its result is
@@ -404,7 +408,8 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
     live_step, state = compiled if compiled is not None else warm_up(model, sensor)
     session = LiveSession({LASER: link}, model, out, named=False, record={LASER: record} if record else None,
                           outputs=outputs, with_intensity=with_intensity, out_bag=out_bag, view=view, on_scan=on_scan,
-                          keep_warm=keep_warm, duration=duration, stop=stop, max_frames=max_frames)
+                          keep_warm=keep_warm, duration=duration, stop=stop, max_frames=max_frames,
+                          identity=identity)
     stats, recorder = session.stats, session.recorders[0]
     frames = OneLink(link, live_step, stats, session.warm, reconnect_timeout)
     failed = run_loop(session, frames, state)
@@ -424,7 +429,8 @@ def summary_json(stats: LiveStats, link_stats) -> str:
     recent latency (``latency_ms_*``, last 2 000 frames) and the whole run's (``latency_ms_run_*``,
     binned), late and degraded scans, tracks per class, the link's counters by cause (its
     ``frames``, the frames it delivered, as ``received``: ``frames`` is those processed), and the
-    run's ``diagnosis`` (:mod:`gtsjax.drivers.diagnose`)."""
+    run's ``diagnosis`` (:mod:`gtsjax.drivers.diagnose`); with ``--beliefs``, ``beliefs``: per robot,
+    poses received, malformed lines, the share of its time named on a track."""
     med, p99 = stats.latency()
     link = dataclasses.asdict(link_stats)
     link["received"] = link.pop("frames")
@@ -435,4 +441,5 @@ def summary_json(stats: LiveStats, link_stats) -> str:
                        "late": stats.late, "stale": stats.stale, "degraded": stats.degraded, "unlike": stats.unlike,
                        "off_envelope": stats.off_envelope, "warm_ups": stats.warm_ups,
                        "tracks": {c: len(ids) for c, ids in sorted(stats.track_ids.items())},
-                       **link, "diagnosis": stats.tally.finish() if stats.tally is not None else None})
+                       **link, "diagnosis": stats.tally.finish() if stats.tally is not None else None,
+                       **({"beliefs": stats.beliefs} if stats.beliefs is not None else {})})

@@ -82,7 +82,9 @@ class LiveSession:
     let go), the :class:`~gtsjax.drivers.live.Outputs`, a recording per laser of ``record``, the bag,
     the view, ``on_scan`` and :class:`KeepWarm`. ``links``: the lasers' by name; ``named``: each
     frame's JSON line, bag topic, view entities and ``on_scan`` carry its laser's name (several
-    lasers), else a one-laser run's, ``links`` then keyed by :data:`~gtsjax.io.bag_out.LASER`."""
+    lasers), else a one-laser run's, ``links`` then keyed by :data:`~gtsjax.io.bag_out.LASER`.
+    ``identity``: the robots' names from their beliefs (:class:`~gtsjax.grade.online.OnlineIdentity`,
+    ``run --beliefs``), the sink's."""
 
     def __init__(
         self,
@@ -98,6 +100,7 @@ class LiveSession:
         view,
         on_scan,
         keep_warm: bool,
+        identity=None,
         duration: float | None,
         stop,
         max_frames: int | None,
@@ -110,7 +113,7 @@ class LiveSession:
         self.outputs = outputs or Outputs()
         bag = BagOut(out_bag, {n: LaserGeometry.of_sensor(links[n].model) for n in names}) if out_bag is not None else None
         self.sink = Sink(model, out, names=tuple(names) if named else None, bag=bag, view=view,
-                         csv_units=self.outputs.csv_units)
+                         csv_units=self.outputs.csv_units, identity=identity)
         self.stats = LiveStats(tally=self.sink.tally, track_ids=self.sink.track_ids)
         for link in self.links:  # frames that queued up while compiling are stale
             while link.get(timeout=0) is not None:
@@ -167,6 +170,7 @@ def run_loop(session: LiveSession, frames: Frames, state) -> InputError | None:
     send, warm, on_scan = session.outputs.send, session.warm, session.on_scan
     stop, t_end, max_frames = session.stop, session.t_end, session.max_frames
     sink = session.sink
+    label = sink.label  # None without --beliefs: the frame's path is then as it was
     unpack = frames.needs_output or sink.wants_output or on_scan is not None
     failed = None
     try:
@@ -185,6 +189,8 @@ def run_loop(session: LiveSession, frames: Frames, state) -> InputError | None:
             state, o, packed = step(state, lf.ranges_m, lf.intensities, *args)
             table = np.asarray(packed).tolist()  # the rest of the frame's path is plain Python
             rows = rows_from_packed(lf.stamp, table, classes)
+            if label is not None:
+                rows = label(rows)
             sink.write(rows)
             degraded = table[-1][DEGRADED] > 0.5
             send(rows, lf.stamp, degraded=degraded, **tags[k])
@@ -195,7 +201,7 @@ def run_loop(session: LiveSession, frames: Frames, state) -> InputError | None:
             # Bookkeeping after the latency is taken: the recording, the bag and the view are not on the path.
             o = session.emit(k, lf, step, o, rows, lat, unpack)
             stats.count(rows, lat, degraded, period_ms[k])
-            sink.count(rows, k, degraded)
+            sink.count(rows, k, degraded, lf.stamp)
             sink.tally.add_packed(table)
             stats.unlike += int(table[-1][UNLIKE])  # the packed status row: one laser or several alike
             stats.off_envelope += int(table[-1][OFF_ENVELOPE])

@@ -211,7 +211,8 @@ def run_live_several(links: "dict[str, object]", model: "Model | tuple[Model, ..
                      duration: float | None = None, stop=None, on_scan=None, with_intensity: bool = False,
                      compiled=None, max_frames: int | None = None, hold_s: float | None = None, warn=None,
                      kinds: "tuple[int, ...] | None" = None, keep_warm: bool = True,
-                     reconnect_timeout: float | None = None, out_bag: Path | None = None, view=None):
+                     reconnect_timeout: float | None = None, out_bag: Path | None = None, view=None,
+                     identity=None):
     """Track from started links (one per laser, ``poses`` their rough pose guesses in the same order)
     until ``duration``, ``max_frames`` frames (all lasers together), ``stop`` or Ctrl-C. ``model``:
     every laser's, or one per scanner model with ``kinds`` (each laser's index into them; see
@@ -229,6 +230,7 @@ def run_live_several(links: "dict[str, object]", model: "Model | tuple[Model, ..
     ``out_bag``: also a ROS 2 bag, each laser's frames on its own topic and frame
     (:mod:`gtsjax.io.bag_out`); ``view``: a :class:`~gtsjax.viewer.View` shown each frame, each
     laser's under its name (closed at the end); both written after the frame's latency is taken.
+    ``identity``: as :func:`~gtsjax.drivers.live.run_live`'s, the robots' names from their beliefs.
 
     The loop is :func:`~gtsjax.drivers.live_loop.run_loop`'s, with the lasers' merged frames
     (:class:`MergedFrames`)."""
@@ -243,7 +245,8 @@ def run_live_several(links: "dict[str, object]", model: "Model | tuple[Model, ..
         models, tuple(sensors[k] for k in first_of), poses, kinds)
     session = LiveSession(links, models[0], out, named=True, record=record, outputs=outputs,
                           with_intensity=with_intensity, out_bag=out_bag, view=view, on_scan=on_scan,
-                          keep_warm=keep_warm, duration=duration, stop=stop, max_frames=max_frames)
+                          keep_warm=keep_warm, duration=duration, stop=stop, max_frames=max_frames,
+                          identity=identity)
     hold = hold_s if hold_s is not None else 1.5 * max(s.period for s in sensors)
     frames = MergedFrames(links, [steps[i] for i in kinds], session.period_ms, session.warm, hold=hold,
                           reconnect_timeout=reconnect_timeout, warn=warn)

@@ -7,6 +7,11 @@ A live loop writes a frame's rows (:meth:`Sink.write`) on the frame's path and t
 of outputs at a time (:meth:`Sink.add`). One laser or several: ``names``, the lasers' names, puts
 each scan's bag topic, view entities and sensor-pose row under its laser's name and adds the
 cross-laser calibration check (:class:`Disagreement`) to the sensor-pose CSV.
+
+``identity`` (``run --beliefs``): the live association of robots to tracks
+(:class:`~gtsjax.grade.online.OnlineIdentity`); the CSV then has the ``robot`` column, each scan's
+rows are named by :meth:`Sink.label` before they are written and sent, and :meth:`Sink.count` hands
+them to the association, after the latency is taken.
 """
 
 import csv
@@ -26,14 +31,17 @@ DROPPED = ("n_overflow", "n_too_long", "unlike", "off_envelope")
 class Sink:
     """One run's outputs (see the module). ``bag``: a :class:`~gtsjax.io.bag_out.BagOut` or ``None``;
     ``view``: a :class:`~gtsjax.viewer.View` or ``None``; ``sensor_out``: the sensor-pose CSV's path
-    (batch), written at :meth:`close`. Everything given is closed by :meth:`close`."""
+    (batch), written at :meth:`close`; ``identity``: see the module. Everything given is closed by :meth:`close`."""
 
     def __init__(self, model, out: Path, *, names: "tuple[str, ...] | None" = None, bag=None, view=None,
-                 sensor_out: Path | None = None, csv_units: bool = False):
+                 sensor_out: Path | None = None, csv_units: bool = False, identity=None):
         from ..io.bag_out import LASER
 
         self.classes = model.classes
-        self.writer = GTDWriter(out, units=csv_units)
+        self.writer = GTDWriter(out, units=csv_units, robot=identity is not None)
+        self.identity = identity
+        # The rows' names, on the frame's path; ``None`` without beliefs, so that path is as it was.
+        self.label = identity.label if identity is not None else None
         self.bag, self.view, self.sensor_out = bag, view, sensor_out
         self.names = names
         self.bag_names = names or (LASER,)
@@ -75,9 +83,11 @@ class Sink:
             self.view.scan(stamp, shown, angle_min, angle_increment, out, rows, latency_ms=latency_ms,
                            dropped=dropped, laser=self.view_names[k])
 
-    def count(self, rows: "list[TrackRow]", k: int = 0, degraded: bool = False) -> None:
-        """One scan of laser ``k`` in the run's counts: its reported track ids, whether its transform
-        was degraded."""
+    def count(self, rows: "list[TrackRow]", k: int = 0, degraded: bool = False, stamp: float | None = None) -> None:
+        """One scan of laser ``k``, stamped ``stamp``, in the run's counts: its reported track ids,
+        whether its transform was degraded; and in the live association, where there is one."""
+        if self.identity is not None and stamp is not None:
+            self.identity.observe(stamp, rows)
         for row in rows:
             self.track_ids.setdefault(row.cls, set()).add(row.track_id)
         self.scans[k] += 1
@@ -102,7 +112,7 @@ class Sink:
                 ranges, intensities, angle_min, increment, valid = frame(i)
                 self.show(k, stamp, rows, ranges, intensities, angle_min, increment,
                           jax.tree.map(lambda a, i=i: a[i], out), valid=valid)
-            self.count(rows, k, bool(degraded[i]))
+            self.count(rows, k, bool(degraded[i]), stamp)
         if self.sensor_out is not None:
             self._sensor_rows(stamps, out, lasers)
         self.tally.add(out)

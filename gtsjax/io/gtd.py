@@ -11,6 +11,11 @@ optional form :data:`UNITS_HEADER`: the same columns named with their units (``x
 (a robot seen end-on from a laser far away has an error ellipse at 45° to the axes, which the
 diagonal alone draws as a circle). The reader takes either header, and the spec header followed by
 ``cov_xy``.
+
+``run --beliefs`` appends one more optional column, ``robot``, last after either form: the name of
+the robot the live association (:mod:`gtsjax.grade.online`) gives the track at that scan, empty
+where none. Without ``--beliefs`` the file is as before, byte for byte, so readers of the contract
+see nothing new unless they ask for it.
 """
 
 import csv
@@ -31,8 +36,11 @@ HEADER = ("stamp", "track_id", "class", "x", "y", "theta", "var_x", "var_y", "va
 # The optional form (``--csv-units``): the spec's columns with their units, and the x–y covariance.
 UNITS_HEADER = ("stamp_s", "track_id", "class", "x_m", "y_m", "theta_rad", "var_x_m2", "var_y_m2", "var_theta_rad2",
                 "cov_xy_m2")
-# Headers the reader accepts, with whether their last column is ``cov_xy``.
-_HEADERS = {HEADER: False, HEADER + ("cov_xy",): True, UNITS_HEADER: True, UNITS_HEADER[:-1]: False}
+#: The optional last column ``run --beliefs`` adds: the robot's name, empty where unknown.
+ROBOT = "robot"
+# Headers the reader accepts, with whether they hold ``cov_xy``; each may end in :data:`ROBOT` too.
+_BASE = {HEADER: False, HEADER + ("cov_xy",): True, UNITS_HEADER: True, UNITS_HEADER[:-1]: False}
+_HEADERS = {**_BASE, **{h + (ROBOT,): c for h, c in _BASE.items()}}
 
 
 @dataclass(frozen=True)
@@ -47,9 +55,12 @@ class TrackRow:
     var_y: float
     var_theta: float
     cov_xy: float = 0.0  # the x–y covariance; 0 where a CSV without the column was read
+    robot: str = ""  # the robot's name from its beliefs (``run --beliefs``); empty where unknown
 
     def as_dict(self) -> dict:
-        return {
+        """The row for a JSON line; ``robot`` only where a name is known, so that a run without
+        ``--beliefs`` streams what it always did."""
+        d = {
             "stamp": self.stamp,
             "track_id": self.track_id,
             "class": self.cls,
@@ -61,6 +72,9 @@ class TrackRow:
             "var_theta": self.var_theta,
             "cov_xy": self.cov_xy,
         }
+        if self.robot:
+            d["robot"] = self.robot
+        return d
 
 
 _ROW = "%s,%s,%s,%.6f,%.6f,%.6f,%.6e,%.6e,%.6e\n"  # a GTD row as csv.writer writes the fields below
@@ -75,9 +89,12 @@ def _csv_field(text: str) -> str:
     return buf.getvalue()[: -len(",x\n")]
 
 
-def format_rows(rows: list[TrackRow], units: bool = False) -> str:
+def format_rows(rows: list[TrackRow], units: bool = False, robot: bool = False) -> str:
     """The GTD CSV lines of ``rows`` (:class:`GTDWriter`'s text for them), with the ``cov_xy``
-    column where ``units`` (the header :data:`UNITS_HEADER`)."""
+    column where ``units`` (the header :data:`UNITS_HEADER`), and the :data:`ROBOT` column last
+    where ``robot``."""
+    if robot:
+        return "".join([f"{format_rows([r], units)[:-1]},{_csv_field(r.robot)}\n" for r in rows])
     if units:
         return "".join([_ROW_UNITS % (repr(r.stamp), r.track_id, _csv_field(r.cls), r.x, r.y, r.theta, r.var_x,
                                       r.var_y, r.var_theta, r.cov_xy) for r in rows])
@@ -139,14 +156,14 @@ class GTDWriter:
     so the file never ends in a torn row, and raised as one line (:class:`InputError`) naming the
     file, the error and the rows kept. Use as a context manager."""
 
-    def __init__(self, path: str | os.PathLike, units: bool = False):
-        self.path, self.units = Path(path), units
+    def __init__(self, path: str | os.PathLike, units: bool = False, robot: bool = False):
+        self.path, self.units, self.robot = Path(path), units, robot
         if self.path.parent and not self.path.parent.exists():
             self.path.parent.mkdir(parents=True, exist_ok=True)
         self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
         self._size = 0
         self.rows = 0
-        self._append(",".join(UNITS_HEADER if units else HEADER) + "\n")
+        self._append(",".join((UNITS_HEADER if units else HEADER) + ((ROBOT,) if robot else ())) + "\n")
 
     def _append(self, text: str) -> None:
         data = text.encode()
@@ -170,7 +187,7 @@ class GTDWriter:
         ``StringIO`` cost many times this)."""
         if not rows:
             return
-        self._append(format_rows(rows, self.units))
+        self._append(format_rows(rows, self.units, self.robot))
         self.rows += len(rows)
 
     def close(self) -> None:
@@ -213,14 +230,19 @@ def read_text(path: Path, folder: str, binary: str) -> str:
 
 def read_gtd(path: str | os.PathLike) -> list[TrackRow]:
     """Read a GTD CSV back (either header, :data:`HEADER` or :data:`UNITS_HEADER`, and the spec's
-    header followed by ``cov_xy``); a file that does not follow the format is an :class:`InputError`."""
+    header followed by ``cov_xy``; each with or without a last :data:`ROBOT` column); a file that does
+    not follow the format is an :class:`InputError`."""
     path = Path(path)
     text = read_text(path, "is a folder, not a ground-truth CSV", "not a text CSV file")
     reader = csv.reader(io.StringIO(text))
     header = next(reader, None)
     names = None if header is None else tuple(h.strip() for h in header)
     if names not in _HEADERS:
-        raise InputError(path, f"header must be {','.join(HEADER)} (or, with units, {','.join(UNITS_HEADER)})")
+        raise InputError(path, f"header must be {','.join(HEADER)} (or, with units, {','.join(UNITS_HEADER)}; "
+                               f"either may end in ,{ROBOT})")
+    with_robot = names[-1] == ROBOT
+    with_cov = _HEADERS[names]
+    n_num = len(names) - 3 - int(with_robot)  # the numeric columns after the class
     rows = []
     for n, rec in enumerate(reader, start=2):
         if not rec:
@@ -228,12 +250,14 @@ def read_gtd(path: str | os.PathLike) -> list[TrackRow]:
         if len(rec) != len(names):
             raise InputError(path, f"line {n} has {len(rec)} fields, expected {len(names)}")
         try:
-            vals = [float(rec[0]), int(rec[1]), rec[2]] + [float(v) for v in rec[3:]]
+            vals = [float(rec[0]), int(rec[1]), rec[2]] + [float(v) for v in rec[3:3 + n_num]]
         except ValueError:
             raise InputError(path, f"line {n} has a non-numeric field") from None
         if not all(math.isfinite(v) for v in vals[:2] + vals[3:]):
             raise InputError(path, f"line {n} has a non-finite value")
-        rows.append(TrackRow(*vals))
+        if not with_cov:
+            vals.append(0.0)
+        rows.append(TrackRow(*vals, robot=rec[-1] if with_robot else ""))
     return rows
 
 
