@@ -9,7 +9,7 @@ from rich.table import Table
 
 from ..io import save_log, save_site
 from ._app import app, fail
-from ._common import check_out_file, distinct_paths
+from ._common import check_out_dir, check_out_file, distinct_paths
 
 
 @app.command("simulate")
@@ -23,6 +23,8 @@ def simulate_cmd(
     robots: int = typer.Option(10, "--robots", min=1, max=14, help="spl-match-*: robots on the field."),
     seconds: float = typer.Option(60.0, "--seconds", min=0.1, help="spl-match-*: how long."),
     referee: bool = typer.Option(True, "--referee/--no-referee", help="spl-match-*: a referee walking about."),
+    beliefs: Path | None = typer.Option(None, "--beliefs", help="Also write each robot's simulated self-localisation "
+                                        "to this folder (NAME.csv, and put-in.json: what was put in), for gtsjax grade."),
     list_: bool = typer.Option(False, "--list", help="List the scenarios and exit."),
 ):
     """Write a labelled scan log and its site file from a simulated scenario; a match scenario of
@@ -47,6 +49,8 @@ def simulate_cmd(
     distinct_paths({}, {"--out": out, "--site": site})
     for path, option in ((out, "--out"), (site, "--site")):
         check_out_file(path, option)
+    if beliefs is not None:
+        check_out_dir(beliefs, "--beliefs")
     t0 = time.perf_counter()
     if is_match(scenario):
         logs, site_obj = simulate_match(scenario, seed=seed, n_robots=robots, seconds=seconds, referee=referee)
@@ -57,6 +61,7 @@ def simulate_cmd(
         for path, log in zip(paths, logs.values(), strict=True):
             save_log(log, path)
         save_site(site_obj, site)
+        _write_beliefs(beliefs, list(logs.values()), site_obj, seed)
         kinds = {}
         for log in logs.values():
             kinds.setdefault((log.n_scans, log.sensor_model), []).append(log)
@@ -68,7 +73,33 @@ def simulate_cmd(
     log, site_obj = simulate(scenario, seed=seed, n_scans=scans, sensor=sensor)
     save_log(log, out)
     save_site(site_obj, site)
+    _write_beliefs(beliefs, [log], site_obj, seed)
     Console(stderr=True).print(
         f"{scenario}: {log.n_scans} scans × {log.n_beams} beams ({log.sensor_model}, "
         f"{log.n_scans * (log.stamps[1] - log.stamps[0]) if log.n_scans > 1 else 0:.1f} s) "
         f"in {time.perf_counter() - t0:.1f} s -> {out}, {site}")
+
+
+def _write_beliefs(folder: Path | None, logs: list, site_obj, seed: int) -> None:
+    """Each labelled robot's simulated beliefs (:mod:`gtsjax.sim.beliefs`) from the truth of every
+    laser's log, merged in stamp order."""
+    if folder is None:
+        return
+    import numpy as np
+
+    from ..sim.beliefs import simulate_beliefs, write_beliefs
+
+    stamps = np.concatenate([log.stamps for log in logs])
+    truth = np.concatenate([log.truth_poses for log in logs])
+    order = np.argsort(stamps, kind="stable")
+    robots = [m for m, c in enumerate(logs[0].truth_classes) if c == "robot"]
+    if not robots:
+        raise fail("--beliefs", "the scenario has no robot to simulate beliefs for")
+    x0, y0, x1, y1 = site_obj.bounds if site_obj.bounds is not None else (0.0, 0.0, 0.0, 0.0)
+    sims = simulate_beliefs(stamps[order], truth[order][:, robots], ((x0 + x1) / 2, (y0 + y1) / 2), seed=seed)
+    write_beliefs(sims, folder)
+    mirrored = [p.name for p, _, _ in sims if p.frame == "mirrored"]
+    Console(stderr=True).print(
+        f"beliefs of {len(sims)} robots -> {folder}/ (30 Hz, each its own clock offset"
+        + (f"; {mirrored[0]} in the mirrored frame" if mirrored else "") + "; what was put in: put-in.json)",
+        markup=False, highlight=False)

@@ -19,7 +19,7 @@ import numpy as np
 from ..io.beliefs import Beliefs
 from ..io.gtd import TrackRow
 from .associate import associate, spans, windows
-from .clock import CAP_M, FINE_HALF_S, Belief, Clock, Rows, coarse_curve, coarse_offset, fine_offset
+from .clock import CAP_M, Belief, Clock, Rows, coarse_curve, coarse_offset, fine_offset
 from .frame import ransac_frame, refine_frame
 from .metrics import ape, jumps, summarise
 from .series import mirror_frame
@@ -50,7 +50,8 @@ class RobotGrade:
     frame_support: float  # for a fitted frame: the share of windows that agreed with it
     clock: Clock
     spans: list[tuple[int, float, float]]  # (track id, first, last stamp)
-    rows: np.ndarray  # the ground-truth rows graded
+    rows: np.ndarray  # the ground-truth rows graded (indices into GroundTruth's stamp order)
+    track_ids: np.ndarray  # each graded row's track id
     errors: object  # metrics.Errors
     jumps: list
     summary: dict
@@ -94,25 +95,43 @@ def grade(rows: list[TrackRow], robots: list[RobotSpec], *, centre: tuple[float,
     speed, turn = profiles(gt) if need_profiles else (np.full(gt.n, np.nan), np.full(gt.n, np.nan))
     coarse = _coarse_rows(gt, window, n_w, speed, turn)
 
-    beliefs, offsets, support = [], [], []
-    for spec in robots:
+    beliefs: list[Belief] = []
+    offsets: list[float] = []
+    support = [math.nan] * len(robots)
+    for spec in robots:  # the robots whose frame is known: their clocks by pose
         b = spec.beliefs
         frame = mirror_frame(centre) if spec.frame == "mirrored" else (0.0, 0.0, 0.0)
-        belief = Belief(b.stamps, b.poses, frame, BELIEF_GAP_S)
-        share = math.nan
-        if spec.offset is not None:
+        beliefs.append(Belief(b.stamps, b.poses, frame, BELIEF_GAP_S))
+        d = spec.offset
+        if d is None and spec.frame != "fit":
+            d, _, _ = coarse_offset(coarse, beliefs[-1], max_offset, profile=False)
+        offsets.append(d if d is not None and math.isfinite(d) else 0.0)
+    fit = [r for r, spec in enumerate(robots) if spec.frame == "fit"]
+    if fit:
+        # A frame is fitted among the tracks the robots of known frames leave: a rigid transform can lay
+        # any stretch of straight walking onto another, and a robot already explained needs no stranger.
+        known = [r for r in range(len(robots)) if r not in fit]
+        free = coarse
+        if known:
+            taken = associate(coarse.track, coarse.stamps, coarse.poses, coarse.n_tracks,
+                              [(beliefs[r], offsets[r]) for r in known])
+            claimed = np.zeros(coarse.stamps.size, bool)
+            for rows_r in taken.rows:
+                claimed[rows_r] = True
+            free = coarse.subset(~claimed)
+        for r in fit:
+            spec, b = robots[r], robots[r].beliefs
             d = spec.offset
-        else:
-            d, _, _ = coarse_offset(coarse, belief, max_offset, profile=spec.frame == "fit")
-        if spec.frame == "fit" and math.isfinite(d):
-            fitted, share = ransac_frame(coarse, b.stamps, b.poses, BELIEF_GAP_S, d, rng)
+            if d is None:
+                d, _, _ = coarse_offset(free, beliefs[r], max_offset, profile=True)
+            if d is None or not math.isfinite(d):
+                continue
+            fitted, support[r] = ransac_frame(free, b.stamps, b.poses, BELIEF_GAP_S, d, rng)
             if fitted is not None:
-                belief = belief.with_frame(fitted)
+                beliefs[r] = beliefs[r].with_frame(fitted)
                 if spec.offset is None:  # the clock again, now by pose, near the motion's answer
-                    d, _, _ = coarse_offset(coarse, belief, 0.5, profile=False, centre=d)
-        beliefs.append(belief)
-        offsets.append(d if math.isfinite(d) else 0.0)
-        support.append(share)
+                    d, _, _ = coarse_offset(free, beliefs[r], 0.5, profile=False, centre=d)
+            offsets[r] = d if math.isfinite(d) else 0.0
 
     clocks: list[Clock] = [Clock(o, math.nan, (0.0, 0.0, 0.0), s.offset is not None) for o, s in zip(offsets, robots, strict=True)]
     for first in (True, False):
@@ -123,9 +142,9 @@ def grade(rows: list[TrackRow], robots: list[RobotSpec], *, centre: tuple[float,
                 continue
             t, truth = gt.stamps[mine], gt.poses[mine]
             clocks[r] = fine_offset(t, truth, window[mine], beliefs[r], clocks[r].offset, rng, spec.offset,
-                                    half=FINE_HALF_S if first else 0.05)
+                                    wide=first)
             if spec.frame == "fit":
-                fitted = refine_frame(t, truth, beliefs[r], clocks[r].offset, clocks[r].bias)
+                fitted, _ = refine_frame(t, truth, beliefs[r], clocks[r].offset)
                 beliefs[r] = beliefs[r].with_frame(fitted)
     assoc = associate(gt.track, gt.stamps, gt.poses, gt.ids.size, list(zip(beliefs, [c.offset for c in clocks], strict=True)))
 
@@ -139,13 +158,34 @@ def grade(rows: list[TrackRow], robots: list[RobotSpec], *, centre: tuple[float,
         share, _ = _seen_share(gt, mine, spec.beliefs, clock.offset)
         js = jumps(spec.beliefs.stamps, spec.beliefs.poses, clock.offset, e)
         summary = summarise(e, js, share, gt.var[mine])
-        hint = "" if share >= 0.5 else _hint(spec, coarse, beliefs[r], clock.offset, centre, share)
+        hint = ("" if share >= 0.5 and not summary["lost_share"] > 0.5
+                else _hint(spec, coarse, beliefs[r], clock.offset, centre, share, summary["lost_share"]))
+        if not hint and spec.frame == "fit":
+            hint = _straight(spec, gt.poses[mine])
         out.append(RobotGrade(spec.beliefs.name, spec.beliefs.source, spec.frame, beliefs[r].frame, support[r], clock,
-                              spans(mine, gt.track, gt.stamps, gt.ids), mine, e, js, summary, hint))
+                              spans(mine, gt.track, gt.stamps, gt.ids), mine, gt.ids[gt.track[mine]], e, js, summary,
+                              hint))
     return out
 
 
-def _hint(spec: RobotSpec, coarse: Rows, belief: Belief, offset: float, centre, share: float) -> str:
+#: A fitted robot's path narrower than this (m, across its main direction) cannot fix its frame.
+STRAIGHT_M = 0.3
+
+
+def _straight(spec: RobotSpec, xy: np.ndarray) -> str:
+    """A warning where a fitted frame rests on a path too straight to fix it: along a straight line
+    walked at one speed, a frame slid along the line and a clock shifted to match fit as well."""
+    if xy.shape[0] < 3:
+        return ""
+    c = xy[:, :2] - xy[:, :2].mean(0)
+    across = 4.0 * float(np.sqrt(np.linalg.eigvalsh(c.T @ c / c.shape[0])[0]))
+    if across >= STRAIGHT_M:
+        return ""
+    return (f"its path is {across:.2f} m across its main direction, nearly a straight line: a fitted frame may "
+            f"slide along it with the clock; give --offset {spec.beliefs.name}=SECONDS if the clock is known")
+
+
+def _hint(spec: RobotSpec, coarse: Rows, belief: Belief, offset: float, centre, share: float, lost: float) -> str:
     """Why a robot was seen so little, where the data says: its poses agree with the tracks turned half
     a turn (the other team's frame), or with none at all."""
     if spec.frame == "field" and coarse.stamps.size:
@@ -155,6 +195,9 @@ def _hint(spec: RobotSpec, coarse: Rows, belief: Belief, offset: float, centre, 
         if np.isfinite(curve).any() and np.nanmin(curve) < 0.5 * (as_is if math.isfinite(as_is) else 1.0):
             return (f"its poses agree with the tracks turned half a turn about the field's centre: "
                     f"--frame {spec.beliefs.name}=mirrored")
+    if share >= 0.5:
+        return (f"lost (over 0.5 m or 30° off) for {100 * lost:.0f} % of the rows graded: if it localises in a frame "
+                f"of its own, --frame {spec.beliefs.name}=fit")
     if share == 0.0:
         return (f"its poses are within {CAP_M:g} m of no track at any clock offset tried: off the field, in view of "
                 f"no laser, or in a frame of its own (--frame {spec.beliefs.name}=fit)")

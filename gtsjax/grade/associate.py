@@ -13,10 +13,11 @@ decided per window of time and then smoothed along each track:
    :data:`MIN_RUN` windows between two runs of one robot is a bad belief, not a swap, and is given
    back to that robot; windows where the track matched nobody (the robot's belief kidnapped 1 m off,
    say) are the robot's that holds the track on both sides, or at the track's ends the robot that
-   holds it next to them. A track voted for two robots in long runs was really taken over: it is
-   split there;
+   holds it next to them (at most :data:`MAX_END_FILL` windows). A track voted for two robots in long runs was really taken over: it is
+   split there. A stretch so given must have been voted for its robot in most of its windows
+   (:data:`MIN_SUPPORT`), or it is nobody's;
 3. **per robot and instant**, where two tracks are still its (a track born before the old one died),
-   the closer one.
+   the one voted for it in that window over one given by smoothing, then the closer one.
 """
 
 from dataclasses import dataclass
@@ -28,6 +29,11 @@ from .clock import CAP_M, WINDOW_S, Belief
 
 GATE_M = 0.5
 MIN_RUN = 3
+#: The share of a stretch's windows that must have voted for the robot it is given to.
+MIN_SUPPORT = 0.5
+#: At a track's start or end, at most this many windows matching nobody are given to the robot next to
+#: them: further from its votes, the track may have been taken over by a robot not graded.
+MAX_END_FILL = 3
 NONE = -1
 ABSENT = -2
 
@@ -76,8 +82,14 @@ def smooth_track(votes: np.ndarray) -> np.ndarray:
         if before is not None and after is not None:
             if before == after:
                 lab[s:e] = before
-        elif before is not None or after is not None:
+        elif (before is not None or after is not None) and e - s <= MAX_END_FILL:
             lab[s:e] = before if before is not None else after
+    # A stretch given to a robot must have been voted for it in most of its windows: a robot whose
+    # belief crossed a stranger's track for a window or two (a belief in the wrong frame, say) does
+    # not take over the track's whole life by the filling above.
+    for v, s, e in _runs(lab):
+        if v != NONE and np.count_nonzero(votes[s:e] == v) < MIN_SUPPORT * (e - s):
+            lab[s:e] = NONE
     return lab
 
 
@@ -122,10 +134,11 @@ def associate(rows_track: np.ndarray, rows_t: np.ndarray, rows_pose: np.ndarray,
     out = []
     for r in range(R):
         mine = np.flatnonzero(row_label == r)
-        # One row per instant: where two of its tracks share a stamp, the closer (a missing belief
-        # counts as far).
+        # One row per instant: where two of its tracks share a stamp, the one voted for it, then the
+        # closer (a missing belief counts as far).
         d = np.where(np.isfinite(dist[r, mine]), dist[r, mine], np.inf)
-        order = np.lexsort((d, rows_t[mine]))
+        filled = votes[rows_track[mine], window[mine]] != r
+        order = np.lexsort((d, filled, rows_t[mine]))
         mine = mine[order]
         keep = np.ones(mine.size, bool)
         keep[1:] = rows_t[mine[1:]] != rows_t[mine[:-1]]

@@ -31,10 +31,13 @@ CAP_M = 0.3
 #: Windows (s) over which agreement is averaged before the best track is taken.
 WINDOW_S = 1.0
 COARSE_STEP_S = 0.1
-#: The fine search: a grid this fine (s) this far either side of the coarse value, the least cost
-#: then placed between grid points by a parabola (the cost is smooth in the offset, so the parabola
-#: places it to well under a millisecond).
+#: The fine search: first a grid this far either side of the coarse value, with each row's cost
+#: capped (a robust look for the least cost); then a grid :data:`NARROW_HALF_S` either side of that,
+#: over the rows that are inliers at every offset of it, the least cost placed between grid points by
+#: a parabola (the cost is smooth in the offset there, so the parabola places it to well under a
+#: millisecond).
 FINE_HALF_S = 0.3
+NARROW_HALF_S = 0.05
 FINE_STEP_S = 0.005
 #: Motion profiles: a speed difference of this much (m/s) or a turn-rate difference of this much
 #: (rad/s) counts as much as :data:`CAP_M` of distance.
@@ -104,6 +107,10 @@ class Rows:
     n_tracks: int
     n_windows: int
 
+    def subset(self, keep: np.ndarray) -> "Rows":
+        return Rows(self.stamps[keep], self.track[keep], self.poses[keep], self.window[keep], self.speed[keep],
+                    self.turn[keep], self.n_tracks, self.n_windows)
+
     def cover(self) -> np.ndarray:
         return np.bincount(self.track * self.n_windows + self.window, None,
                            self.n_tracks * self.n_windows).reshape(self.n_tracks, self.n_windows)
@@ -161,19 +168,54 @@ def _residuals(t: np.ndarray, truth: np.ndarray, belief: Belief, d: float):
     return r
 
 
+def _grid(centre: float, half: float) -> np.ndarray:
+    n = int(round(half / FINE_STEP_S))
+    return centre + FINE_STEP_S * np.arange(-n, n + 1)
+
+
+def _prior(t: np.ndarray) -> float:
+    """The weight of the prior that a self-localisation has no bias, as a share of the rows: one
+    second's worth of them. Where the robot's motion tells its clock from a bias (it turns, changes
+    speed) this is nothing beside the rows' evidence; where it cannot (a robot walking a straight
+    line at one speed: ahead by 3 cm and 0.1 s early look the same), it picks the offset with the
+    smaller bias rather than anywhere along the valley, and the bootstrap says how wide the valley is."""
+    span = float(t.max() - t.min()) if t.size > 1 else 1.0
+    return 1.0 / max(span, 1.0)
+
+
+def _robust_offset(t: np.ndarray, truth: np.ndarray, belief: Belief, around: float) -> float:
+    """The offset about ``around`` (± :data:`FINE_HALF_S`) with the least mean capped squared error
+    once each offset's median error (the bias, shrunk as :func:`_prior` says) is taken out: robust to
+    kidnaps and to rows that cross a jump of the belief as the offset changes, and to a start a few
+    tenths of a second off."""
+    offsets = _grid(around, FINE_HALF_S)
+    cost = np.full(offsets.size, np.inf)
+    prior = _prior(t)
+    for i, d in enumerate(offsets):
+        r = _residuals(t, truth, belief, d)
+        r = r[np.all(np.isfinite(r), -1)]
+        if r.shape[0] >= 10:
+            m = np.median(r, axis=0) / (1.0 + prior)
+            cost[i] = float(np.mean(np.minimum(np.sum((r - m) ** 2, -1), CAP_M**2)) + prior * np.sum(m**2))
+    return float(offsets[int(np.argmin(cost))]) if np.isfinite(cost).any() else around
+
+
 def fine_offset(t: np.ndarray, truth: np.ndarray, window: np.ndarray, belief: Belief, around: float,
-                rng: np.random.Generator, fixed: float | None = None, half: float = FINE_HALF_S) -> Clock:
+                rng: np.random.Generator, fixed: float | None = None, wide: bool = True) -> Clock:
     """The fine offset about ``around`` against the robot's own rows (``t``, ``truth`` poses, their
-    window index), with its bootstrap standard error and the bias estimated with it; ``fixed``:
-    the offset given, only the bias estimated."""
-    offsets = (np.array([fixed]) if fixed is not None
-               else around + FINE_STEP_S * np.arange(-round(half / FINE_STEP_S), round(half / FINE_STEP_S) + 1))
+    window index), with its block bootstrap standard error and the bias estimated with it; ``fixed``:
+    the offset given, only the bias estimated; ``wide``: look :data:`FINE_HALF_S` either side first
+    (else only :data:`NARROW_HALF_S`)."""
+    if fixed is not None:
+        offsets = np.array([fixed])
+    else:
+        offsets = _grid(_robust_offset(t, truth, belief, around) if wide else around, NARROW_HALF_S)
     _, win = np.unique(window // BLOCK_WINDOWS, return_inverse=True)
     n_w = int(win.max()) + 1 if win.size else 0
-    # Inliers: rows whose error is within the cap of the median at every offset tried (a kidnap, a
-    # wrong side of the track's heading, are left out of the clock, not averaged into it; and a row
-    # near a jump of the belief, which some offsets put before the jump and some after, is left out
-    # at all of them, or the cost would step wherever it changes sides).
+    # Inliers: rows whose error is within the cap of the median at every offset of the narrow grid (a
+    # kidnap, a wrong side of the track's heading, are left out of the clock, not averaged into it;
+    # and a row near a jump of the belief, which some offsets put before the jump and some after, is
+    # left out at all of them, or the cost would step wherever it changes sides).
     res = np.stack([_residuals(t, truth, belief, d) for d in offsets])
     mid = res[len(offsets) // 2]
     med = np.nanmedian(mid, axis=0) if np.isfinite(mid).any() else np.zeros(3)
@@ -189,7 +231,8 @@ def fine_offset(t: np.ndarray, truth: np.ndarray, window: np.ndarray, belief: Be
         S1 = np.einsum("w,iwj->ij", weights, s1)
         S2 = s2 @ weights
         N = np.maximum(cnt @ weights, 1)
-        cost = (S2 - np.sum(S1**2, -1) / N) / N  # the variance left once the bias is taken out
+        lam = prior * N
+        cost = (S2 - np.sum(S1**2, -1) / (N + lam)) / N  # what is left once the (shrunk) bias is taken out
         i = int(np.argmin(cost))
         d = float(offsets[i])
         if 0 < i < offsets.size - 1:  # a parabola through the least cost and its neighbours
@@ -197,8 +240,9 @@ def fine_offset(t: np.ndarray, truth: np.ndarray, window: np.ndarray, belief: Be
             den = a - 2 * b + c
             if den > 0:
                 d += 0.5 * (a - c) / den * FINE_STEP_S
-        return d, S1[i] / N[i]
+        return d, S1[i] / (N[i] + lam[i])
 
+    prior = _prior(t)
     d, bias = best(np.ones(n_w))
     if fixed is not None or n_w < 4:
         se = float("nan")

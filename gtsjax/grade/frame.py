@@ -74,15 +74,29 @@ def ransac_frame(rows: Rows, stamps: np.ndarray, poses: np.ndarray, max_gap: flo
     return best, max(best_score, 0.0)
 
 
-def refine_frame(t: np.ndarray, truth: np.ndarray, belief: Belief, offset: float, bias: tuple[float, float, float]
-                 ) -> tuple[float, float, float]:
-    """The least-squares frame over a robot's own rows (``t``, ``truth``), its bias in its own frame
-    taken out first; rows farther than the cap from the current frame's belief are left out."""
+def refine_frame(t: np.ndarray, truth: np.ndarray, belief: Belief, offset: float, iterations: int = 20
+                 ) -> tuple[tuple[float, float, float], tuple[float, float]]:
+    """The least-squares frame over a robot's own rows (``t``, ``truth``) together with its bias in its
+    own frame (ahead, left): a bias in the robot's frame turns with it, so it is told from the frame
+    by the robot's turning, and the two are found by alternating the one given the other until they
+    settle (a few iterations where the robot turned through every heading, more where it did not).
+    Rows farther than the cap from the current frame's belief are left out."""
     raw, ok = belief.raw(t, offset)
     c, s = np.cos(raw[:, 2]), np.sin(raw[:, 2])
-    corrected = raw[:, :2] - np.stack([c * bias[0] - s * bias[1], s * bias[0] + c * bias[1]], -1)
-    now = _apply(belief.frame, corrected)
+    now = _apply(belief.frame, raw[:, :2])
     near = ok & (np.hypot(*(now - truth[:, :2]).T) < CAP_M)
     if near.sum() < 10:
-        return belief.frame
-    return kabsch(corrected[near], truth[near, :2])
+        return belief.frame, (0.0, 0.0)
+    raw, c, s, q = raw[near], c[near], s[near], truth[near, :2]
+    frame, bias = belief.frame, np.zeros(2)
+    for _ in range(iterations):
+        corrected = raw[:, :2] - np.stack([c * bias[0] - s * bias[1], s * bias[0] + c * bias[1]], -1)
+        frame = kabsch(corrected, q)
+        # The residual taken back into the robot's frame (through the fitted rotation), averaged.
+        tx, ty, phi = frame
+        cp, sp = np.cos(phi), np.sin(phi)
+        back = q - np.array([tx, ty])
+        back = np.stack([cp * back[:, 0] + sp * back[:, 1], -sp * back[:, 0] + cp * back[:, 1]], -1)
+        d = raw[:, :2] - back  # the belief minus the truth, in the robot's map frame
+        bias = np.array([np.mean(c * d[:, 0] + s * d[:, 1]), np.mean(-s * d[:, 0] + c * d[:, 1])])
+    return frame, (float(bias[0]), float(bias[1]))

@@ -30,7 +30,7 @@ JUMP_RAD = math.radians(45.0)
 JUMP_WITHIN_S = 0.5
 SETTLE_S = 1.0
 RPE_S = (1.0, 5.0)
-RPE_TOLERANCE_S = 0.1
+RPE_TOLERANCE_S = 0.05  # a pair further than this from Δ apart is not one (half a 10 Hz period)
 
 
 def stats(values: np.ndarray) -> dict:
@@ -88,7 +88,7 @@ def rpe(e: Errors, delta: float) -> dict:
     jm = np.clip(j - 1, 0, e.t.size - 1)
     better = np.abs(e.t[jm] - e.t - delta) < np.abs(e.t[j] - e.t - delta)
     j = np.where(better, jm, j)
-    ok = np.abs(e.t[j] - e.t - delta) <= RPE_TOLERANCE_S
+    ok = np.abs(e.t[j] - e.t - delta) < RPE_TOLERANCE_S
     i, j = np.flatnonzero(ok), j[ok]
     dt = _relative(e.truth[i], e.truth[j])
     db = _relative(e.belief[i], e.belief[j])
