@@ -229,8 +229,12 @@ def grade_figure(site, g, t0: float, title: str = ""):
         ax.set_xlabel("x [m]")
         ax.set_ylabel("y [m]")
     t = e.t - t0
-    # Break the lines where rows are more than half a second apart (the robot unseen meanwhile).
-    cut = np.concatenate([[0], np.flatnonzero(np.diff(e.t) > 0.5) + 1, [e.t.size]])
+    # Break the lines where the robot was unseen (rows further apart than a few of the ground truth's
+    # usual intervals).
+    from .grade import seen_gap
+
+    usual = float(np.median(np.diff(e.t))) if e.t.size > 1 else 0.1
+    cut = np.concatenate([[0], np.flatnonzero(np.diff(e.t) > seen_gap(usual)) + 1, [e.t.size]])
     for k, (a, b) in enumerate(zip(cut[:-1], cut[1:], strict=True)):
         ax.plot(e.truth[a:b, 0], e.truth[a:b, 1], "-", c="#888", lw=3.5, alpha=0.6,
                 label="ground truth" if k == 0 else None)
@@ -259,7 +263,7 @@ def grade_figure(site, g, t0: float, title: str = ""):
     ax3.set_xlabel("time from the ground truth's first row [s]")
     for j in g.jumps:
         for a in (ax2, ax3):
-            a.axvline(j.stamp - t0, c="#ff7f0e", lw=0.8, alpha=0.8)
+            a.axvline(j.stamp - t0, c="#ff7f0e", lw=0.8 if j.lost else 0.5, alpha=0.8 if j.lost else 0.4)
     if g.jumps:
         ax2.plot([], [], c="#ff7f0e", lw=0.8, label="jump of the belief")
     ax2.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), fontsize=7, ncol=4, frameon=False)

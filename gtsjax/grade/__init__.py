@@ -29,8 +29,6 @@ from .truth import GroundTruth, from_rows, profiles
 BELIEF_GAP_S = 1.0
 #: Rows taken for the coarse searches: at most one per track per this much time (s).
 COARSE_ROW_S = 0.5
-#: Bins (s) in which a robot's time counts as seen when a row of it falls in them.
-SEEN_BIN_S = 0.25
 FRAMES = ("field", "mirrored", "fit")
 
 
@@ -68,20 +66,39 @@ def _coarse_rows(gt: GroundTruth, window: np.ndarray, n_w: int, speed: np.ndarra
                 gt.ids.size, n_w)
 
 
-def _seen_share(gt: GroundTruth, rows: np.ndarray, belief: Beliefs, offset: float) -> tuple[float, float]:
+def row_interval(gt: GroundTruth) -> float:
+    """The ground truth's usual time between two rows of one track (s): a scan period for a laser's,
+    seconds for a sparse one (a SLAM log's corrected poses)."""
+    order = np.lexsort((gt.stamps, gt.track))
+    t, k = gt.stamps[order], gt.track[order]
+    same = k[1:] == k[:-1]
+    dt = np.diff(t)[same]
+    dt = dt[dt > 0]
+    return float(np.median(dt)) if dt.size else 0.1
+
+
+def _seen_share(gt: GroundTruth, rows: np.ndarray, belief: Beliefs, offset: float, row_dt: float) -> float:
     """The share of the robot's time (its beliefs' span on the laptop's clock, within the log's) that
-    has a ground-truth row of it, and that time (s)."""
+    has ground-truth rows of it: rows closer than :func:`seen_gap` count as seeing it in between, and
+    each stretch of rows a row interval more."""
     if gt.n == 0 or belief.n == 0 or not math.isfinite(offset):
-        return 0.0, 0.0
+        return 0.0
     lo = max(belief.stamps[0] - offset, gt.stamps[0])
     hi = min(belief.stamps[-1] - offset, gt.stamps[-1])
-    if hi <= lo:
-        return 0.0, 0.0
-    n_bins = max(1, int(math.ceil((hi - lo) / SEEN_BIN_S)))
     t = gt.stamps[rows]
     t = t[(t >= lo) & (t <= hi)]
-    seen = np.unique(np.minimum(((t - lo) / SEEN_BIN_S).astype(np.int64), n_bins - 1)).size
-    return seen / n_bins, hi - lo
+    if hi <= lo or t.size == 0:
+        return 0.0
+    dt = np.diff(t)
+    near = dt <= seen_gap(row_dt)
+    seen = float(np.sum(dt[near])) + row_dt * (int(np.count_nonzero(~near)) + 1)
+    return min(1.0, seen / max(hi - lo, row_dt))
+
+
+def seen_gap(row_dt: float) -> float:
+    """Rows of a robot at most this far apart (s) see it in between: half a second, or a few row
+    intervals of a sparse ground truth."""
+    return max(0.5, 2.5 * row_dt)
 
 
 def grade(rows: list[TrackRow], robots: list[RobotSpec], *, centre: tuple[float, float] = (0.0, 0.0),
@@ -90,6 +107,7 @@ def grade(rows: list[TrackRow], robots: list[RobotSpec], *, centre: tuple[float,
     ``centre``: the field's centre, about which a ``mirrored`` frame is turned."""
     rng = np.random.default_rng(seed)
     gt = from_rows(rows, classes)
+    row_dt = row_interval(gt)
     window, n_w = windows(gt.stamps)
     need_profiles = any(r.frame == "fit" for r in robots)
     speed, turn = profiles(gt) if need_profiles else (np.full(gt.n, np.nan), np.full(gt.n, np.nan))
@@ -155,7 +173,7 @@ def grade(rows: list[TrackRow], robots: list[RobotSpec], *, centre: tuple[float,
         b, ok = beliefs[r].at(gt.stamps[mine], clock.offset)
         mine, b = mine[ok], b[ok]
         e = ape(gt.stamps[mine], b, gt.poses[mine], gt.var[mine])
-        share, _ = _seen_share(gt, mine, spec.beliefs, clock.offset)
+        share = _seen_share(gt, mine, spec.beliefs, clock.offset, row_dt)
         js = jumps(spec.beliefs.stamps, spec.beliefs.poses, clock.offset, e)
         summary = summarise(e, js, share, gt.var[mine])
         hint = ("" if share >= 0.5 and not summary["lost_share"] > 0.5

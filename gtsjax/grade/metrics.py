@@ -11,8 +11,10 @@ truth, time lost, and recoveries after jumps.
   than frames since the rows' rate changes when lasers see the robot or not).
 * **Lost**: the share of rows whose error is over :data:`LOST_M` or :data:`LOST_RAD`.
 * **Jumps**: where the belief moves more than :data:`JUMP_M` (or turns more than
-  :data:`JUMP_RAD`) between two of its own poses less than :data:`JUMP_WITHIN_S` apart (a kick, a
-  fall, a relocalisation); for each, whether it left the robot lost and how long it took to be
+  :data:`JUMP_RAD`) between two of its own poses less than :data:`JUMP_WITHIN_S` apart, faster than a
+  robot moves (:data:`JUMP_SPEED`, :data:`JUMP_TURN_RATE`, and :data:`JUMP_FACTOR` times the belief's
+  own motion about it: a wheeled robot's odometry delivered in bursts is no jump): a kick, a fall, a
+  relocalisation; for each, whether it left the robot lost and how long it took to be
   back within the lost limits for :data:`SETTLE_S`.
 """
 
@@ -25,9 +27,12 @@ from ..core.geometry import wrap
 
 LOST_M = 0.5
 LOST_RAD = math.radians(30.0)
-JUMP_M = 0.3
+JUMP_M = LOST_M  # a smaller jump cannot lose a robot that was not lost already
 JUMP_RAD = math.radians(45.0)
 JUMP_WITHIN_S = 0.5
+JUMP_SPEED = 2.0  # m/s
+JUMP_TURN_RATE = 10.0  # rad/s
+JUMP_FACTOR = 4.0  # times the belief's own median speed (turn rate) over the 2 s about it
 SETTLE_S = 1.0
 RPE_S = (1.0, 5.0)
 RPE_TOLERANCE_S = 0.05  # a pair further than this from Δ apart is not one (half a 10 Hz period)
@@ -96,6 +101,15 @@ def rpe(e: Errors, delta: float) -> dict:
     return {"trans": stats(np.hypot(err[:, 0], err[:, 1])), "rot": stats(err[:, 2])}
 
 
+def _local_median(t: np.ndarray, v: np.ndarray, at: np.ndarray, half: float = 1.0) -> np.ndarray:
+    """The median of ``v`` over the samples within ``half`` seconds of each sample ``at`` (about 2 s of
+    a belief: a jump is one or two of them, so it does not move the median)."""
+    lo = np.searchsorted(t, t[at] - half)
+    hi = np.searchsorted(t, t[at] + half, side="right")
+    finite = np.where(np.isfinite(v), v, np.nan)
+    return np.array([np.nanmedian(finite[a:b]) if b > a else np.nan for a, b in zip(lo, hi, strict=True)])
+
+
 def jumps(stamps: np.ndarray, poses: np.ndarray, offset: float, e: Errors) -> list[Jump]:
     """The belief's jumps (its own stamps and poses, in its frame: a jump's size is the same in any)
     and the recovery after each, judged on the graded rows."""
@@ -103,8 +117,17 @@ def jumps(stamps: np.ndarray, poses: np.ndarray, offset: float, e: Errors) -> li
         return []
     step = np.hypot(*np.diff(poses[:, :2], axis=0).T)
     turn = np.abs(wrap(np.diff(poses[:, 2])))
-    quick = np.diff(stamps) < JUMP_WITHIN_S
-    at = np.flatnonzero(quick & ((step > JUMP_M) | (turn > JUMP_RAD)))
+    dt = np.diff(stamps)
+    quick = dt < JUMP_WITHIN_S
+    rate = dt > 0
+    speed, turning = np.where(rate, step / np.where(rate, dt, 1.0), np.inf), np.where(rate, turn / np.where(rate, dt, 1.0), np.inf)
+    # A robot's own motion is no jump, however quick it is: a step is one where it is faster than
+    # any robot walks (JUMP_SPEED, JUMP_TURN_RATE) and than the belief moved about it.
+    at = np.flatnonzero(quick & (((step > JUMP_M) & (speed > JUMP_SPEED)) | ((turn > JUMP_RAD) & (turning > JUMP_TURN_RATE))))
+    usual_v, usual_w = _local_median(stamps[1:], speed, at), _local_median(stamps[1:], turning, at)
+    keep = (((step[at] > JUMP_M) & (speed[at] > JUMP_FACTOR * usual_v))
+            | ((turn[at] > JUMP_RAD) & (turning[at] > JUMP_FACTOR * usual_w)))
+    at = at[keep]
     lost = (e.pos > LOST_M) | (np.abs(e.head) > LOST_RAD)
     out = []
     for k in at:
