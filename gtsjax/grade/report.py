@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .metrics import JUMP_FACTOR, JUMP_M, JUMP_RAD, JUMP_SPEED, JUMP_TURN_RATE, LOST_M, LOST_RAD, SETTLE_S
+
 
 def _num(v, scale=1.0, fmt="{:.1f}"):
     return "–" if v is None or not math.isfinite(v) else fmt.format(v * scale)
@@ -89,10 +91,12 @@ def markdown(grades, meta: dict) -> str:
     lines += ["| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
     lines += ["| " + " | ".join(r) + " |" for r in table_rows(grades)]
     lines += ["", "Errors are the robot's belief (at its clock offset, in the field's frame) against the ground "
-              "truth's rows of the tracks that were it. *Lost*: error over 0.5 m or 30°. *Within GT 2σ*: rows whose "
-              "position error is inside the ground truth's own 2-σ uncertainty (not the robot's to answer for). "
-              "*Jumps*: the belief moving over 0.3 m or 45° in under 0.5 s; recovery, until back within the lost "
-              "limits for 1 s.", ""]
+              f"truth's rows of the tracks that were it. *Lost*: error over {LOST_M:g} m or "
+              f"{math.degrees(LOST_RAD):.0f}°. *Within GT 2σ*: rows whose position error is inside the ground truth's "
+              "own 2-σ uncertainty (not the robot's to answer for). *Jumps*: the belief moving over "
+              f"{JUMP_M:g} m faster than {JUMP_SPEED:g} m/s, or turning over {math.degrees(JUMP_RAD):.0f}° faster than "
+              f"{JUMP_TURN_RATE:g} rad/s, and {JUMP_FACTOR:g}× faster than about then; recovery, until back within "
+              f"the lost limits for {SETTLE_S:g} s.", ""]
     for g in grades:
         s = g.summary
         lines.append(f"## {g.name}")
