@@ -181,9 +181,9 @@ def print_beliefs(console: Console, report: "dict | None") -> None:
     if not report["robots"]:
         console.print("  no robot's beliefs received", soft_wrap=True)
     for r, d in report["robots"].items():
-        named = "never a whole window" if d["named_share"] is None else f"{100 * d['named_share']:.0f} % of its time"
-        console.print(f"  {escape(r)}: {d['poses']} poses, {d['malformed']} malformed lines; named on a track "
-                      f"{named}", soft_wrap=True)
+        named = ("sent no whole second of beliefs" if d["named_share"] is None
+                 else f"named on a track {100 * d['named_share']:.0f} % of the time it sent beliefs")
+        console.print(f"  {escape(r)}: {d['poses']} poses, {d['malformed']} malformed lines; {named}", soft_wrap=True)
 
 
 def track_live_several(lasers: "dict[str, str]", model_paths: "list[Path]", site: Path, out: Path, *, record: Path | None,
