@@ -172,7 +172,23 @@ def _stop(proc: subprocess.Popen) -> None:
             proc.kill()
 
 
-class View:
+class Recording:
+    """A Rerun recording open on the sinks a command asked for (:func:`open_recording`): ``rec``, and
+    ``url`` the web page's address (None but for ``--view web``)."""
+
+    rec = url = server = None
+
+    def close(self) -> None:
+        """Everything logged sent on (the file written); a viewer that went away is said, not fatal."""
+        try:
+            self.rec.flush()
+            if self.url is None:
+                self.rec.disconnect()
+        except RuntimeError as err:
+            print(f"gtsjax: warning: the view: {str(err).splitlines()[0]}", file=sys.stderr)
+
+
+class View(Recording):
     """A Rerun recording of one run. ``mode``: ``"native"`` (spawn the viewer), ``"web"`` (serve the
     web viewer on ``host``, by default ``$GTSJAX_VIEW_HOST`` or :data:`WEB_HOST`: :attr:`url` is the
     page) or ``None``; ``save``: also write an ``.rrd``."""
@@ -180,38 +196,9 @@ class View:
     def __init__(self, model, *, mode: str | None = None, save: Path | None = None, web_port: int | None = None,
                  grpc_port: int | None = None, name: str = "gtsjax", host: str | None = None):
         rr = _rr()
-        if mode not in (None, "native", "web"):
-            raise InputError("--view", f"{mode!r}: give --view (the native viewer) or --view web")
         self.rr, self.model = rr, model
-        self.rec = rr.RecordingStream(name)
-        self.url = self.server = None
-        sinks = [rr.FileSink(str(save))] if save is not None else []
-        if mode == "web":  # Rerun's gRPC proxy buffers the recording; the web viewer's page connects to it
-            host = host or os.environ.get("GTSJAX_VIEW_HOST") or WEB_HOST
-            grpc_port = grpc_port or int(os.environ.get("GTSJAX_VIEW_GRPC_PORT", "9876"))
-            port = web_port or int(os.environ.get("GTSJAX_VIEW_WEB_PORT", "9090"))
-            self.server = serve_web(host, port, grpc_port)
-            local = "127.0.0.1" if host in ("0.0.0.0", "::") else _url_host(host)
-            sinks.append(rr.GrpcSink(url=f"rerun+http://{local}:{grpc_port}/proxy"))
-            there = _url_host(host)
-            self.url = f"http://{there}:{port}/?url=rerun+http://{there}:{grpc_port}/proxy"
-        elif mode == "native":
-            if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
-                raise InputError("--view", "no display to open Rerun's viewer on: --view web serves it to a browser, "
-                                           "--view-save FILE.rrd records it")
-            # The viewer's executable comes with the wheel, beside this Python (a venv's bin/, which need
-            # not be on PATH when gtsjax is run by its full path).
-            here = os.path.dirname(sys.executable)
-            if here not in os.environ.get("PATH", "").split(os.pathsep):
-                os.environ["PATH"] = here + os.pathsep + os.environ.get("PATH", "")
-            try:
-                self.rec.spawn(connect=False)
-            except RuntimeError as err:
-                raise InputError("--view", f"could not start Rerun's viewer ({str(err).splitlines()[0]}); "
-                                           "--view web serves it to a browser instead") from None
-            sinks.append(rr.GrpcSink())
-        if sinks:
-            self.rec.set_sinks(*sinks, default_blueprint=self._layout())
+        self.rec, self.url, self.server = open_recording(name, mode, save, self._layout(), web_port=web_port,
+                                                         grpc_port=grpc_port, host=host)
         self._trails: dict[str, collections.deque] = {}
         self._lasers: list[str] = []  # the named lasers, in the order first seen (their scans' colours)
         self._static()
@@ -304,11 +291,89 @@ class View:
         if dropped is not None:
             rr.log(f"stats/dropped{suffix}", rr.Scalars(float(dropped)), recording=rec)
 
-    def close(self) -> None:
-        """Everything logged sent on (the file written); a viewer that went away is said, not fatal."""
+
+
+def open_recording(name: str, mode: str | None, save: Path | None, blueprint, *, web_port: int | None = None,
+                   grpc_port: int | None = None, host: str | None = None):
+    """A Rerun recording with the sinks ``mode`` and ``save`` ask for (see :class:`View`): ``(recording,
+    the web page's address or None, the web server's process or None)``."""
+    rr = _rr()
+    if mode not in (None, "native", "web"):
+        raise InputError("--view", f"{mode!r}: give --view (the native viewer) or --view web")
+    rec = rr.RecordingStream(name)
+    url = server = None
+    sinks = [rr.FileSink(str(save))] if save is not None else []
+    if mode == "web":  # Rerun's gRPC proxy buffers the recording; the web viewer's page connects to it
+        host = host or os.environ.get("GTSJAX_VIEW_HOST") or WEB_HOST
+        grpc_port = grpc_port or int(os.environ.get("GTSJAX_VIEW_GRPC_PORT", "9876"))
+        port = web_port or int(os.environ.get("GTSJAX_VIEW_WEB_PORT", "9090"))
+        server = serve_web(host, port, grpc_port)
+        local = "127.0.0.1" if host in ("0.0.0.0", "::") else _url_host(host)
+        sinks.append(rr.GrpcSink(url=f"rerun+http://{local}:{grpc_port}/proxy"))
+        there = _url_host(host)
+        url = f"http://{there}:{port}/?url=rerun+http://{there}:{grpc_port}/proxy"
+    elif mode == "native":
+        if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+            raise InputError("--view", "no display to open Rerun's viewer on: --view web serves it to a browser, "
+                                       "--view-save FILE.rrd records it")
+        # The viewer's executable comes with the wheel, beside this Python (a venv's bin/, which need
+        # not be on PATH when gtsjax is run by its full path).
+        here = os.path.dirname(sys.executable)
+        if here not in os.environ.get("PATH", "").split(os.pathsep):
+            os.environ["PATH"] = here + os.pathsep + os.environ.get("PATH", "")
         try:
-            self.rec.flush()
-            if self.url is None:
-                self.rec.disconnect()
+            rec.spawn(connect=False)
         except RuntimeError as err:
-            print(f"gtsjax: warning: the view: {str(err).splitlines()[0]}", file=sys.stderr)
+            raise InputError("--view", f"could not start Rerun's viewer ({str(err).splitlines()[0]}); "
+                                       "--view web serves it to a browser instead") from None
+        sinks.append(rr.GrpcSink())
+    if sinks:
+        rec.set_sinks(*sinks, default_blueprint=blueprint)
+    return rec, url, server
+
+
+def grade_view(grades, site, t0: float, *, mode: str | None = None, save: Path | None = None):
+    """A grade in Rerun (``gtsjax grade --view``): the field with each robot's ground-truth path and its
+    belief's (at its clock offset, in the field's frame), both poses at each row on the timeline, and
+    each robot's position and heading error over time. Returns the :class:`Recording`, to close."""
+    import rerun.blueprint as rrb
+
+    rr = _rr()
+    field = rrb.Spatial2DView(origin="/", contents="/field/**", name="field (O), y up")
+    series = [rrb.TimeSeriesView(origin=f"errors/{kind}", name=title) for kind, title in (
+        ("position_cm", "position error [cm]"), ("heading_deg", "|heading error| [°]"))]
+    out = Recording()
+    out.rec, out.url, out.server = open_recording("gtsjax grade", mode, save, rrb.Blueprint(
+        rrb.Horizontal(field, rrb.Vertical(*series), column_shares=[3, 1]), collapse_panels=True))
+    rec = out.rec
+    rr.log("field", rr.Transform3D(mat3x3=Y_UP), static=True, recording=rec)
+    if site is not None:
+        if site.bounds is not None:
+            x0, y0, x1, y1 = site.bounds
+            rr.log("field/bounds", rr.LineStrips2D([[(x0, y0), (x1, y0), (x1, y1), (x0, y1), (x0, y0)]],
+                                                   colors=[(200, 200, 200)], radii=0.01), static=True, recording=rec)
+        xy = site.landmark_xy
+        rr.log("field/landmarks", rr.Points2D(xy, radii=0.06, colors=[(110, 110, 110)],
+                                              labels=[lm.cls for lm in site.landmarks]), static=True, recording=rec)
+    for k, g in enumerate(grades):
+        e = g.errors
+        if e.t.size == 0:
+            continue
+        part = rr.escape_entity_path_part(g.name)
+        colour = _COLOURS[k % len(_COLOURS)]
+        rr.log(f"field/robots/{part}/truth_path", rr.LineStrips2D([e.truth[:, :2]], colors=[(150, 150, 150)],
+                                                                  radii=0.02), static=True, recording=rec)
+        rr.log(f"field/robots/{part}/belief_path", rr.LineStrips2D([e.belief[:, :2]], colors=[colour], radii=0.006),
+               static=True, recording=rec)
+        times = [rr.TimeColumn("stamp", timestamp=e.t)]
+        ones = [1] * e.t.size
+        for what, poses, c, r in (("truth", e.truth, (90, 90, 90), 0.05), ("belief", e.belief, colour, 0.035)):
+            rr.send_columns(f"field/robots/{part}/{what}", indexes=times, columns=rr.Arrows2D.columns(
+                origins=poses[:, :2], vectors=0.25 * np.stack([np.cos(poses[:, 2]), np.sin(poses[:, 2])], -1),
+                colors=[c] * e.t.size, radii=[r / 5] * e.t.size,
+                labels=[g.name if what == "belief" else ""] * e.t.size).partition(ones), recording=rec)
+        rr.send_columns(f"errors/position_cm/{part}", indexes=times,
+                        columns=rr.Scalars.columns(scalars=100.0 * e.pos), recording=rec)
+        rr.send_columns(f"errors/heading_deg/{part}", indexes=times,
+                        columns=rr.Scalars.columns(scalars=np.degrees(np.abs(e.head))), recording=rec)
+    return out

@@ -312,3 +312,73 @@ def test_errors_type_is_what_the_figure_reads():
     assert isinstance(e, Errors) and np.allclose(e.band_pos, 2 * math.sqrt(0.02))
     with pytest.raises(InputError):
         raise InputError("x", "y")
+
+
+def test_grade_view_save_holds_both_poses_per_row(graded, tmp_path, capsys):
+    """``grade --view-save FILE.rrd``: Rerun's own reader finds, per robot, a ground-truth and a belief
+    pose and both errors for each row graded, and both paths."""
+    import importlib.util
+
+    from tests.conftest import need
+
+    need(importlib.util.find_spec("rerun") is not None, 'the viewer extra is not installed (pip install "gtsjax[viewer]")')
+    from rerun.chunk import RrdReader
+
+    from gtsjax.io.gtd import GTDWriter
+    from gtsjax.sim.beliefs import write_beliefs
+
+    stamps, truth, rows, who, sims, _ = graded
+    gtd = tmp_path / "gtd.csv"
+    with GTDWriter(gtd) as w:
+        w.write(rows)
+    write_beliefs(sims[:2], tmp_path / "b")
+    rrd = tmp_path / "grade.rrd"
+    r = cli(capsys, "grade", gtd, *sum([["--robot", f"{p.name}={tmp_path / 'b' / (p.name + '.csv')}"] for p, _, _ in
+                                        sims[:2]], []), "--out-dir", tmp_path / "out", "--no-figures", "--view-save", rrd)
+    assert r.returncode == 0, r.stderr
+    doc = json.loads((tmp_path / "out" / "grade.json").read_text())
+    per_entity: dict[str, int] = {}
+    for chunk in RrdReader(rrd).stream():
+        per_entity[str(chunk.entity_path)] = per_entity.get(str(chunk.entity_path), 0) + chunk.num_rows
+    for robot in doc["robots"]:
+        n, name = robot["rows"], robot["robot"]
+        assert n > 100
+        for e in (f"/field/robots/{name}/truth", f"/field/robots/{name}/belief", f"/errors/position_cm/{name}",
+                  f"/errors/heading_deg/{name}"):
+            assert per_entity.get(e) == n, (e, per_entity.get(e), n)
+        for e in (f"/field/robots/{name}/truth_path", f"/field/robots/{name}/belief_path"):
+            assert per_entity.get(e, 0) > 0, e
+
+
+def test_simulate_replay_grade_from_the_command_line(tiny, tmp_path, capsys):
+    """The commands as a user runs them: ``simulate spl-trajectory --beliefs``, ``replay`` with a small
+    model, ``grade``: the one robot found on the tracks, its clock and error what was put in."""
+    from gtsjax.io import load_log
+    from gtsjax.sim.beliefs import read_put_in
+
+    d = tmp_path
+    assert cli(capsys, "simulate", "spl-trajectory", "--seed", 1003, "--scans", 400, "--out", d / "w.npz", "--site",
+               d / "s.json", "--beliefs", d / "b").returncode == 0
+    assert cli(capsys, "replay", d / "w.npz", "--site", d / "s.json", "--model", tiny["path"], "--out",
+               d / "gtd.csv").returncode == 0
+    r = cli(capsys, "grade", d / "gtd.csv", "--robot", f"nao={d / 'b' / 'robot1.csv'}", "--site", d / "s.json",
+            "--out-dir", d / "g")
+    assert r.returncode == 0, r.stderr
+    (put,) = read_put_in(d / "b")
+    robot = json.loads((d / "g" / "grade.json").read_text())["robots"][0]
+    assert robot["unseen_share"] < 0.2 and robot["tracks"]
+    assert abs(robot["clock"]["offset_s"] - put.offset) < 0.06
+    log = load_log(d / "w.npz")
+    import csv
+
+    b = np.array([[float(v) for v in row] for row in list(csv.reader(open(d / "b" / "robot1.csv")))[1:]])
+    g = robot["position_m"]["rmse"]
+    from gtsjax.grade.series import interpolate
+
+    truth = log.truth_poses[:, 0]
+    ok = np.all(np.isfinite(truth), 1)
+    # The error put in, at the scans' stamps, read with the true clock and frame: the grade's raw figure
+    # holds the ground truth's own centimetre or two as well.
+    bel, okb = interpolate(log.stamps[ok] + put.offset, b[:, 0], b[:, 1:], 0.1)
+    put_rmse = float(np.sqrt(np.nanmean(np.sum((bel[okb, :2] - truth[ok][okb, :2]) ** 2, -1))))
+    assert put_rmse * 0.9 < g < put_rmse * 1.2 + 0.01, (g, put_rmse)

@@ -11,7 +11,7 @@ from rich.console import Console
 from rich.table import Table
 
 from ._app import app, fail
-from ._common import check_out_dir
+from ._common import VIEW_HELP, VIEW_SAVE_HELP, check_out_dir, check_out_file, serve_view
 
 ROBOT_HELP = ("A robot's own poses, NAME=POSES: a TUM or CSV (stamp,x,y,theta) file, a ROS bag topic BAG:TOPIC "
               "(PoseWithCovarianceStamped, PoseStamped, Odometry), or BAG:/tf:CHILD_FRAME. Once per robot.")
@@ -48,6 +48,8 @@ def grade_cmd(
                                      help="The largest clock offset searched (s), either way."),
     classes: list[str] = typer.Option([], "--class", help="Grade against tracks of this class only (default: all)."),
     figures: bool = typer.Option(True, "--figures/--no-figures", help="A PNG per robot."),
+    view: str | None = typer.Option(None, "--view", metavar="[web]", help=VIEW_HELP),
+    view_save: Path | None = typer.Option(None, "--view-save", help=VIEW_SAVE_HELP),
 ):
     """Grade each robot's own localisation against the ground truth: identity by association, clock and
     frame alignment, position and heading errors, time lost, recoveries."""
@@ -97,6 +99,8 @@ def grade_cmd(
     specs = [RobotSpec(read_beliefs_source(src, name), frames.get(name, "field"), fixed.get(name))
              for name, src in robots.items()]
     check_out_dir(out_dir)
+    if view_save is not None:
+        check_out_file(view_save, "--view-save")
     grades = grade(rows, specs, centre=centre, max_offset=max_offset, classes=set(classes) or None)
     t0 = min(r.stamp for r in rows)
     meta = {"gtd": str(gtd), "t0": t0, "max_offset_s": max_offset, "centre": list(centre)}
@@ -120,11 +124,22 @@ def grade_cmd(
     for r in table_rows(grades):
         table.add_row(*r)
     Console(width=200).print(table)
+    shown = None
+    if view is not None or view_save is not None:
+        from ..viewer import grade_view
+
+        shown = grade_view(grades, site_obj, t0, mode=view, save=view_save)
+        shown.close()
+        if shown.url is not None:
+            console.print(f"view: {shown.url}", soft_wrap=True)
     for g in grades:
         if g.hint:
             console.print(f"warning: {g.name}: {g.hint}", markup=False, highlight=False)
     console.print(f"graded in {time.perf_counter() - t_start:.1f} s -> {', '.join(str(p) for p in written[:3])}"
                   f"{' …' if len(written) > 3 else ''}", markup=False, highlight=False)
+    if view_save is not None:
+        console.print(f"view recorded to {view_save}", markup=False, highlight=False)
+    serve_view(shown, console)
 
 
 def _safe(name: str) -> str:

@@ -13,7 +13,8 @@ known size, so that a test can ask ``grade`` for it back:
   the scenario's path goes on, which is all the grade sees of a fall);
 * **its own clock**: stamps on the robot's clock, ``offset`` (0.1–2 s, either sign) ahead of the
   laptop's, and 30 poses a second (:data:`RATE_HZ`) whatever the laser's rate;
-* **the other team's frame** for one robot (``mirrored``): the field turned half a turn about its centre.
+* **the other team's frame** for one robot of two or more (``mirrored``): the field turned half a turn
+  about its centre.
 
 What was put in is written beside the poses (``put-in.json``: per robot the truth's index in the
 log, the offset, the frame, the biases, the kidnaps), and :func:`put_in_error` gives the error at any
@@ -76,12 +77,13 @@ def simulate_beliefs(stamps: np.ndarray, truth: np.ndarray, centre: tuple[float,
                      ) -> list[tuple[PutIn, np.ndarray, np.ndarray]]:
     """Each robot's beliefs from the scenario's truth (``truth [T, M, 3]`` at laptop ``stamps``, NaN
     where a robot is absent): ``(put_in, robot_stamps, poses in its frame)`` per robot. ``mirrored``:
-    the index of the robot in the other team's frame (``-1``: one drawn by the seed; ``None``: none)."""
+    the index of the robot in the other team's frame (``-1``: one drawn by the seed where there are
+    two robots or more; ``None``: none)."""
     rng = np.random.default_rng([seed, 41])
     m_robots = truth.shape[1]
     names = names or [f"robot{m + 1}" for m in range(m_robots)]
-    if mirrored == -1:
-        mirrored = int(rng.integers(m_robots))
+    if mirrored == -1:  # a robot of the other team, where there are two robots or more
+        mirrored = int(rng.integers(m_robots)) if m_robots >= 2 else None
     out = []
     for m in range(m_robots):
         present = np.all(np.isfinite(truth[:, m]), axis=1)
