@@ -19,8 +19,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks import _data  # noqa: E402
 from benchmarks._harness import ab_machine, emit_report  # noqa: E402
-from gtsjax.drivers.live import warm_up  # noqa: E402
 from gtsjax.drivers.batch import process_log  # noqa: E402
+from gtsjax.drivers.live import warm_up  # noqa: E402
 from gtsjax.io import to_scans  # noqa: E402
 from gtsjax.sensors import URG_04LX  # noqa: E402
 

@@ -382,3 +382,63 @@ def test_simulate_replay_grade_from_the_command_line(tiny, tmp_path, capsys):
     bel, okb = interpolate(log.stamps[ok] + put.offset, b[:, 0], b[:, 1:], 0.1)
     put_rmse = float(np.sqrt(np.nanmean(np.sum((bel[okb, :2] - truth[ok][okb, :2]) ** 2, -1))))
     assert put_rmse * 0.9 < g < put_rmse * 1.2 + 0.01, (g, put_rmse)
+
+
+def test_grade_reads_a_robots_poses_from_a_bag_topic(graded, tmp_path, capsys):
+    """``--robot NAME=BAG:TOPIC``: the same robot graded from a ROS 2 bag's Odometry topic as from its
+    CSV gives the same grade."""
+    from gtsjax.io.gtd import GTDWriter
+    from gtsjax.sim.beliefs import write_beliefs
+    from tests.test_beliefs import ODOM_T, write_pose_bag
+
+    stamps, truth, rows, who, sims, _ = graded
+    put, bt, bp = sims[1]
+    gtd = tmp_path / "gtd.csv"
+    with GTDWriter(gtd) as w:
+        w.write(rows)
+    write_beliefs([sims[1]], tmp_path / "b")
+    bag = write_pose_bag(tmp_path / "match", "mcap", {"/robot2/odom": (ODOM_T, [tuple(map(float, (t, *p)))
+                                                                               for t, p in zip(bt, bp, strict=True)])})
+    out = {}
+    for key, source in (("csv", tmp_path / "b" / f"{put.name}.csv"), ("bag", f"{bag}:/robot2/odom")):
+        r = cli(capsys, "grade", gtd, "--robot", f"r2={source}", "--out-dir", tmp_path / key, "--no-figures")
+        assert r.returncode == 0, r.stderr
+        out[key] = json.loads((tmp_path / key / "grade.json").read_text())["robots"][0]
+    assert out["bag"]["rows"] == out["csv"]["rows"] > 100
+    assert out["bag"]["clock"]["offset_s"] == pytest.approx(out["csv"]["clock"]["offset_s"], abs=1e-3)
+    assert out["bag"]["position_m"]["rmse"] == pytest.approx(out["csv"]["position_m"]["rmse"], rel=1e-3)
+
+
+def test_grade_on_a_real_log_odometry_against_corrected_poses(shared_file, tmp_path, capsys):
+    """A real robot's belief against a real ground truth: the Intel Research Lab's CARMEN log, its raw
+    odometry (``ODOM`` lines, about 5 Hz) graded against its SLAM-corrected poses (one per ``FLASER``
+    scan, every 3 s) with ``--frame fit``. The odometry lies in the map's frame, on the scans' clock
+    (the log's one clock), within decimetres: the fit finds the identity, the clock near 0, and the
+    sparse ground truth does not read as the robot unseen."""
+    import gzip
+
+    log = shared_file("data", "logs", "carmen_intel-corrected.log.gz")
+    gt = ["stamp,track_id,class,x,y,theta,var_x,var_y,var_theta"]
+    odom, last = ["stamp,x,y,theta"], -math.inf
+    with gzip.open(log, "rt") as f:
+        for line in f:
+            tok = line.split()
+            if tok and tok[0] == "FLASER":
+                b = int(tok[1]) + 2  # after the ranges: x y θ (corrected), odometry x y θ, the stamp
+                gt.append(f"{tok[b + 6]},1,robot,{tok[b]},{tok[b + 1]},{tok[b + 2]},1e-4,1e-4,1e-4")
+            elif tok and tok[0] == "ODOM" and float(tok[7]) > last:
+                last = float(tok[7])
+                odom.append(f"{tok[7]},{tok[1]},{tok[2]},{tok[3]}")
+    (tmp_path / "gtd.csv").write_text("\n".join(gt) + "\n")
+    (tmp_path / "odom.csv").write_text("\n".join(odom) + "\n")
+    r = cli(capsys, "grade", tmp_path / "gtd.csv", "--robot", f"odom={tmp_path / 'odom.csv'}", "--frame", "odom=fit",
+            "--out-dir", tmp_path / "g", "--no-figures")
+    assert r.returncode == 0, r.stderr
+    robot = json.loads((tmp_path / "g" / "grade.json").read_text())["robots"][0]
+    assert len(gt) - 1 == 910 and robot["rows"] >= 800  # not where the odometry paused for over a second
+    assert robot["unseen_share"] < 0.1
+    assert abs(robot["frame"]["tx_m"]) < 0.05 and abs(robot["frame"]["ty_m"]) < 0.05
+    assert abs(robot["frame"]["phi_rad"]) < math.radians(0.5)
+    assert abs(robot["clock"]["offset_s"]) < 0.1
+    assert 0.03 < robot["position_m"]["rmse"] < 0.2 and robot["lost_share"] < 0.02
+    assert len(robot["jumps"]) < 30

@@ -25,8 +25,14 @@ from .metrics import ape, jumps, summarise
 from .series import mirror_frame
 from .truth import GroundTruth, from_rows, profiles
 
-#: A belief is not interpolated across a gap longer than this (s): the robot was not localising.
+#: A belief is not interpolated across a gap longer than this (s), or three of its usual intervals
+#: for a robot that sends its pose seldom (:func:`belief_gap`): the robot was not localising.
 BELIEF_GAP_S = 1.0
+
+
+def belief_gap(stamps: np.ndarray) -> float:
+    dt = np.diff(stamps)
+    return max(BELIEF_GAP_S, 3.0 * float(np.median(dt))) if dt.size else BELIEF_GAP_S
 #: Rows taken for the coarse searches: at most one per track per this much time (s).
 COARSE_ROW_S = 0.5
 FRAMES = ("field", "mirrored", "fit")
@@ -119,7 +125,7 @@ def grade(rows: list[TrackRow], robots: list[RobotSpec], *, centre: tuple[float,
     for spec in robots:  # the robots whose frame is known: their clocks by pose
         b = spec.beliefs
         frame = mirror_frame(centre) if spec.frame == "mirrored" else (0.0, 0.0, 0.0)
-        beliefs.append(Belief(b.stamps, b.poses, frame, BELIEF_GAP_S))
+        beliefs.append(Belief(b.stamps, b.poses, frame, belief_gap(b.stamps)))
         d = spec.offset
         if d is None and spec.frame != "fit":
             d, _, _ = coarse_offset(coarse, beliefs[-1], max_offset, profile=False)
@@ -144,7 +150,7 @@ def grade(rows: list[TrackRow], robots: list[RobotSpec], *, centre: tuple[float,
                 d, _, _ = coarse_offset(free, beliefs[r], max_offset, profile=True)
             if d is None or not math.isfinite(d):
                 continue
-            fitted, support[r] = ransac_frame(free, b.stamps, b.poses, BELIEF_GAP_S, d, rng)
+            fitted, support[r] = ransac_frame(free, b.stamps, b.poses, beliefs[r].max_gap, d, rng)
             if fitted is not None:
                 beliefs[r] = beliefs[r].with_frame(fitted)
                 if spec.offset is None:  # the clock again, now by pose, near the motion's answer
