@@ -46,6 +46,23 @@ class Association:
     distance: np.ndarray  # [R, N] each robot's belief against each row (m; NaN where no belief)
 
 
+def window_winners(cost: np.ndarray, gate: float = GATE_M) -> np.ndarray:
+    """Per track (columns of ``cost``, robots × tracks, ``inf`` where not comparable), the robot one
+    window's assignment gives it, or −1: the assignment of least total cost among pairs within
+    ``gate``, as many pairs as can be made (a pair beyond the gate costs more than any within)."""
+    R, K = cost.shape
+    won = np.full(K, -1, np.int64)
+    allowed = cost <= gate
+    if R == 0 or K == 0 or not allowed.any():
+        return won
+    big = gate * 10.0 * max(R, K)  # an excluded pair never buys two allowed ones
+    ri, ci = linear_sum_assignment(np.where(allowed, cost, big))
+    for r, c in zip(ri, ci, strict=True):
+        if allowed[r, c]:
+            won[c] = r
+    return won
+
+
 def windows(stamps: np.ndarray) -> tuple[np.ndarray, int]:
     """Each stamp's window index and the number of windows."""
     if stamps.size == 0:
@@ -116,15 +133,8 @@ def associate(rows_track: np.ndarray, rows_t: np.ndarray, rows_pose: np.ndarray,
         ks = np.flatnonzero(present[:, w])
         if ks.size == 0 or R == 0:
             continue
-        cost = mean[:, ks, w]
-        allowed = cost <= GATE_M
-        if not allowed.any():
-            continue
-        big = GATE_M * 10.0
-        ri, ci = linear_sum_assignment(np.where(allowed, cost, big))
-        for r, c in zip(ri, ci, strict=True):
-            if allowed[r, c]:
-                votes[ks[c], w] = r
+        won = window_winners(mean[:, ks, w])
+        votes[ks[won >= 0], w] = won[won >= 0]
     labels = votes.copy()
     for k in range(n_tracks):
         on = votes[k] != ABSENT

@@ -26,12 +26,12 @@ assignment (robots × tracks), under a millisecond for a match's 14 robots.
 from dataclasses import replace
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
-#: The gate of the offline grader (:data:`gtsjax.grade.associate.GATE_M`): a robot farther than this
-#: from a track on average over a window is not it.
-GATE_M = 0.5
-WINDOW_S = 1.0
+# The offline grader's gate and window (a robot farther than the gate from a track on average over a
+# window is not it), and its assignment within the gate.
+from .associate import GATE_M, window_winners
+from .clock import WINDOW_S
+
 #: Windows running another robot must win a named track (or a name held by another track) to take it.
 SWITCH = 2
 #: Windows running a robot must win an unnamed track to give it a name nobody holds.
@@ -42,23 +42,6 @@ MIN_ROWS = 3
 HOLD_S = 0.5
 #: The share of a track's rows in a window that the robot's belief must cover to vote.
 MIN_COVER = 0.5
-
-
-def window_winners(cost: np.ndarray, gate: float = GATE_M) -> np.ndarray:
-    """Per track (columns of ``cost``, robots × tracks, ``inf`` where not comparable), the robot the
-    window's assignment gives it, or −1: the assignment of least total cost among pairs within
-    ``gate``, as many pairs as can be made (a pair beyond the gate costs more than any within)."""
-    R, K = cost.shape
-    won = np.full(K, -1, np.int64)
-    allowed = cost <= gate
-    if R == 0 or K == 0 or not allowed.any():
-        return won
-    big = gate * 10.0 * max(R, K)  # an excluded pair never buys two allowed ones
-    ri, ci = linear_sum_assignment(np.where(allowed, cost, big))
-    for r, c in zip(ri, ci, strict=True):
-        if allowed[r, c]:
-            won[c] = r
-    return won
 
 
 def mean_distance(belief: np.ndarray, t: np.ndarray, xy: np.ndarray, gate: float = GATE_M) -> float:
