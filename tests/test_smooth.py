@@ -262,3 +262,25 @@ def test_smooth_tracks_vmaps_over_slots(parallel):
         assert_allclose(m[:, i], mi, rtol=1e-5, atol=1e-6)
         assert_allclose(P[:, i], Pi, rtol=1e-5, atol=1e-7)
     assert_allclose(m2, m)
+
+
+@pytest.mark.parametrize("name", list(SMOOTHERS))
+def test_a_life_begun_in_the_next_scan_is_cut_from_the_last(name):
+    """Two lives back to back in one slot (a track died and another was born in its slot the next scan,
+    no empty step between): with ``cut`` at the second's first step, each is smoothed as alone, as the
+    references smooth them; without it they would be one segment."""
+    d = _two_lives(gap=(100, 117))
+    # Close the gap: the second life's states moved to start right after the first's last step.
+    keep = d["valid"]
+    mean, cov, dt = d["mean"][keep], d["cov"][keep], d["dt"][keep]
+    ref_m = d["ref"][0][keep]
+    dt = dt.copy()
+    dt[100] = d["dt"][117]  # the time from the first life's last step is the next scan's interval
+    valid = np.ones(mean.shape[0], bool)
+    cut = np.zeros_like(valid)
+    cut[100] = True
+    f = jax.jit(SMOOTHERS[name])
+    m, _ = f(jnp.asarray(mean), jnp.asarray(cov), jnp.asarray(dt), jnp.asarray(valid), d["params"], jnp.asarray(cut))
+    _same_pose(m, ref_m, rtol=1e-9, atol=1e-11)
+    joined, _ = f(jnp.asarray(mean), jnp.asarray(cov), jnp.asarray(dt), jnp.asarray(valid), d["params"])
+    assert np.max(np.abs(np.asarray(joined)[90:100, :2] - ref_m[90:100, :2])) > 1e-6

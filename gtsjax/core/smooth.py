@@ -18,8 +18,9 @@ reversed ``lax.scan``; :func:`rts_associative` writes each step as the affine ma
 Bayesian smoothers*, IEEE TAC 66(1), 2021).
 
 **Segments.** ``valid[t]`` says the slot holds a track at step ``t``; a slot may hold several lives one
-after another. Step ``t`` is linked to ``t + 1`` where both are valid: a run of linked steps is one
-segment, smoothed on its own (its last valid step starts the backward pass). Invalid steps come back
+after another. Step ``t`` is linked to ``t + 1`` where both are valid and ``cut[t + 1]`` is not (a new
+life begun in a slot the old one left the scan before): a run of linked steps is one segment, smoothed
+on its own (its last valid step starts the backward pass). Invalid steps come back
 as they went in.
 
 **Heading.** The filter wraps the heading to (−π, π]; the smoother is linear and needs it continuous
@@ -71,14 +72,14 @@ def _gain(P_f: Float[Array, "6 6"], dt_next: Float[Array, ""], params: TrackerPa
     return F, P_pred, G
 
 
-def _local(mean, cov, dt, valid):
+def _local(mean, cov, dt, valid, cut):
     """What each step needs, in its own heading frame: the filtered mean with its heading at 0, the
     heading that frame sits at, whether the step is linked to the next, the next step's ``dt``, the turn
     ``δ_t`` into the next step's frame, and a covariance that is safe to solve with (unlinked steps get
     the identity, so that an empty slot's zeros or NaN never reach a solve)."""
     dtype = mean.dtype
     theta = mean[:, _HEADING]
-    link = valid & jnp.concatenate([valid[1:], jnp.zeros(1, bool)])
+    link = valid & jnp.concatenate([valid[1:] & ~cut[1:], jnp.zeros(1, bool)])
     dt_next = jnp.concatenate([dt[1:], jnp.zeros(1, dt.dtype)]).astype(dtype)
     dt_next = jnp.where(link, dt_next, 0)
     delta = wrap(jnp.concatenate([theta[1:], theta[-1:]]) - theta)
@@ -103,11 +104,13 @@ def rts_sequential(
     dt: Float[Array, " steps"],
     valid: Bool[Array, " steps"],
     params: TrackerParams,
+    cut: Bool[Array, " steps"] | None = None,
 ) -> tuple[Float[Array, "steps 6"], Float[Array, "steps 6 6"]]:
     """The RTS smoother over one slot's filtered states (module docstring), one step after another: a
     reversed ``lax.scan`` carrying the next step's smoothed mean (in its own heading frame) and
     covariance. ``dt[t]`` is the time from step ``t − 1`` to ``t`` (``dt[0]`` unused)."""
-    m_loc, theta, link, dt_next, delta, P_safe = _local(mean, cov, dt, valid)
+    cut = jnp.zeros_like(valid) if cut is None else cut
+    m_loc, theta, link, dt_next, delta, P_safe = _local(mean, cov, dt, valid, cut)
 
     def back(carry, x):
         m_next, P_next = carry
@@ -156,11 +159,13 @@ def rts_associative(
     dt: Float[Array, " steps"],
     valid: Bool[Array, " steps"],
     params: TrackerParams,
+    cut: Bool[Array, " steps"] | None = None,
 ) -> tuple[Float[Array, "steps 6"], Float[Array, "steps 6 6"]]:
     """The same smoother as :func:`rts_sequential`, parallel in time: every step's element at once, then
     ``lax.associative_scan`` (reversed) of :func:`_combine`; the composed ``g`` and ``L`` at each step are
     its smoothed mean and covariance (the composition ends at its segment's last step, whose ``E`` is 0)."""
-    m_loc, theta, link, dt_next, delta, P_safe = _local(mean, cov, dt, valid)
+    cut = jnp.zeros_like(valid) if cut is None else cut
+    m_loc, theta, link, dt_next, delta, P_safe = _local(mean, cov, dt, valid, cut)
     P_in = jnp.where(valid[:, None, None], cov, 0)
     element = functools.partial(_element, params=params)
     elems = jax.vmap(element)(m_loc, P_in, P_safe, dt_next, delta, link, valid)
@@ -176,9 +181,12 @@ def smooth_tracks(
     valid: Bool[Array, "steps tracks"],
     params: TrackerParams,
     parallel: bool = True,
+    cut: Bool[Array, "steps tracks"] | None = None,
 ) -> tuple[Float[Array, "steps tracks 6"], Float[Array, "steps tracks 6 6"]]:
     """Every slot of a replay smoothed, one program for all of them (``vmap`` over the slots, their
     lives told apart by ``valid``): :func:`rts_associative` where ``parallel``, else :func:`rts_sequential`.
-    The arrays are the forward pass's, stacked over scans: ``mean[t, m]``, ``cov[t, m]`` filtered."""
+    The arrays are the forward pass's, stacked over scans: ``mean[t, m]``, ``cov[t, m]`` filtered;
+    ``cut[t, m]``: a life begins at ``t`` in slot ``m`` (where the slot's track id changed)."""
     f = rts_associative if parallel else rts_sequential
-    return jax.vmap(f, in_axes=(1, 1, None, 1, None), out_axes=1)(mean, cov, dt, valid, params)
+    cut = jnp.zeros_like(valid) if cut is None else cut
+    return jax.vmap(f, in_axes=(1, 1, None, 1, None, 1), out_axes=1)(mean, cov, dt, valid, params, cut)
