@@ -284,3 +284,29 @@ def test_a_life_begun_in_the_next_scan_is_cut_from_the_last(name):
     _same_pose(m, ref_m, rtol=1e-9, atol=1e-11)
     joined, _ = f(jnp.asarray(mean), jnp.asarray(cov), jnp.asarray(dt), jnp.asarray(valid), d["params"])
     assert np.max(np.abs(np.asarray(joined)[90:100, :2] - ref_m[90:100, :2])) > 1e-6
+
+
+@pytest.mark.parametrize("name", list(SMOOTHERS))
+def test_extra_variance_widens_that_steps_prediction_as_filterpy_does(name):
+    """``extra[t]``: variances added to the prediction into step ``t`` (where the forward pass reset a
+    turn rate or a heading): the same as filterpy's smoother given that step's ``Q`` plus them."""
+    d = _two_lives(gap=(100, 117))
+    keep = np.arange(100)
+    mean, cov, dt = d["mean"][keep], d["cov"][keep], d["dt"][keep]
+    extra = np.zeros((100, 6))
+    extra[40, 5] = 100.0
+    extra[70, 2] = 100.0
+    extra[70, 5] = 100.0
+    m = mean.copy()
+    m[:, 2] = _unwrap(m[:, 2])
+    models = [_model(dt[t + 1], d["params"]) for t in range(99)] + [(np.eye(6), np.zeros((6, 6)))]
+    Qs = [q + np.diag(extra[t + 1]) if t < 99 else q for t, (_, q) in enumerate(models)]
+    ref_m, ref_P, _, _ = rts_smoother(m, cov, [f for f, _ in models], Qs)
+    ref_m[:, 2] = wrap(ref_m[:, 2])
+    f = jax.jit(SMOOTHERS[name])
+    got_m, got_P = f(jnp.asarray(mean), jnp.asarray(cov), jnp.asarray(dt), jnp.ones(100, bool), d["params"], None,
+                     jnp.asarray(extra))
+    _same_pose(got_m, ref_m, rtol=1e-9, atol=1e-11)
+    assert_allclose(got_P, ref_P, rtol=1e-9, atol=1e-13)
+    plain, _ = f(jnp.asarray(mean), jnp.asarray(cov), jnp.asarray(dt), jnp.ones(100, bool), d["params"])
+    assert np.max(np.abs(np.asarray(plain)[30:40, 5] - ref_m[30:40, 5])) > 1e-6  # the extra did something

@@ -68,6 +68,8 @@ def evaluate_cmd(
     without_outline: bool = typer.Option(False, "--without-outline",
                                          help="Score the model with its learnt outlines left out (no stage e′: "
                                               "headings as the GP reads them), to see what the refinement gains."),
+    smooth: bool = typer.Option(False, "--smooth", help="Score the rows replay --smooth writes: each track "
+                                                        "smoothed over its whole life."),
 ):
     """Score a model against labelled logs or held-out simulated scenarios."""
     from ..drivers.evaluation import evaluate_log, per_point
@@ -109,13 +111,13 @@ def evaluate_cmd(
     check_out_dir(out_dir)  # after the inputs are checked (a bad one leaves nothing behind), before any replay
     results = {}
     for spec, name, seed in matches:
-        results.update(_evaluate_match(bases, spec, name, seed, robots, seconds))
+        results.update(_evaluate_match(bases, spec, name, seed, robots, seconds, smooth))
     for label, get in jobs:
         log, site_obj, fitted = get()
         if not log.labelled:
             raise fail(label, "not a labelled log (no truth_poses)")
         m = attach_site(base, site_obj)
-        res = evaluate_log(m, log, where=label, fitted=fitted)
+        res = evaluate_log(m, log, where=label, fitted=fitted, smooth=smooth)
         pts, pos, th, cnt = per_point(log, res)
         errors = res.pop("_errors")
         static = len(pts) <= 64 and cnt.size and cnt.min() >= 3
@@ -152,7 +154,8 @@ def evaluate_cmd(
         print_warnings(Console(stderr=True), res.get("diagnosis"), base, prefix=f"{label}: ")
 
 
-def _evaluate_match(bases, spec: str, name: str, seed: int, robots: int, seconds: float) -> dict:
+def _evaluate_match(bases, spec: str, name: str, seed: int, robots: int, seconds: float, smooth: bool = False
+                    ) -> dict:
     """A match of several lasers (``spl-match-N``), scored with each laser alone, with two opposite
     ones (of four) and with all: rows ``SPEC LASER[+LASER...]``. ``bases``: the models, one per
     scanner model of the match's lasers (:func:`~gtsjax.drivers.several.models_for_lasers`)."""
@@ -179,7 +182,11 @@ def _evaluate_match(bases, spec: str, name: str, seed: int, robots: int, seconds
         merged = merge_logs({n: logs[n] for n in combo}, mixed=mixed)
         combo_models = tuple(models[i] for i in used)
         _, o = process_several(combo_models, merged, site_poses(site, merged.names),
-                               kinds=tuple(used.index(kinds[names.index(n)]) for n in combo))
+                               kinds=tuple(used.index(kinds[names.index(n)]) for n in combo), filtered=smooth)
+        if smooth:
+            from ..drivers.smoothing import smooth_output
+
+            o = smooth_output(o[0], o[1], merged.log.stamps, combo_models[0].tracker)
         res = evaluate_outputs(combo_models[0], merged.log, o)
         res.pop("_errors")
         res["lasers"] = len(combo)

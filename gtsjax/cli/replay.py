@@ -76,6 +76,10 @@ def replay_cmd(
                                            "groups of scans at once (faster). Either equals the live loop's rows to float32 "
                                            "round-off, which can tip a near-tie of heading hypotheses."),
     csv_units: bool = typer.Option(False, "--csv-units", help=CSV_UNITS_HELP),
+    smooth: bool = typer.Option(False, "--smooth", help="Smooth each track's poses over its whole life, the scans "
+                                "after each row as well as before (a fixed-interval RTS smoother over the forward "
+                                "pass, which still decides the rows, ids and classes); the rows are written once "
+                                "the forward pass is done."),
     summary: Path | None = typer.Option(None, "--summary", help="Write the replay's counters (scans, rows, tracks, "
                                         "the diagnosis of what it reported) as JSON here; with several logs, one "
                                         "object per log."),
@@ -96,12 +100,14 @@ def replay_cmd(
         if out_bag is not None:
             check_bag_dir(out_bag)
         _replay_lasers(laser_logs, site, models, out, chunk, topic, crop_fov, confirm_scans, console, sensor_out,
-                       max_tracks, summary, csv_units=csv_units, out_bag=out_bag, view=view, view_save=view_save)
+                       max_tracks, summary, csv_units=csv_units, out_bag=out_bag, view=view, view_save=view_save,
+                       smooth=smooth)
         return
     if not logs:
         raise InputError("replay", "give a log (or --log NAME=LOG per laser of a site with several)")
     model = one_model(models)
-    for given, option in ((out_bag, "--out-bag"), (view, "--view"), (view_save, "--view-save")):
+    for given, option in ((out_bag, "--out-bag"), (view, "--view"), (view_save, "--view-save"),
+                          (True if smooth else None, "--smooth")):
         if given is not None and len(logs) > 1:
             raise InputError(option, "takes one log (several logs side by side write one CSV each)")
     if out_bag is not None:
@@ -125,7 +131,7 @@ def replay_cmd(
         if len(scan_logs) == 1:
             results = [replay_log(scan_logs[0], m, outs[0], chunk=chunk, sensor_out=sensor_outs[0],
                                   vectorise=not step_by_step, progress=done, out_bag=out_bag, view=shown,
-                                  csv_units=csv_units)]
+                                  csv_units=csv_units, smooth=smooth)]
         else:
             results = replay_logs(scan_logs, m, outs, chunk=chunk, sensor_outs=sensor_outs, vectorise=not step_by_step,
                                   progress=done, csv_units=csv_units)
@@ -211,7 +217,8 @@ def _load_fitted(log: Path, topic: str | None, m, crop_fov: bool, console: Conso
 def _replay_lasers(specs: list[str], site_path: Path, model_paths: list[Path], out: Path, chunk: int, topic: str | None,
                    crop_fov: bool, confirm_scans: int | None, console: Console, sensor_out: Path | None,
                    max_tracks: int | None = None, summary: Path | None = None, *, csv_units: bool = False,
-                   out_bag: Path | None = None, view: str | None = None, view_save: Path | None = None) -> None:
+                   out_bag: Path | None = None, view: str | None = None, view_save: Path | None = None,
+                   smooth: bool = False) -> None:
     """``replay --log NAME=LOG ...``: the lasers' logs merged by stamp into one track table (and the
     bag and the view, each laser's scans under its name)."""
     from ..drivers.several import models_for_lasers, replay_several
@@ -246,7 +253,7 @@ def _replay_lasers(specs: list[str], site_path: Path, model_paths: list[Path], o
         task = bar.add_task("replay", total=total)
         totals = replay_several(logs, models, site_obj, out, kinds=kinds, chunk=chunk,
                                 progress=lambda n: bar.update(task, completed=n), sensor_out=sensor_out,
-                                csv_units=csv_units, out_bag=out_bag, view=shown)
+                                csv_units=csv_units, out_bag=out_bag, view=shown, smooth=smooth)
     dt = time.perf_counter() - t0
     per = ", ".join(f"{n} {totals['scans_per_laser'][n]} scans ({totals['degraded'][n]} without a new map "
                     "transformation)" for n in logs)

@@ -63,16 +63,17 @@ def _heading_vector(v):
     return jnp.where(jnp.arange(NX, dtype=jnp.int32) == _HEADING, v, 0)
 
 
-def _gain(P_f: Float[Array, "6 6"], dt_next: Float[Array, ""], params: TrackerParams):
-    """``F``, ``P_pred = F P_f Fᵀ + Q`` (symmetrised) and the smoother gain ``G = P_f Fᵀ P_pred⁻¹``,
-    by a solve (``P_pred`` and ``P_f`` symmetric: ``G = (P_pred⁻¹ F P_f)ᵀ``)."""
+def _gain(P_f: Float[Array, "6 6"], dt_next: Float[Array, ""], params: TrackerParams, extra_next):
+    """``F``, ``P_pred = F P_f Fᵀ + Q`` (symmetrised; ``extra_next`` added to its diagonal) and the
+    smoother gain ``G = P_f Fᵀ P_pred⁻¹``, by a solve (``P_pred`` and ``P_f`` symmetric:
+    ``G = (P_pred⁻¹ F P_f)ᵀ``)."""
     F, Q = _transition(dt_next, params, P_f.dtype)
-    P_pred = _sym(F @ P_f @ F.T + Q)
+    P_pred = _sym(F @ P_f @ F.T + Q + jnp.diag(extra_next.astype(P_f.dtype)))
     G = jnp.linalg.solve(P_pred, F @ P_f).T
     return F, P_pred, G
 
 
-def _local(mean, cov, dt, valid, cut):
+def _local(mean, cov, dt, valid, cut, extra):
     """What each step needs, in its own heading frame: the filtered mean with its heading at 0, the
     heading that frame sits at, whether the step is linked to the next, the next step's ``dt``, the turn
     ``δ_t`` into the next step's frame, and a covariance that is safe to solve with (unlinked steps get
@@ -87,7 +88,8 @@ def _local(mean, cov, dt, valid, cut):
     m_loc = jnp.where(valid[:, None], mean.at[:, _HEADING].set(0), 0)
     eye = jnp.eye(NX, dtype=dtype)
     P_safe = jnp.where(link[:, None, None], cov, eye)
-    return m_loc, theta, link, dt_next, delta, P_safe
+    extra_next = jnp.concatenate([extra[1:], jnp.zeros((1, NX), extra.dtype)])
+    return m_loc, theta, link, dt_next, delta, P_safe, extra_next
 
 
 def _global(m_loc, P_s, mean, cov, theta, valid):
@@ -105,17 +107,19 @@ def rts_sequential(
     valid: Bool[Array, " steps"],
     params: TrackerParams,
     cut: Bool[Array, " steps"] | None = None,
+    extra: Float[Array, "steps 6"] | None = None,
 ) -> tuple[Float[Array, "steps 6"], Float[Array, "steps 6 6"]]:
     """The RTS smoother over one slot's filtered states (module docstring), one step after another: a
     reversed ``lax.scan`` carrying the next step's smoothed mean (in its own heading frame) and
     covariance. ``dt[t]`` is the time from step ``t − 1`` to ``t`` (``dt[0]`` unused)."""
     cut = jnp.zeros_like(valid) if cut is None else cut
-    m_loc, theta, link, dt_next, delta, P_safe = _local(mean, cov, dt, valid, cut)
+    extra = jnp.zeros_like(mean) if extra is None else extra
+    m_loc, theta, link, dt_next, delta, P_safe, extra_next = _local(mean, cov, dt, valid, cut, extra)
 
     def back(carry, x):
         m_next, P_next = carry
-        m_f, P_f, P_ok, dtn, d, lk = x
-        F, P_pred, G = _gain(P_ok, dtn, params)
+        m_f, P_f, P_ok, dtn, d, lk, ex = x
+        F, P_pred, G = _gain(P_ok, dtn, params, ex)
         # the next smoothed state seen from this step's heading frame, less its prediction
         r = m_next + _heading_vector(d) - F @ m_f
         m_s = m_f + G @ r
@@ -125,15 +129,15 @@ def rts_sequential(
 
     P_in = jnp.where(valid[:, None, None], cov, 0)
     init = (jnp.zeros(NX, mean.dtype), jnp.zeros((NX, NX), mean.dtype))
-    _, (m_s, P_s) = jax.lax.scan(back, init, (m_loc, P_in, P_safe, dt_next, delta, link), reverse=True)
+    _, (m_s, P_s) = jax.lax.scan(back, init, (m_loc, P_in, P_safe, dt_next, delta, link, extra_next), reverse=True)
     return _global(m_s, P_s, mean, cov, theta, valid)
 
 
-def _element(m_f, P_f, P_ok, dt_next, delta, link, valid, params):
+def _element(m_f, P_f, P_ok, dt_next, delta, link, valid, extra_next, params):
     """One step's element ``(E, g, L)`` of the parallel smoother, in its heading frame:
     ``x_t = E x_{t+1} + g`` with ``x_{t+1}`` in the next step's frame, so ``g = m_f − E (F m_f − δ e_θ)``.
     A segment's last step is ``(0, m_f, P_f)``; an invalid step ``(0, 0, 0)``, which nothing reads."""
-    F, P_pred, G = _gain(P_ok, dt_next, params)
+    F, P_pred, G = _gain(P_ok, dt_next, params, extra_next)
     g = m_f - G @ (F @ m_f - _heading_vector(delta))
     L = _sym(P_f - G @ P_pred @ G.T)
     zero = jnp.zeros_like(G)
@@ -160,15 +164,17 @@ def rts_associative(
     valid: Bool[Array, " steps"],
     params: TrackerParams,
     cut: Bool[Array, " steps"] | None = None,
+    extra: Float[Array, "steps 6"] | None = None,
 ) -> tuple[Float[Array, "steps 6"], Float[Array, "steps 6 6"]]:
     """The same smoother as :func:`rts_sequential`, parallel in time: every step's element at once, then
     ``lax.associative_scan`` (reversed) of :func:`_combine`; the composed ``g`` and ``L`` at each step are
     its smoothed mean and covariance (the composition ends at its segment's last step, whose ``E`` is 0)."""
     cut = jnp.zeros_like(valid) if cut is None else cut
-    m_loc, theta, link, dt_next, delta, P_safe = _local(mean, cov, dt, valid, cut)
+    extra = jnp.zeros_like(mean) if extra is None else extra
+    m_loc, theta, link, dt_next, delta, P_safe, extra_next = _local(mean, cov, dt, valid, cut, extra)
     P_in = jnp.where(valid[:, None, None], cov, 0)
     element = functools.partial(_element, params=params)
-    elems = jax.vmap(element)(m_loc, P_in, P_safe, dt_next, delta, link, valid)
+    elems = jax.vmap(element)(m_loc, P_in, P_safe, dt_next, delta, link, valid, extra_next)
     _, m_s, P_s = jax.lax.associative_scan(jax.vmap(_combine), elems, reverse=True)
     return _global(m_s, P_s, mean, cov, theta, valid)
 
@@ -182,11 +188,16 @@ def smooth_tracks(
     params: TrackerParams,
     parallel: bool = True,
     cut: Bool[Array, "steps tracks"] | None = None,
+    extra: Float[Array, "steps tracks 6"] | None = None,
 ) -> tuple[Float[Array, "steps tracks 6"], Float[Array, "steps tracks 6 6"]]:
     """Every slot of a replay smoothed, one program for all of them (``vmap`` over the slots, their
     lives told apart by ``valid``): :func:`rts_associative` where ``parallel``, else :func:`rts_sequential`.
     The arrays are the forward pass's, stacked over scans: ``mean[t, m]``, ``cov[t, m]`` filtered;
-    ``cut[t, m]``: a life begins at ``t`` in slot ``m`` (where the slot's track id changed)."""
+    ``cut[t, m]``: a life begins at ``t`` in slot ``m`` (where the slot's track id changed);
+    ``extra[t, m]``: variances added to the prediction into step ``t`` (where the forward pass threw
+    information away: a turn rate forgotten, a heading replaced by another hypothesis's), so that the
+    smoother does not read the filter's reset as evidence."""
     f = rts_associative if parallel else rts_sequential
     cut = jnp.zeros_like(valid) if cut is None else cut
-    return jax.vmap(f, in_axes=(1, 1, None, 1, None, 1), out_axes=1)(mean, cov, dt, valid, params, cut)
+    extra = jnp.zeros_like(mean) if extra is None else extra
+    return jax.vmap(f, in_axes=(1, 1, None, 1, None, 1, 1), out_axes=1)(mean, cov, dt, valid, params, cut, extra)

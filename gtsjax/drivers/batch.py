@@ -24,6 +24,7 @@ whatever the log's length; the outputs gather on the host (:func:`run_chunks`).
 """
 
 import math
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -129,9 +130,31 @@ def _vectorised(models, upd, state, scans: Scan, lanes, n_real, percepts, sub: i
     return state, (jax.tree.map(lambda a: jnp.swapaxes(a, 0, 1), outs) if by_log else outs)
 
 
-@batch_jit(static_argnames=("vectorise", "sub"))
+class Filtered(NamedTuple):
+    """The track table's filtered state after a scan, for the smoother (:mod:`gtsjax.core.smooth`,
+    :mod:`gtsjax.drivers.smoothing`): each slot's mean and covariance, and which of its heading
+    hypotheses the state's heading is."""
+
+    mean: Float[Array, "tracks 6"]
+    cov: Float[Array, "tracks 6 6"]
+    main: Int[Array, " tracks"]
+
+
+def _with_filtered(upd):
+    """``upd`` whose output also carries the track table's :class:`Filtered` state after the scan."""
+
+    def f(s, p, sc, lane):
+        new, out = upd(s, p, sc, lane)
+        t = new.tracker
+        return new, (out, Filtered(t.mean, t.cov, t.main))
+
+    return f
+
+
+@batch_jit(static_argnames=("vectorise", "sub", "filtered"))
 def run_chunk(models: "tuple[Model, ...]", state, scans: Scan, lanes: "Lanes | None", n_real: Int[Array, "*logs"],
-              percepts: "Perception | None" = None, vectorise: bool = True, sub: int = SUB_CHUNK):
+              percepts: "Perception | None" = None, vectorise: bool = True, sub: int = SUB_CHUNK,
+              filtered: bool = False):
     """A chunk of scans (leading axis) through the pipeline from ``state``: returns the state after
     them and their stacked outputs. Scans at index ``>= n_real`` (the padding of a last chunk) leave
     the state as it was.
@@ -147,9 +170,12 @@ def run_chunk(models: "tuple[Model, ...]", state, scans: Scan, lanes: "Lanes | N
     the updates under ``lax.scan``; batched products may round differently from one scan's (float32
     round-off, which can tip a near-tie between heading hypotheses: on a real office log one row of
     80, a phantom track's, took its other side). ``vectorise=False``: each scan's whole step in turn,
-    the live loop's computation (one model)."""
+    the live loop's computation (one model). ``filtered``: each output is ``(Output, Filtered)``, the
+    track table's filtered state after the scan beside it (a program of its own, for the smoother)."""
     by_log = n_real.ndim == 1
     upd = _updater(models, state)
+    if filtered:
+        upd = _with_filtered(upd)
     if not vectorise:
         if by_log:
             return jax.vmap(lambda st, sc, n: _step_by_step(models, upd, st, sc, None, n))(state, scans, n_real)
@@ -207,7 +233,7 @@ def for_chunks(run, state, n: int, chunk: int, callback=None):
 
 def run_chunks(models: "tuple[Model, ...]", state, scans: Scan, *, lanes: "Lanes | None" = None,
                percepts: "Perception | None" = None, chunk: int = 256, vectorise: bool = True,
-               sub: int = SUB_CHUNK, callback=None):
+               sub: int = SUB_CHUNK, callback=None, filtered: bool = False):
     """A stack of scans (one log, or several lasers' merged, with their ``lanes`` and, for several
     scanners, ``percepts``) through :func:`run_chunk` ``chunk`` at a time from ``state``: the final
     state and the stacked outputs, NumPy on the host; ``callback(n_done)`` after each chunk."""
@@ -217,7 +243,7 @@ def run_chunks(models: "tuple[Model, ...]", state, scans: Scan, *, lanes: "Lanes
     def run(state, start, stop):
         sc, ln, pc = pad_chunk((scans, lanes, percepts), start, stop, chunk)
         state, out = run_chunk(models, state, sc, ln, jnp.asarray(stop - start, jnp.int32), pc,
-                               vectorise=vectorise, sub=sub)
+                               vectorise=vectorise, sub=sub, filtered=filtered)
         return state, host_rows(out, stop - start)
 
     state, outs = for_chunks(run, state, n, chunk, callback)
@@ -225,13 +251,15 @@ def run_chunks(models: "tuple[Model, ...]", state, scans: Scan, *, lanes: "Lanes
 
 
 def process_log(model: Model, scans: Scan, *, chunk: int = 256, state: PipelineState | None = None,
-                callback=None, vectorise: bool = False, sub: int = SUB_CHUNK) -> tuple[PipelineState, Output]:
+                callback=None, vectorise: bool = False, sub: int = SUB_CHUNK, filtered: bool = False
+                ) -> tuple[PipelineState, Output]:
     """Run one laser's stack of scans through the pipeline ``chunk`` at a time (:func:`run_chunks`).
     Returns the final state and the stacked outputs as NumPy arrays on the host; ``callback(n_done)``
     is called after each chunk. ``vectorise``: see :func:`run_chunk` (off by default here: each
     scan's step in turn, what the live loop computes)."""
     state = init_state(model) if state is None else state
-    return run_chunks((model,), state, scans, chunk=chunk, vectorise=vectorise, sub=sub, callback=callback)
+    return run_chunks((model,), state, scans, chunk=chunk, vectorise=vectorise, sub=sub, callback=callback,
+                      filtered=filtered)
 
 
 def process_logs(model: Model, scans: "list[Scan | None]", *, chunk: int = 256,

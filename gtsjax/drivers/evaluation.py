@@ -236,14 +236,20 @@ def _detection_errors(log: ScanLog, out, classes, present, radius, turns):
     return np.asarray(e_pos), np.asarray(e_th), found
 
 
-def evaluate_log(model: Model, log: ScanLog, *, where: object = "scan log", fitted: bool = False, **kw) -> dict:
+def evaluate_log(model: Model, log: ScanLog, *, where: object = "scan log", fitted: bool = False, smooth: bool = False,
+                 **kw) -> dict:
     """Replay ``log`` (``model`` must have its site attached) and score it. A log from another scanner
     geometry than the model's is refused (:func:`~gtsjax.io.logs.fit_to_model`, naming ``where``), never
     cropped: an accuracy figure is for the scans as they were recorded. ``fitted``: the caller has
-    checked the log so already (``evaluate`` checks every log before the first is replayed)."""
+    checked the log so already (``evaluate`` checks every log before the first is replayed).
+    ``smooth``: score the smoothed rows (:mod:`gtsjax.drivers.smoothing`)."""
     if not fitted:
         log = fit_to_model(log, model, where)
-    _, out = process_log(model, to_scans(log, model.n_beams))
+    _, out = process_log(model, to_scans(log, model.n_beams), filtered=smooth)
+    if smooth:
+        from .smoothing import smooth_output
+
+        out = smooth_output(out[0], out[1], log.stamps, model.tracker)
     return evaluate_outputs(model, log, out, **kw)
 
 

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from ..core.pipeline import init_state
 from ..io.logs import to_scans
-from .batch import chunk_for, for_chunks, process_log, process_logs
+from .batch import chunk_for, concat, for_chunks, process_log, process_logs
 from .sink import Sink
 
 __all__ = ["bag_for", "process_log", "process_logs", "replay_log", "replay_logs"]
@@ -46,26 +46,36 @@ def totals(sink: Sink) -> dict:
 
 
 def replay_log(log, model, out: Path, *, chunk: int = 256, sensor_out: Path | None = None, progress=None,
-               vectorise: bool = True, out_bag: Path | None = None, view=None, csv_units: bool = False) -> dict:
+               vectorise: bool = True, out_bag: Path | None = None, view=None, csv_units: bool = False,
+               smooth: bool = False) -> dict:
     """Run ``log`` through ``model`` (site attached) and write the GTD CSV; returns the run's
     :func:`totals`. ``vectorise``: see :func:`~gtsjax.drivers.batch.run_chunk` (off: each scan's whole
     step in turn, what the live loop computes, to float32 round-off: the live loop's program is
     compiled apart, with the model closed over). ``out_bag``: also a ROS 2 bag of the scans, laser
     poses and tracks (:mod:`gtsjax.io.bag_out`); ``view``: a :class:`~gtsjax.viewer.View` shown each
     scan (closed at the end); ``csv_units``: the CSV's optional header with units and the ``cov_xy``
-    column (:mod:`gtsjax.io.gtd`)."""
+    column (:mod:`gtsjax.io.gtd`); ``smooth``: the rows' poses smoothed over each track's whole life
+    (:mod:`gtsjax.drivers.smoothing`), written once the forward pass is done."""
     sink = Sink(model, out, bag=bag_for(log, out_bag), view=view, sensor_out=sensor_out, csv_units=csv_units)
 
     def run(state, start, stop):
         part = log.slice(start, stop)
         scans = to_scans(part, model.n_beams, prev_stamp=log.stamps[start - 1] if start else None)
         cb = None if progress is None else (lambda n: progress(start + n))
-        state, out = process_log(model, scans, chunk=chunk, state=state, callback=cb, vectorise=vectorise)
-        sink.add(part.stamps, out, frame=one_laser_frames(part) if sink.wants_output else None)
-        return state, None
+        state, out = process_log(model, scans, chunk=chunk, state=state, callback=cb, vectorise=vectorise,
+                                 filtered=smooth)
+        if not smooth:
+            sink.add(part.stamps, out, frame=one_laser_frames(part) if sink.wants_output else None)
+        return state, out if smooth else None
 
     try:
-        for_chunks(run, init_state(model), log.n_scans, chunk * BLOCK_CHUNKS)
+        _, outs = for_chunks(run, init_state(model), log.n_scans, chunk * BLOCK_CHUNKS)
+        if smooth and log.n_scans:
+            from .smoothing import smooth_output
+
+            out, filtered = concat(outs)
+            sink.add(log.stamps, smooth_output(out, filtered, log.stamps, model.tracker),
+                     frame=one_laser_frames(log) if sink.wants_output else None)
     finally:
         sink.close()
     return totals(sink)

@@ -91,7 +91,8 @@ def merge_logs(logs: "dict[str, ScanLog]", *, mixed: bool = False) -> Merged:
 
 
 def process_several(model: "Model | tuple[Model, ...]", merged: Merged, sensor_poses, *, kinds=None, chunk: int = 256,
-                    state: SeveralState | None = None, callback=None) -> tuple[SeveralState, Output]:
+                    state: SeveralState | None = None, callback=None, filtered: bool = False
+                    ) -> tuple[SeveralState, Output]:
     """The merged scans through the several-laser pipeline ``chunk`` at a time (the batch engine,
     :func:`~gtsjax.drivers.batch.run_chunks`); outputs stacked on the host in the merged order.
     ``sensor_poses``: each laser's rough pose guess, in ``merged.names``' order. ``model``: every
@@ -109,7 +110,8 @@ def process_several(model: "Model | tuple[Model, ...]", merged: Merged, sensor_p
         scans, percepts = to_scans(merged.log, models[0].n_beams), None
     else:
         scans, percepts = perceive_lasers(models, kinds, merged, chunk)
-    return run_chunks(models, state, scans, lanes=lanes, percepts=percepts, chunk=chunk, callback=callback)
+    return run_chunks(models, state, scans, lanes=lanes, percepts=percepts, chunk=chunk, callback=callback,
+                      filtered=filtered)
 
 
 def perceive_lasers(models: "tuple[Model, ...]", kinds, merged: Merged, chunk: int) -> tuple[Scan, Perception]:
@@ -172,7 +174,7 @@ def site_poses(site: Site, names) -> np.ndarray:
 
 def replay_several(logs: "dict[str, ScanLog]", model: "Model | tuple[Model, ...]", site: Site, out: Path, *,
                    kinds=None, chunk: int = 256, progress=None, sensor_out: Path | None = None,
-                   csv_units: bool = False, out_bag: Path | None = None, view=None) -> dict:
+                   csv_units: bool = False, out_bag: Path | None = None, view=None, smooth: bool = False) -> dict:
     """Replay several lasers' logs (names of the site's ``sensors``) into one GTD CSV; returns totals
     (scans, rows, tracks per class, degraded scans per laser, the run's ``diagnosis``:
     :mod:`gtsjax.drivers.diagnose`). ``sensor_out``: each scan's laser pose
@@ -180,13 +182,22 @@ def replay_several(logs: "dict[str, ScanLog]", model: "Model | tuple[Model, ...]
     bumped shows as a step in its laser's rows. ``model``: every laser's, or one per scanner model
     with ``kinds`` (:func:`models_for_lasers`). ``out_bag``: also a ROS 2 bag, each laser's scans on
     its own topic and frame (:mod:`gtsjax.io.bag_out`); ``view``: a :class:`~gtsjax.viewer.View`
-    shown each scan, each laser's under its name (closed at the end)."""
+    shown each scan, each laser's under its name (closed at the end). ``smooth``: the rows' poses
+    smoothed over each track's whole life, every laser's detections together
+    (:mod:`gtsjax.drivers.smoothing`)."""
     from ..io.bag_out import BagOut, LaserGeometry
 
     mixed = isinstance(model, tuple) and len(model) > 1
     merged = merge_logs(logs, mixed=mixed)
     names = merged.names
-    _, o = process_several(model, merged, site_poses(site, names), kinds=kinds, chunk=chunk, callback=progress)
+    _, o = process_several(model, merged, site_poses(site, names), kinds=kinds, chunk=chunk, callback=progress,
+                           filtered=smooth)
+    if smooth:
+        from .smoothing import smooth_output
+
+        o, filtered = o
+        first = model[0] if isinstance(model, tuple) else model
+        o = smooth_output(o, filtered, merged.log.stamps, first.tracker)
     # Each scan as its own laser took it (the merged log's beams are padded to the widest scanner's).
     sources = [merged.sources[n] for n in names]
     bag = BagOut(out_bag, {n: LaserGeometry.of_log(src) for n, src in zip(names, sources, strict=True)}

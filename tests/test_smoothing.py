@@ -1,0 +1,105 @@
+"""``replay --smooth`` (``gtsjax.drivers.smoothing``): the forward pass's rows, the same stamps, ids and
+classes, with each track's poses smoothed over its whole life; closer to the simulation's truth than
+the forward rows, with one laser and with two; and where the forward pass reset part of a track's
+state outside its Kalman filter, the smoother told so."""
+
+import math
+
+import numpy as np
+
+from gtsjax.core.geometry import wrap
+from gtsjax.drivers.smoothing import cuts, resets
+from gtsjax.io import load_log, save_log, save_site
+from gtsjax.io.gtd import read_gtd
+from tests._utils import cli
+from tests.test_cli_paths import match_model  # noqa: F401  (the fixture: a small model of the match's field)
+
+
+class _Params:
+    omega_var0 = 1.0
+
+
+def test_cuts_where_a_life_begins_or_the_heading_switches_side():
+    live = np.array([[1, 1], [1, 1], [1, 1], [0, 1], [1, 1]], bool)
+    ids = np.array([[3, 5], [3, 5], [4, 5], [-1, 5], [6, 5]])
+    heading = np.array([[0.0, 1.0], [0.05, 1.1], [0.1, 1.1 + math.pi], [0.0, 1.2 + math.pi], [0.0, 1.25 + math.pi]])
+    got = cuts(live, ids, heading)
+    # Slot 0: id 3 → 4 in consecutive scans (a cut); after an empty scan the new life needs none.
+    # Slot 1: the heading jumped half a turn at scan 2.
+    assert got.tolist() == [[False, False], [False, False], [True, True], [False, False], [False, False]]
+
+
+def test_resets_where_a_turn_rate_was_forgotten_or_the_main_heading_changed():
+    T, M = 5, 2
+    live = np.ones((T, M), bool)
+    ids = np.zeros((T, M), int) + np.arange(M)
+    cov = np.tile(np.eye(6) * 0.01, (T, M, 1, 1))
+    cov[..., 2, 5] = cov[..., 5, 2] = 0.001
+    cov[2, 0, 5, 5], cov[2, 0, 2, 5], cov[2, 0, 5, 2] = 1.0, 0.0, 0.0  # forgotten at scan 2 (as g_track does)
+    main = np.zeros((T, M), int)
+    main[3:, 1] = 1  # slot 1's heading became another hypothesis at scan 3
+    extra = resets(live, ids, cov, main, _Params())
+    assert extra.shape == (T, M, 6)
+    assert np.flatnonzero(extra[:, 0, 5]).tolist() == [2] and not extra[:, 0, 2].any()
+    assert np.flatnonzero(extra[:, 1, 5]).tolist() == [3] and np.flatnonzero(extra[:, 1, 2]).tolist() == [3]
+    assert not extra[..., :2].any() and not extra[..., 3:5].any()
+
+
+def _errors(rows, stamps, truth):
+    """Each row's position and heading error against the nearest true robot at its stamp."""
+    at = {float(s): i for i, s in enumerate(stamps)}
+    pos, head = [], []
+    for r in rows:
+        tr = truth[at[r.stamp]]
+        d = np.hypot(tr[:, 0] - r.x, tr[:, 1] - r.y)
+        k = int(np.nanargmin(d))
+        pos.append(d[k])
+        head.append(abs(wrap(r.theta - tr[k, 2])))
+    return np.array(pos), np.array(head)
+
+
+def test_replay_smooth_keeps_the_rows_and_comes_closer_to_the_truth(tiny, tmp_path, capsys):
+    d = tmp_path
+    assert cli(capsys, "simulate", "spl-trajectory", "--seed", 1007, "--scans", 300, "--out", d / "w.npz", "--site",
+               d / "s.json").returncode == 0
+    for out, extra in (("f.csv", []), ("s.csv", ["--smooth"])):
+        r = cli(capsys, "replay", d / "w.npz", "--site", d / "s.json", "--model", tiny["path"], "--out", d / out,
+                *extra)
+        assert r.returncode == 0, r.stderr
+    fwd, sm = read_gtd(d / "f.csv"), read_gtd(d / "s.csv")
+    assert len(fwd) > 200 and [(r.stamp, r.track_id, r.cls) for r in fwd] == [(r.stamp, r.track_id, r.cls) for r in sm]
+    log = load_log(d / "w.npz")
+    pf, hf = _errors(fwd, log.stamps, log.truth_poses)
+    ps, hs = _errors(sm, log.stamps, log.truth_poses)
+    rmse = lambda e: float(np.sqrt(np.mean(e**2)))  # noqa: E731
+    assert rmse(ps) < 0.9 * rmse(pf), (rmse(ps), rmse(pf))
+    assert rmse(hs) < rmse(hf), (rmse(hs), rmse(hf))
+    # Variances are the smoother's: no larger than the filter's, row by row.
+    assert all(s.var_x <= f.var_x * (1 + 1e-4) + 1e-9 and s.var_theta <= f.var_theta * (1 + 1e-4) + 1e-9
+               for f, s in zip(fwd, sm, strict=True))
+
+
+def test_replay_smooth_with_two_lasers(match_model, tmp_path, capsys):  # noqa: F811
+    """Two lasers' detections smoothed together (a model of the match's field, trained as
+    docs/several-lasers.md trains one, small): the same rows, positions closer to the truth."""
+    from gtsjax.sim.match import simulate_match
+
+    logs, site = simulate_match("spl-match-2", seed=17, n_robots=3, seconds=8.0, referee=False)
+    for name, log in logs.items():
+        save_log(log, tmp_path / f"m-{name}.npz")
+    save_site(site, tmp_path / "site.json")
+    args = ["--log", f"north={tmp_path / 'm-north.npz'}", "--log", f"south={tmp_path / 'm-south.npz'}", "--site",
+            tmp_path / "site.json", "--model", match_model]
+    outs = {}
+    for key, extra in (("f", []), ("s", ["--smooth"])):
+        r = cli(capsys, "replay", *args, "--out", tmp_path / f"{key}.csv", *extra)
+        assert r.returncode == 0, r.stderr
+        outs[key] = read_gtd(tmp_path / f"{key}.csv")
+    assert len(outs["f"]) > 100
+    assert [(r.stamp, r.track_id) for r in outs["f"]] == [(r.stamp, r.track_id) for r in outs["s"]]
+    stamps = np.concatenate([lg.stamps for lg in logs.values()])
+    truth = np.concatenate([lg.truth_poses for lg in logs.values()])
+    pf, _ = _errors(outs["f"], stamps, truth)
+    ps, _ = _errors(outs["s"], stamps, truth)
+    rmse = lambda e: float(np.sqrt(np.mean(e**2)))  # noqa: E731
+    assert rmse(ps) < 0.95 * rmse(pf), (rmse(ps), rmse(pf))
