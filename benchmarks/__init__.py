@@ -14,6 +14,7 @@ reference  same tracks as, and time per scan against, the NumPy/scikit-learn/fil
 gp         GP fit time and LML against scikit-learn and tinygp
 kalman     Kalman step against filterpy and dynamax; one scan's tracking with 8 tracks
 smooth     RTS smoother of one track over 10⁵ scans: sequential (lax.scan) against associative scan
+grade      grade() of 10 robots against a 10-minute two-laser ground truth (target: ≤ 30 s)
 scaling    latency vs beams, K, M, training-set size; fit time vs N; throughput vs chunk; the plot
 scip       SCIP 2.0 decode of a UTM-30LX frame
 live       frame-to-GTD latency over a pseudo-terminal with the real live loop
