@@ -31,6 +31,13 @@ def load_input(path: Path, topic: str | None, console: Console):
         return import_log(path, topic=topic, progress=lambda n, total: bar.update(task, completed=n, total=total))
 
 
+def file_stem(text: str, default: str) -> str:
+    """``text`` reduced to characters safe in a file name (``default`` where none are left)."""
+    import re
+
+    return re.sub(r"[^A-Za-z0-9_.-]+", "-", text).strip("-.") or default
+
+
 def describe(log) -> str:
     """One line: scans × beams, duration and rate, field of view, share of returns, intensities."""
     dur = float(log.stamps[-1] - log.stamps[0])

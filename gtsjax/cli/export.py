@@ -2,7 +2,6 @@
 CSV, for evo (``evo_traj tum DIR/*.tum``, ``evo_ape tum reference.tum DIR/robot_3.tum``) and the
 other tools that read the TUM RGB-D format."""
 
-import re
 from pathlib import Path
 
 import typer
@@ -11,13 +10,12 @@ from rich.table import Table
 
 from ..io.gtd import read_gtd, tracks_of, write_tum
 from ._app import app
-from ._common import check_out_dir
+from ._common import check_out_dir, file_stem
 
 
 def tum_name(cls: str, track_id: int) -> str:
     """``<class>_<track id>.tum``, the class reduced to characters safe in a file name."""
-    safe = re.sub(r"[^A-Za-z0-9_.-]+", "-", cls).strip("-.") or "track"
-    return f"{safe}_{track_id}.tum"
+    return f"{file_stem(cls, 'track')}_{track_id}.tum"
 
 
 def export_tum(gtd: Path, out_dir: Path) -> list[tuple[Path, int, str, int, float]]:

@@ -11,7 +11,7 @@ from rich.console import Console
 from rich.table import Table
 
 from ._app import app, fail
-from ._common import VIEW_HELP, VIEW_SAVE_HELP, check_out_dir, check_out_file, serve_view
+from ._common import VIEW_HELP, VIEW_SAVE_HELP, check_out_dir, check_out_file, file_stem, serve_view
 
 ROBOT_HELP = ("A robot's own poses, NAME=POSES: a TUM or CSV (stamp,x,y,theta) file, a ROS bag topic BAG:TOPIC "
               "(PoseWithCovarianceStamped, PoseStamped, Odometry), or BAG:/tf:CHILD_FRAME. Once per robot.")
@@ -114,7 +114,7 @@ def grade_cmd(
 
         for g in grades:
             fig = grade_figure(site_obj, g, t0, title=f"{g.name}: belief against the ground truth")
-            path = out_dir / f"{_safe(g.name)}.png"
+            path = out_dir / f"{file_stem(g.name, 'robot')}.png"
             fig.savefig(path, dpi=110)
             plt.close(fig)
             written.append(path)
@@ -140,9 +140,3 @@ def grade_cmd(
     if view_save is not None:
         console.print(f"view recorded to {view_save}", markup=False, highlight=False)
     serve_view(shown, console)
-
-
-def _safe(name: str) -> str:
-    import re
-
-    return re.sub(r"[^A-Za-z0-9_.-]+", "-", name).strip("-.") or "robot"

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.geometry import wrap
+from ..core.geometry import relative, wrap
 from .series import interpolate, transform
 from .truth import belief_profiles
 
@@ -161,9 +161,8 @@ def _residuals(t: np.ndarray, truth: np.ndarray, belief: Belief, d: float):
     """Per row, the belief's error at offset ``d`` in the belief's own frame (ahead, left, heading·w),
     NaN where there is no belief."""
     b, ok = belief.at(t, d)
-    dx, dy = truth[:, 0] - b[:, 0], truth[:, 1] - b[:, 1]
-    c, s = np.cos(b[:, 2]), np.sin(b[:, 2])
-    r = np.stack([-(c * dx + s * dy), -(-s * dx + c * dy), wrap(b[:, 2] - truth[:, 2]) * HEADING_M_PER_RAD], -1)
+    r = -relative(b, truth)  # the truth seen from the belief, turned round: the belief's error
+    r[:, 2] *= HEADING_M_PER_RAD
     r[~ok] = np.nan
     return r
 

@@ -11,7 +11,7 @@ refined by least squares over the robot's own rows once they are associated.
 
 import numpy as np
 
-from ..core.geometry import wrap
+from ..core.geometry import compose, relative, wrap
 from .clock import CAP_M, PROFILE_SPEED, PROFILE_TURN, Belief, Rows, windowed_best
 from .series import interpolate
 from .truth import belief_profiles
@@ -32,9 +32,8 @@ def kabsch(p: np.ndarray, q: np.ndarray) -> tuple[float, float, float]:
 
 
 def _apply(frame, xy: np.ndarray) -> np.ndarray:
-    tx, ty, phi = frame
-    c, s = np.cos(phi), np.sin(phi)
-    return np.stack([c * xy[:, 0] - s * xy[:, 1] + tx, s * xy[:, 0] + c * xy[:, 1] + ty], -1)
+    """Points ``xy`` of the robot's frame in the field's, under ``frame``."""
+    return compose(np.asarray(frame, np.float64), xy)
 
 
 def ransac_frame(rows: Rows, stamps: np.ndarray, poses: np.ndarray, max_gap: float, offset: float,
@@ -82,21 +81,17 @@ def refine_frame(t: np.ndarray, truth: np.ndarray, belief: Belief, offset: float
     settle (a few iterations where the robot turned through every heading, more where it did not).
     Rows farther than the cap from the current frame's belief are left out."""
     raw, ok = belief.raw(t, offset)
-    c, s = np.cos(raw[:, 2]), np.sin(raw[:, 2])
     now = _apply(belief.frame, raw[:, :2])
     near = ok & (np.hypot(*(now - truth[:, :2]).T) < CAP_M)
     if near.sum() < 10:
         return belief.frame, (0.0, 0.0)
-    raw, c, s, q = raw[near], c[near], s[near], truth[near, :2]
+    raw, q = raw[near], truth[near, :2]
+    facing = raw * np.array([0.0, 0.0, 1.0])  # the belief's heading alone: the robot's own axes
     frame, bias = belief.frame, np.zeros(2)
     for _ in range(iterations):
-        corrected = raw[:, :2] - np.stack([c * bias[0] - s * bias[1], s * bias[0] + c * bias[1]], -1)
-        frame = kabsch(corrected, q)
-        # The residual taken back into the robot's frame (through the fitted rotation), averaged.
-        tx, ty, phi = frame
-        cp, sp = np.cos(phi), np.sin(phi)
-        back = q - np.array([tx, ty])
-        back = np.stack([cp * back[:, 0] + sp * back[:, 1], -sp * back[:, 0] + cp * back[:, 1]], -1)
-        d = raw[:, :2] - back  # the belief minus the truth, in the robot's map frame
-        bias = np.array([np.mean(c * d[:, 0] + s * d[:, 1]), np.mean(-s * d[:, 0] + c * d[:, 1])])
+        frame = kabsch(raw[:, :2] - compose(facing, bias), q)
+        # The residual taken back into the robot's map frame (through the fitted transform), then into
+        # the robot's own axes, averaged.
+        d = raw[:, :2] - relative(np.asarray(frame, np.float64), q)
+        bias = relative(facing, d).mean(axis=0)
     return frame, (float(bias[0]), float(bias[1]))

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..core.geometry import wrap
+from ..core.geometry import relative, wrap
 
 LOST_M = 0.5
 LOST_RAD = math.radians(30.0)
@@ -77,13 +77,6 @@ def ape(t: np.ndarray, belief: np.ndarray, truth: np.ndarray, var: np.ndarray) -
     return Errors(t, pos, head, band_pos, band_head, belief, truth)
 
 
-def _relative(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Pose ``b`` in the frame of pose ``a`` (rows)."""
-    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
-    dx, dy = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
-    return np.stack([c * dx + s * dy, -s * dx + c * dy, wrap(b[:, 2] - a[:, 2])], -1)
-
-
 def rpe(e: Errors, delta: float) -> dict:
     """Relative pose error over ``delta`` seconds: translation (m) and rotation (rad) statistics."""
     if e.t.size < 2:
@@ -95,9 +88,9 @@ def rpe(e: Errors, delta: float) -> dict:
     j = np.where(better, jm, j)
     ok = np.abs(e.t[j] - e.t - delta) < RPE_TOLERANCE_S
     i, j = np.flatnonzero(ok), j[ok]
-    dt = _relative(e.truth[i], e.truth[j])
-    db = _relative(e.belief[i], e.belief[j])
-    err = _relative(dt, db)
+    dt = relative(e.truth[i], e.truth[j])
+    db = relative(e.belief[i], e.belief[j])
+    err = relative(dt, db)
     return {"trans": stats(np.hypot(err[:, 0], err[:, 1])), "rot": stats(err[:, 2])}
 
 

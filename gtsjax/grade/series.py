@@ -10,7 +10,7 @@ of each other, and never outside the series' span.
 
 import numpy as np
 
-from ..core.geometry import wrap
+from ..core.geometry import compose, relative, wrap
 
 
 def interpolate(t: np.ndarray, stamps: np.ndarray, poses: np.ndarray, max_gap: float,
@@ -43,11 +43,10 @@ def interpolate(t: np.ndarray, stamps: np.ndarray, poses: np.ndarray, max_gap: f
 
 def transform(poses: np.ndarray, frame: tuple[float, float, float]) -> np.ndarray:
     """Poses mapped by the planar transform ``frame = (tx, ty, φ)``: ``p ↦ R(φ) p + t``, ``θ ↦ θ + φ``
-    (wrapped)."""
-    tx, ty, phi = frame
-    c, s = np.cos(phi), np.sin(phi)
-    x, y = poses[..., 0], poses[..., 1]
-    return np.stack([c * x - s * y + tx, s * x + c * y + ty, wrap(poses[..., 2] + phi)], -1)
+    (wrapped): :func:`~gtsjax.core.geometry.compose` with the heading wrapped."""
+    out = compose(np.asarray(frame, np.float64), np.asarray(poses))
+    out[..., 2] = wrap(out[..., 2])
+    return out
 
 
 def mirror_frame(centre: tuple[float, float]) -> tuple[float, float, float]:
@@ -58,7 +57,6 @@ def mirror_frame(centre: tuple[float, float]) -> tuple[float, float, float]:
 
 
 def invert(frame: tuple[float, float, float]) -> tuple[float, float, float]:
-    """The inverse of :func:`transform`'s ``frame``."""
-    tx, ty, phi = frame
-    c, s = np.cos(phi), np.sin(phi)
-    return (float(-(c * tx + s * ty)), float(s * tx - c * ty), float(-phi))
+    """The inverse of :func:`transform`'s ``frame``: the field's origin seen from the frame."""
+    inv = relative(np.asarray(frame, np.float64), np.zeros(3))
+    return (float(inv[0]), float(inv[1]), float(-frame[2]))

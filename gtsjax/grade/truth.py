@@ -62,25 +62,19 @@ def from_rows(rows: list[TrackRow], classes: set[str] | None = None) -> GroundTr
 
 def profiles(gt: GroundTruth) -> tuple[np.ndarray, np.ndarray]:
     """Each row's track speed (m/s) and turn rate (rad/s) over :data:`PROFILE_S` centred on the row
-    (NaN where the track does not cover the whole baseline)."""
+    (NaN where the track does not cover the whole baseline): :func:`belief_profiles` of each track."""
     speed = np.full(gt.n, np.nan)
     turn = np.full(gt.n, np.nan)
-    h = PROFILE_S / 2.0
     for k in range(gt.ids.size):
         idx = gt.track_rows(k)
-        t, p = gt.stamps[idx], gt.poses[idx]
-        a, ok_a = interpolate(t - h, t, p, TRACK_GAP_S)
-        b, ok_b = interpolate(t + h, t, p, TRACK_GAP_S)
-        ok = ok_a & ok_b
-        speed[idx[ok]] = np.hypot(*(b[ok, :2] - a[ok, :2]).T) / PROFILE_S
-        turn[idx[ok]] = wrap(b[ok, 2] - a[ok, 2]) / PROFILE_S
+        t = gt.stamps[idx]
+        speed[idx], turn[idx] = belief_profiles(t, t, gt.poses[idx], TRACK_GAP_S)
     return speed, turn
 
 
 def belief_profiles(t: np.ndarray, stamps: np.ndarray, poses: np.ndarray, max_gap: float
                     ) -> tuple[np.ndarray, np.ndarray]:
-    """A belief's speed and turn rate at times ``t`` (its own clock), as :func:`profiles` takes a
-    track's."""
+    """A series' speed and turn rate at times ``t`` (a belief's on its own clock, a track's at its rows)."""
     h = PROFILE_S / 2.0
     a, ok_a = interpolate(t - h, stamps, poses, max_gap)
     b, ok_b = interpolate(t + h, stamps, poses, max_gap)
