@@ -132,12 +132,16 @@ def _vectorised(models, upd, state, scans: Scan, lanes, n_real, percepts, sub: i
 
 class Filtered(NamedTuple):
     """The track table's filtered state after a scan, for the smoother (:mod:`gtsjax.core.smooth`,
-    :mod:`gtsjax.drivers.smoothing`): each slot's mean and covariance, and which of its heading
-    hypotheses the state's heading is."""
+    :mod:`gtsjax.drivers.smoothing`): each slot's mean and covariance, which of its heading
+    hypotheses the state's heading is, and the hypotheses themselves (headings, variances and
+    log-weights, normalised with the rest's; -inf: unused), for re-deciding the side over a track's life."""
 
     mean: Float[Array, "tracks 6"]
     cov: Float[Array, "tracks 6 6"]
     main: Int[Array, " tracks"]
+    side_heading: "Float[Array, 'tracks sides'] | None" = None
+    side_var: "Float[Array, 'tracks sides'] | None" = None
+    side_logw: "Float[Array, 'tracks sides'] | None" = None
 
 
 def _with_filtered(upd):
@@ -146,7 +150,7 @@ def _with_filtered(upd):
     def f(s, p, sc, lane):
         new, out = upd(s, p, sc, lane)
         t = new.tracker
-        return new, (out, Filtered(t.mean, t.cov, t.main))
+        return new, (out, Filtered(t.mean, t.cov, t.main, t.side_heading, t.side_var, t.side_logw))
 
     return f
 
