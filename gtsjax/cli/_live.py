@@ -88,12 +88,13 @@ def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Pa
                confirm_scans: int | None = None, sensor: str | None = None, max_tracks: int | None = None,
                out_bag: Path | None = None, rerun_view: str | None = None, view_save: Path | None = None,
                keep_warm: bool = True, reconnect_timeout: float | None = None, csv_units: bool = False,
-               beliefs=None):
+               beliefs=None, smooth_lag: float | None = None):
     """Open the sensor, run the live loop, show the view (the terminal's table; with ``rerun_view`` or
     ``view_save``, Rerun's: :mod:`gtsjax.viewer`); returns (live stats, link stats, the model run).
     ``beliefs``: a bound :class:`~gtsjax.io.beliefs_udp.BeliefListener` (``--beliefs``): each track
     named with its robot (:class:`~gtsjax.grade.online.OnlineIdentity`), the per-robot report in
-    the stats' ``beliefs``; the caller stops it."""
+    the stats' ``beliefs``; the caller stops it. ``smooth_lag``: also the fixed-lag smoothed CSV
+    beside ``out`` (:mod:`gtsjax.drivers.fixed_lag`), each row this many seconds late."""
     from ..drivers.live import Outputs, run_live, warm_up
     from ..drivers.setup import check_sensor, load
     from ..io.serial import Link
@@ -105,7 +106,8 @@ def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Pa
     check_ports([port])  # before seconds of loading and compiling
     model = load(model_path, site_obj, where=str(site), confirm_scans=confirm_scans, max_tracks=max_tracks)
     # Compile before the sensor streams, when the model names a known scanner (else after connecting).
-    compiled = warm_up(model, MODELS[model.sensor_model]) if model.sensor_model in MODELS else None
+    filtered = smooth_lag is not None
+    compiled = warm_up(model, MODELS[model.sensor_model], filtered) if model.sensor_model in MODELS else None
     from ._common import open_view
 
     shown = open_view(model, rerun_view, view_save, console)
@@ -130,19 +132,26 @@ def track_live(port: str, model_path: Path, site: Path, out: Path, *, record: Pa
                                  duration=duration, on_scan=on_scan, with_intensity=intensity,
                                  compiled=compiled, max_frames=frames, out_bag=out_bag, view=shown,
                                  keep_warm=keep_warm, reconnect_timeout=reconnect_timeout, sensor_checked=True,
-                                 identity=identity)
+                                 identity=identity, smooth_lag=smooth_lag)
             if not console.is_terminal:  # rich ends the last view with a newline only on a terminal
                 console.line()
         else:
             stats = run_live(link, model, out, record=record, outputs=Outputs(json_lines, udp, csv_units), duration=duration,
                              with_intensity=intensity, compiled=compiled, max_frames=frames, out_bag=out_bag,
                              view=shown, keep_warm=keep_warm, reconnect_timeout=reconnect_timeout,
-                             sensor_checked=True, identity=identity)
+                             sensor_checked=True, identity=identity, smooth_lag=smooth_lag)
     finally:
         link.stop()
     if identity is not None:
         stats.beliefs = beliefs_report(beliefs, identity)
     return stats, link.stats, model
+
+
+def smoothing_line(lag) -> str:
+    """The end-of-run line of ``--smooth-lag`` (:class:`~gtsjax.drivers.fixed_lag.LagStats`)."""
+    med, p99 = lag.quantiles()
+    return (f"smoothed, {lag.lag} scans late: {lag.rows} rows -> {lag.path}; added per scan median {med:.2f} ms, "
+            f"p99 {p99:.2f} ms")
 
 
 def start_identity(beliefs):
@@ -191,12 +200,13 @@ def track_live_several(lasers: "dict[str, str]", model_paths: "list[Path]", site
                        intensity: bool, view: bool, confirm_scans: int | None, summary: Path | None,
                        console: Console | None = None, max_tracks: int | None = None, keep_warm: bool = True,
                        csv_units: bool = False, reconnect_timeout: float | None = None, out_bag: Path | None = None,
-                       rerun_view: str | None = None, view_save: Path | None = None, beliefs=None):
+                       rerun_view: str | None = None, view_save: Path | None = None, beliefs=None,
+                       smooth_lag: float | None = None):
     """``run --port NAME=PORT ...``: every laser's link, one track table (see
     :mod:`gtsjax.drivers.live_several`); per-laser status when it stops, and in ``summary``. One
     model for every laser, or one per scanner model (each laser gets the one for the scanner the
     site names for it). ``out_bag``, ``rerun_view``, ``view_save``: the bag and Rerun's view, each
-    laser's scans under its name. ``beliefs``: as :func:`track_live`'s."""
+    laser's scans under its name. ``beliefs``, ``smooth_lag``: as :func:`track_live`'s."""
     import dataclasses
     import json
 
@@ -216,7 +226,8 @@ def track_live_several(lasers: "dict[str, str]", model_paths: "list[Path]", site
     models, kinds = models_for_lasers(load_for_lasers(model_paths, site_obj, str(site), confirm_scans=confirm_scans,
                                                       max_tracks=max_tracks), site_obj, names)
     poses = site_poses(site_obj, names)
-    compiled = (warm_up_several(models, tuple(MODELS[m.sensor_model] for m in models), poses, kinds)
+    compiled = (warm_up_several(models, tuple(MODELS[m.sensor_model] for m in models), poses, kinds,
+                                filtered=smooth_lag is not None)
                 if all(m.sensor_model in MODELS for m in models) else None)
     shown = open_view(models[0], rerun_view, view_save, console)
     identity = start_identity(beliefs)
@@ -248,7 +259,7 @@ def track_live_several(lasers: "dict[str, str]", model_paths: "list[Path]", site
                 links, models, poses, out, record=record_paths, kinds=kinds, outputs=Outputs(json_lines, udp, csv_units),
                 duration=duration, on_scan=on_scan, with_intensity=intensity, compiled=compiled, max_frames=frames,
                 warn=warn, keep_warm=keep_warm, reconnect_timeout=reconnect_timeout, out_bag=out_bag, view=shown,
-                identity=identity)
+                identity=identity, smooth_lag=smooth_lag)
         finally:
             if live is not None:
                 live.stop()
@@ -260,9 +271,12 @@ def track_live_several(lasers: "dict[str, str]", model_paths: "list[Path]", site
     med, p99 = stats.latency()
     console.print(f"{stats.frames} frames, {stats.rows} rows -> {out}; latency median {med:.2f} ms, p99 {p99:.2f} ms; "
                   f"{out_of_order} frames out of stamp order")
+    if stats.smoothing is not None:
+        console.print(smoothing_line(stats.smoothing), soft_wrap=True)
     doc = {"frames": stats.frames, "rows": stats.rows, "latency_ms_median": med, "latency_ms_p99": p99,
            "late": stats.late, "stale": stats.stale, "out_of_order": out_of_order,
-           "tracks": {c: len(ids) for c, ids in sorted(stats.track_ids.items())}, "lasers": {}}
+           "tracks": {c: len(ids) for c, ids in sorted(stats.track_ids.items())}, "lasers": {},
+           **({"smoothing": stats.smoothing.as_dict()} if stats.smoothing is not None else {})}
     for n in names:
         ls, p = links[n].stats, per[n]
         lat = np.asarray(p.latencies_ms) if p.latencies_ms else np.asarray([np.nan])

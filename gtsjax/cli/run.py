@@ -19,7 +19,7 @@ from ._common import (
     print_warnings,
     track_summary,
 )
-from ._live import print_beliefs, track_live
+from ._live import print_beliefs, smoothing_line, track_live
 
 
 @app.command("run")
@@ -61,6 +61,12 @@ def run_cmd(
                                             "\"stamp\", \"x\", \"y\", \"theta\"}) and name each track with its "
                                             "robot: a robot column in the CSV, the table and the view "
                                             "(docs/live-beliefs.md)."),
+    smooth_lag: str | None = typer.Option(None, "--smooth-lag", metavar="SECONDS",
+                                          help="Also write a fixed-lag smoothed CSV beside --out, "
+                                               "<stem>-smoothed.csv (gtd.csv: gtd-smoothed.csv): the same rows in "
+                                               "the same format, each written SECONDS late (in scans, at least one) "
+                                               "with its pose smoothed over the scans up to then; the rows still "
+                                               "held are written when the run stops (docs/smoothing.md)."),
     keep_warm: bool = typer.Option(True, "--keep-warm/--no-keep-warm",
                                    help="Shortly before each frame is due, run the step once on the last frame and "
                                         "throw the result away, so the frame finds it in the caches (lower latency "
@@ -71,10 +77,15 @@ def run_cmd(
         from ..drivers.live import udp_address
 
         udp_address(udp)
+    lag = smoothed = None
+    if smooth_lag is not None:
+        from ..drivers.fixed_lag import smoothed_path
+
+        lag, smoothed = _lag_seconds(smooth_lag), smoothed_path(out)
     distinct_paths({"--site": site, "--model": models},
                    {"--out": out, "--record": record, "--out-bag": out_bag, "--view-save": view_save,
-                    "--summary": summary})
-    for path, option in ((out, "--out"), (record, "--record"), (summary, "--summary")):
+                    "--summary": summary, "the --smooth-lag CSV": smoothed})
+    for path, option in ((out, "--out"), (record, "--record"), (summary, "--summary"), (smoothed, "--smooth-lag")):
         if path is not None:
             check_out_file(path, option)
     if out_bag is not None:
@@ -91,7 +102,8 @@ def run_cmd(
         _run(port, lasers, models, site, out, record=record, json_lines=json_lines, udp=udp, duration=duration,
              frames=frames, intensity=intensity, quiet=quiet, confirm_scans=confirm_scans, max_tracks=max_tracks,
              out_bag=out_bag, view=view, view_save=view_save, csv_units=csv_units, summary=summary,
-             reconnect_timeout=reconnect_timeout, keep_warm=keep_warm, sensor=sensor, beliefs=listener)
+             reconnect_timeout=reconnect_timeout, keep_warm=keep_warm, sensor=sensor, beliefs=listener,
+             smooth_lag=lag)
     finally:
         if listener is not None:
             listener.stop()
@@ -99,7 +111,7 @@ def run_cmd(
 
 def _run(port, lasers, models, site, out, *, record, json_lines, udp, duration, frames, intensity, quiet,
          confirm_scans, max_tracks, out_bag, view, view_save, csv_units, summary, reconnect_timeout, keep_warm,
-         sensor, beliefs) -> None:
+         sensor, beliefs, smooth_lag) -> None:
     """``run`` after its options are checked: one laser or several, then the summary."""
     if lasers is not None:
         from ._live import track_live_several
@@ -108,20 +120,23 @@ def _run(port, lasers, models, site, out, *, record, json_lines, udp, duration, 
                            duration=duration, frames=frames, intensity=intensity, view=not quiet,
                            confirm_scans=confirm_scans, summary=summary, max_tracks=max_tracks, keep_warm=keep_warm,
                            csv_units=csv_units, reconnect_timeout=reconnect_timeout, out_bag=out_bag,
-                           rerun_view=view, view_save=view_save, beliefs=beliefs)
+                           rerun_view=view, view_save=view_save, beliefs=beliefs, smooth_lag=smooth_lag)
         return
     port, model = port[0], one_model(models)
     stats, link_stats, loaded = track_live(port, model, site, out, record=record, json_lines=json_lines, udp=udp,
                                    duration=duration, frames=frames, intensity=intensity, view=not quiet,
                                    confirm_scans=confirm_scans, sensor=sensor, max_tracks=max_tracks,
                                    out_bag=out_bag, rerun_view=view, view_save=view_save, keep_warm=keep_warm,
-                                   reconnect_timeout=reconnect_timeout, csv_units=csv_units, beliefs=beliefs)
+                                   reconnect_timeout=reconnect_timeout, csv_units=csv_units, beliefs=beliefs,
+                                   smooth_lag=smooth_lag)
     med, p99 = stats.latency()
     Console(stderr=True).print(
         f"{stats.frames} frames, {stats.rows} rows -> {out}; latency median {med:.2f} ms, p99 {p99:.2f} ms; "
         f"link: {link_stats.bad_frames} bad frames, {link_stats.salvaged} salvaged, {link_stats.dropped} dropped, "
         f"{link_stats.reconnects} reconnects"
         + (f"; raw scans -> {record}" if record else ""))
+    if stats.smoothing is not None:
+        Console(stderr=True).print(smoothing_line(stats.smoothing), soft_wrap=True)
     print_beliefs(Console(stderr=True), stats.beliefs)
     if summary is not None:
         from ..drivers.live import summary_json
@@ -201,3 +216,16 @@ def _laser_ports(ports: list[str], site: Path, sensor: str | None) -> "dict[str,
     if len(lasers) != len(named):
         raise InputError("--port", "a laser named twice")
     return lasers
+
+
+def _lag_seconds(text: str) -> float:
+    """``--smooth-lag``'s value: seconds, a finite number above 0 (one line, exit 2, otherwise)."""
+    import math
+
+    try:
+        seconds = float(text)
+    except ValueError:
+        seconds = math.nan
+    if not math.isfinite(seconds) or seconds <= 0:
+        raise InputError("--smooth-lag", f"{text!r}: the lag is a number of seconds above 0 (0.5 for half a second)")
+    return seconds

@@ -63,6 +63,9 @@ class LiveStats:
     tally: object = None
     # ``run --beliefs``: per robot, what its beliefs came to (:func:`gtsjax.cli._live.beliefs_report`).
     beliefs: dict | None = None
+    # ``run --smooth-lag``: the smoothed CSV's counters and the time it added per scan
+    # (:class:`~gtsjax.drivers.fixed_lag.LagStats`); None without it.
+    smoothing: object = None
 
     def add_latency(self, ms: float) -> None:
         self.latencies_ms.append(ms)
@@ -154,12 +157,18 @@ class LiveStep:
     :meth:`pipeline_state`); the output stays on the device until :meth:`output` unpacks it;
     ``packed`` is :func:`pack_tracks`'s array, what the GTD rows need."""
 
-    def __init__(self, model: Model, sensor: SensorModel, *, state0=None, core=None, extras: int = 0):
+    def __init__(self, model: Model, sensor: SensorModel, *, state0=None, core=None, extras: int = 0,
+                 filtered: bool = False):
         """``core(state, scan, extra) -> (state, output)``: the pipeline's step (by default ``step``
         from :func:`~gtsjax.core.pipeline.init_state`'s state, or ``state0``), ``extra`` the
         ``extras`` float32 values a call passes after ``dt`` (the several-laser step's laser index and
-        time span, :mod:`gtsjax.drivers.live_several`)."""
-        self.model, self.sensor, self.extras = model, sensor, extras
+        time span, :mod:`gtsjax.drivers.live_several`). ``filtered``: ``packed`` also carries the
+        track table's filtered state after the scan, columns after :func:`pack_tracks`'s
+        (:func:`~gtsjax.drivers.fixed_lag.pack_filtered`; zeros in the status row), for the
+        fixed-lag smoother (``run --smooth-lag``): in the same transfer as the rows."""
+        from .fixed_lag import pack_filtered
+
+        self.model, self.sensor, self.extras, self.filtered = model, sensor, extras, filtered
         angle_min = jnp.asarray(sensor.angle_min, jnp.float32)
         angle_increment = jnp.asarray(sensor.angle_increment, jnp.float32)
         state0 = init_state(model) if state0 is None else state0
@@ -180,7 +189,11 @@ class LiveStep:
         @jax.jit
         def live_step(state, frame):
             new, o = run(self.state_layout.unpack(state), frame)
-            return self.state_layout.pack(new), self.output_layout.pack(o), pack_tracks(o)
+            packed = pack_tracks(o)
+            if filtered:
+                block = pack_filtered(new.tracker)
+                packed = jnp.concatenate([packed, jnp.pad(block, ((0, 1), (0, 0)))], axis=1)
+            return self.state_layout.pack(new), self.output_layout.pack(o), packed
 
         self.jitted = live_step
         self._state0 = self.state_layout.pack(state0)
@@ -319,10 +332,10 @@ class Outputs:
             self.sock.close()
 
 
-def warm_up(model: Model, sensor: SensorModel):
+def warm_up(model: Model, sensor: SensorModel, filtered: bool = False):
     """The live step for ``model`` on ``sensor``'s frames, compiled before the first real frame so
-    that the first latency is not a compile; and the initial state."""
-    live_step = LiveStep(model, sensor)
+    that the first latency is not a compile; and the initial state. ``filtered``: see :class:`LiveStep`."""
+    live_step = LiveStep(model, sensor, filtered=filtered)
     state = live_step.initial_state()
     jax.block_until_ready(live_step(state, np.zeros(sensor.n_beams, np.float32), None, 0.0))
     return live_step, state
@@ -374,7 +387,8 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
              duration: float | None = None, stop: threading.Event | None = None, on_scan=None,
              with_intensity: bool = False, compiled=None, max_frames: int | None = None,
              out_bag: Path | None = None, view=None, keep_warm: bool = True,
-             reconnect_timeout: float | None = None, sensor_checked: bool = False, identity=None) -> LiveStats:
+             reconnect_timeout: float | None = None, sensor_checked: bool = False, identity=None,
+             smooth_lag: float | None = None, smoothed_out: Path | None = None) -> LiveStats:
     """Track from a started :class:`~gtsjax.io.serial.Link` until ``duration`` seconds, ``max_frames``
     frames processed, ``stop`` set, or Ctrl-C; then stop the link (QT) and finalise the recording.
     ``on_scan(stats, output, stamp)`` is called after each scan (the live view; ``output`` is the
@@ -389,6 +403,10 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
     (:func:`~gtsjax.drivers.setup.check_sensor`), which is otherwise done here first.
     ``identity``: the robots' names from their beliefs (``run --beliefs``,
     :class:`~gtsjax.grade.online.OnlineIdentity`): the CSV's ``robot`` column.
+    ``smooth_lag``: also the fixed-lag smoothed CSV (:mod:`gtsjax.drivers.fixed_lag`), each row this
+    many seconds late (in scans of the sensor's rate, at least one), at ``smoothed_out`` (by default
+    :func:`~gtsjax.drivers.fixed_lag.smoothed_path` of ``out``); ``compiled`` must then be
+    :func:`warm_up`'s with ``filtered``.
 
     ``keep_warm``: a few milliseconds before each frame is due (the last one's arrival plus the
     sensor's period), if it has not come, the step runs once on the last frame and its result is
@@ -405,11 +423,18 @@ def run_live(link, model: Model, out: Path, *, record: Path | None = None, outpu
     sensor = link.model
     if not sensor_checked:
         check_sensor(model, sensor, str(getattr(link, "port", "sensor")), intensity=with_intensity)
-    live_step, state = compiled if compiled is not None else warm_up(model, sensor)
+    live_step, state = compiled if compiled is not None else warm_up(model, sensor, filtered=smooth_lag is not None)
+    smooth = None
+    if smooth_lag is not None:
+        from .fixed_lag import lag_scans, smoothed_path
+
+        if not live_step.filtered:
+            raise ValueError("run_live with smooth_lag needs warm_up(..., filtered=True)'s step")
+        smooth = (lag_scans(smooth_lag, sensor.rate_hz), smoothed_out or smoothed_path(out))
     session = LiveSession({LASER: link}, model, out, named=False, record={LASER: record} if record else None,
                           outputs=outputs, with_intensity=with_intensity, out_bag=out_bag, view=view, on_scan=on_scan,
                           keep_warm=keep_warm, duration=duration, stop=stop, max_frames=max_frames,
-                          identity=identity)
+                          identity=identity, smooth=smooth)
     stats, recorder = session.stats, session.recorders[0]
     frames = OneLink(link, live_step, stats, session.warm, reconnect_timeout)
     failed = run_loop(session, frames, state)
@@ -430,7 +455,9 @@ def summary_json(stats: LiveStats, link_stats) -> str:
     binned), late and degraded scans, tracks per class, the link's counters by cause (its
     ``frames``, the frames it delivered, as ``received``: ``frames`` is those processed), and the
     run's ``diagnosis`` (:mod:`gtsjax.drivers.diagnose`); with ``--beliefs``, ``beliefs``: per robot,
-    poses received, malformed lines, the share of its time named on a track."""
+    poses received, malformed lines, the share of its time named on a track; with ``--smooth-lag``,
+    ``smoothing``: the lag in scans, the smoothed CSV, its rows and the time the smoothing added per
+    scan (median, p99, ms)."""
     med, p99 = stats.latency()
     link = dataclasses.asdict(link_stats)
     link["received"] = link.pop("frames")
@@ -442,4 +469,5 @@ def summary_json(stats: LiveStats, link_stats) -> str:
                        "off_envelope": stats.off_envelope, "warm_ups": stats.warm_ups,
                        "tracks": {c: len(ids) for c, ids in sorted(stats.track_ids.items())},
                        **link, "diagnosis": stats.tally.finish() if stats.tally is not None else None,
-                       **({"beliefs": stats.beliefs} if stats.beliefs is not None else {})})
+                       **({"beliefs": stats.beliefs} if stats.beliefs is not None else {}),
+                       **({"smoothing": stats.smoothing.as_dict()} if stats.smoothing is not None else {})})

@@ -18,12 +18,13 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..io.gtd import STATUS_AT
+from ..io.gtd import PACKED, STATUS_AT
 from .live import LiveStats, Outputs, decoder_sample, rows_from_packed, warm_host, warm_up_lead
 from .sink import Sink
 
 # Where the packed table's status row (its last) holds what the loop reads.
 DEGRADED, UNLIKE, OFF_ENVELOPE = (STATUS_AT[f] for f in ("degraded", "unlike", "off_envelope"))
+N_PACKED = len(PACKED)  # the rows' columns; with ``run --smooth-lag`` the filtered states follow
 
 
 class Frames:
@@ -104,6 +105,7 @@ class LiveSession:
         duration: float | None,
         stop,
         max_frames: int | None,
+        smooth: "tuple[int, Path] | None" = None,
     ):
         from ..io.bag_out import BagOut, LaserGeometry
         from ..io.record import Recorder
@@ -111,10 +113,17 @@ class LiveSession:
         names = list(links)
         self.links = [links[n] for n in names]
         self.outputs = outputs or Outputs()
+        self.lag = None
+        if smooth is not None:  # its smoother compiled before the stale frames are let go
+            from .fixed_lag import FixedLag
+
+            self.lag = FixedLag(model.tracker, smooth[0], model.max_tracks, smooth[1],
+                                units=self.outputs.csv_units, robot=identity is not None)
         bag = BagOut(out_bag, {n: LaserGeometry.of_sensor(links[n].model) for n in names}) if out_bag is not None else None
         self.sink = Sink(model, out, names=tuple(names) if named else None, bag=bag, view=view,
                          csv_units=self.outputs.csv_units, identity=identity)
-        self.stats = LiveStats(tally=self.sink.tally, track_ids=self.sink.track_ids)
+        self.stats = LiveStats(tally=self.sink.tally, track_ids=self.sink.track_ids,
+                               smoothing=None if self.lag is None else self.lag.stats)
         for link in self.links:  # frames that queued up while compiling are stale
             while link.get(timeout=0) is not None:
                 self.stats.stale += 1
@@ -155,9 +164,13 @@ class LiveSession:
         for link in self.links:
             if hasattr(link, "stop"):
                 link.stop()
-        self.sink.close()
-        for rec in self.all_recorders:
-            rec.close(write_log=failed is None)
+        try:
+            if self.lag is not None:  # the scans still in the smoother's window written
+                self.lag.close()
+        finally:
+            self.sink.close()
+            for rec in self.all_recorders:
+                rec.close(write_log=failed is None)
 
 
 def run_loop(session: LiveSession, frames: Frames, state) -> InputError | None:
@@ -169,7 +182,7 @@ def run_loop(session: LiveSession, frames: Frames, state) -> InputError | None:
     stats, classes, tags, period_ms = session.stats, session.classes, session.tags, session.period_ms
     send, warm, on_scan = session.outputs.send, session.warm, session.on_scan
     stop, t_end, max_frames = session.stop, session.t_end, session.max_frames
-    sink = session.sink
+    sink, lag = session.sink, session.lag
     label = sink.label  # None without --beliefs: the frame's path is then as it was
     unpack = frames.needs_output or sink.wants_output or on_scan is not None
     failed = None
@@ -187,7 +200,11 @@ def run_loop(session: LiveSession, frames: Frames, state) -> InputError | None:
             lf, k, step, args = got
             t_step = time.perf_counter()
             state, o, packed = step(state, lf.ranges_m, lf.intensities, *args)
-            table = np.asarray(packed).tolist()  # the rest of the frame's path is plain Python
+            if lag is None:
+                table = np.asarray(packed).tolist()  # the rest of the frame's path is plain Python
+            else:  # the filtered states came in the same transfer, columns after the rows'
+                packed = np.asarray(packed)
+                table = packed[:, :N_PACKED].tolist()
             rows = rows_from_packed(lf.stamp, table, classes)
             if label is not None:
                 rows = label(rows)
@@ -198,6 +215,8 @@ def run_loop(session: LiveSession, frames: Frames, state) -> InputError | None:
             lat = (t_done - lf.recv_perf) * 1000.0
             if warm is not None:
                 warm.ran(k, lf, table, t_step, t_done)
+            if lag is not None:  # the scan L before, smoothed: after the latency is taken
+                lag.push(packed, rows, args[0])
             # Bookkeeping after the latency is taken: the recording, the bag and the view are not on the path.
             o = session.emit(k, lf, step, o, rows, lat, unpack)
             stats.count(rows, lat, degraded, period_ms[k])

@@ -74,30 +74,31 @@ CALIBRATION_WARN_M = 0.05
 CALIBRATION_WARN_S = 1.0
 
 
-def make_several_step(model: Model, sensor: SensorModel, state0, period: float | None = None) -> LiveStep:
+def make_several_step(model: Model, sensor: SensorModel, state0, period: float | None = None,
+                      filtered: bool = False) -> LiveStep:
     """``f(state, ranges_m, intensities, dt, k, span_dt) -> (state, output, packed)``: the live step
     (:class:`~gtsjax.drivers.live.LiveStep`: model closed over, frame, state and output as a few
     buffers) of :func:`~gtsjax.core.multi.step_several` from ``state0``'s layout; ``k`` is the
     laser. ``period``: the clock misses are counted on, with lasers of different rates
-    (:func:`~gtsjax.core.multi.miss_period`)."""
+    (:func:`~gtsjax.core.multi.miss_period`). ``filtered``: see :class:`~gtsjax.drivers.live.LiveStep`."""
     def core(state, scan, extra):
         return step_several(model, state, scan, extra[0].astype(jnp.int32), extra[1], period)
 
-    return LiveStep(model, sensor, state0=state0, core=core, extras=2)
+    return LiveStep(model, sensor, state0=state0, core=core, extras=2, filtered=filtered)
 
 
 def warm_up_several(model: "Model | tuple[Model, ...]", sensor: "SensorModel | tuple[SensorModel, ...]",
-                    poses: np.ndarray, kinds: "tuple[int, ...] | None" = None):
+                    poses: np.ndarray, kinds: "tuple[int, ...] | None" = None, filtered: bool = False):
     """The steps, compiled before the lasers stream, and the initial state (each laser at its rough
     pose guess ``poses``, ``[lasers, 3]``; packed, one layout for every step): one step per model of
     ``model`` (every laser's, or one per scanner model, ``kinds`` each laser's index into them), for
-    ``sensor``'s frames (one per model)."""
+    ``sensor``'s frames (one per model). ``filtered``: see :class:`~gtsjax.drivers.live.LiveStep`."""
     models = model if isinstance(model, tuple) else (model,)
     sensors = sensor if isinstance(sensor, tuple) else (sensor,)
     state0 = init_several(models, jnp.asarray(poses, jnp.float32), kinds)
     steps = []
     for m, sen in zip(models, sensors, strict=True):
-        f = make_several_step(m, sen, state0, miss_period(models))
+        f = make_several_step(m, sen, state0, miss_period(models), filtered)
         jax.block_until_ready(f(f.initial_state(), np.zeros(sen.n_beams, np.float32), None, 0.0, 0, 0.0))
         steps.append(f)
     return tuple(steps), steps[0].initial_state()
@@ -212,7 +213,7 @@ def run_live_several(links: "dict[str, object]", model: "Model | tuple[Model, ..
                      compiled=None, max_frames: int | None = None, hold_s: float | None = None, warn=None,
                      kinds: "tuple[int, ...] | None" = None, keep_warm: bool = True,
                      reconnect_timeout: float | None = None, out_bag: Path | None = None, view=None,
-                     identity=None):
+                     identity=None, smooth_lag: float | None = None, smoothed_out: Path | None = None):
     """Track from started links (one per laser, ``poses`` their rough pose guesses in the same order)
     until ``duration``, ``max_frames`` frames (all lasers together), ``stop`` or Ctrl-C. ``model``:
     every laser's, or one per scanner model with ``kinds`` (each laser's index into them; see
@@ -231,6 +232,8 @@ def run_live_several(links: "dict[str, object]", model: "Model | tuple[Model, ..
     (:mod:`gtsjax.io.bag_out`); ``view``: a :class:`~gtsjax.viewer.View` shown each frame, each
     laser's under its name (closed at the end); both written after the frame's latency is taken.
     ``identity``: as :func:`~gtsjax.drivers.live.run_live`'s, the robots' names from their beliefs.
+    ``smooth_lag``, ``smoothed_out``: as :func:`~gtsjax.drivers.live.run_live`'s, the lag in scans of
+    the merged sequence (the lasers' rates summed: every laser's scan is one step of the one track table).
 
     The loop is :func:`~gtsjax.drivers.live_loop.run_loop`'s, with the lasers' merged frames
     (:class:`MergedFrames`)."""
@@ -242,11 +245,18 @@ def run_live_several(links: "dict[str, object]", model: "Model | tuple[Model, ..
         check_sensor(models[i], sen, f"{n} ({getattr(links[n], 'port', 'sensor')})", intensity=with_intensity)
     first_of = [kinds.index(i) for i in range(len(models))]  # a laser of each model: its frames' geometry
     steps, state = compiled if compiled is not None else warm_up_several(
-        models, tuple(sensors[k] for k in first_of), poses, kinds)
+        models, tuple(sensors[k] for k in first_of), poses, kinds, filtered=smooth_lag is not None)
+    smooth = None
+    if smooth_lag is not None:
+        from .fixed_lag import lag_scans, smoothed_path
+
+        if not all(f.filtered for f in steps):
+            raise ValueError("run_live_several with smooth_lag needs warm_up_several(..., filtered=True)'s steps")
+        smooth = (lag_scans(smooth_lag, sum(s.rate_hz for s in sensors)), smoothed_out or smoothed_path(out))
     session = LiveSession(links, models[0], out, named=True, record=record, outputs=outputs,
                           with_intensity=with_intensity, out_bag=out_bag, view=view, on_scan=on_scan,
                           keep_warm=keep_warm, duration=duration, stop=stop, max_frames=max_frames,
-                          identity=identity)
+                          identity=identity, smooth=smooth)
     hold = hold_s if hold_s is not None else 1.5 * max(s.period for s in sensors)
     frames = MergedFrames(links, [steps[i] for i in kinds], session.period_ms, session.warm, hold=hold,
                           reconnect_timeout=reconnect_timeout, warn=warn)
