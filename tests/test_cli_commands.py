@@ -647,6 +647,16 @@ EXIT_2 = {
         "a_folder.npz",
         "is a directory",
     ),
+    "tags, out-dir under a file": (
+        ["tags", "--robots", "3", "--perimeter", "0.8", "--range", "6", "--out-dir", "{d}/log.npz/tags"],
+        "log.npz",
+        "is a file, not a folder",
+    ),
+    "tags, a range beyond the scanner's": (
+        ["tags", "--robots", "3", "--perimeter", "0.8", "--range", "60", "--out-dir", "{o}/tags"],
+        "--range",
+        "at most the UTM-30LX's",
+    ),
     "export-tum, out-dir under a file": (
         ["export-tum", "{d}/gtd_rows.csv", "--out-dir", "{d}/log.npz/tum"],
         "log.npz",

@@ -19,6 +19,7 @@ from . import plot as _plot  # noqa: E402,F401
 from . import replay as _replay  # noqa: E402,F401
 from . import run as _run  # noqa: E402,F401
 from . import simulate as _simulate  # noqa: E402,F401
+from . import tags as _tags  # noqa: E402,F401
 from . import train as _train  # noqa: E402,F401
 from ._app import app as app  # the Typer application, for those who extend it
 from ._app import command, set_quiet
