@@ -20,6 +20,7 @@ from gtsjax.core.smooth import smooth_tracks
 from gtsjax.drivers.batch import process_log
 from gtsjax.drivers.fixed_lag import FixedLag, lag_scans, pack_filtered, smoothed_path
 from gtsjax.drivers.live import pack_tracks, rows_from_packed
+from gtsjax.drivers.several import site_poses
 from gtsjax.drivers.smoothing import cuts, resets
 from gtsjax.io import save_site
 from gtsjax.io.gtd import COLUMN, PACKED, TrackRow, read_gtd
@@ -28,6 +29,7 @@ from gtsjax.io.modelfile import load_model
 from gtsjax.sensors import URG_04LX
 from gtsjax.sim import simulate
 from gtsjax.sim.emulator import SensorEmulator, log_source
+from tests.test_several import _Frame, _Link, match  # noqa: F401  (the fixture: two lasers on the match's field)
 from tests.test_smooth import _filter, _params, _rts_numpy, _simulate
 
 
@@ -85,6 +87,8 @@ def test_rows_equal_a_numpy_rts_loop_over_the_scans_up_to_t_plus_lag(lag):
         assert len(rows_out.scans) == max(0, t + 1 - lag)  # the row of t − L, once t is in
     lagger.close()
     assert [s[0].stamp for s in rows_out.scans] == [float(t) for t in range(T)]
+    moved = max(abs(s[0].x - m[t, 0]) for t, s in enumerate(rows_out.scans[:-1]))
+    assert moved > 1e-3  # the rows are smoothed, not the filtered states passed through
     m32, P32 = m.astype(np.float32).astype(np.float64), P.astype(np.float32).astype(np.float64)
     for t, scan in enumerate(rows_out.scans):
         end = min(t + lag, T - 1) + 1
@@ -217,3 +221,31 @@ def test_a_bad_lag_is_one_line_and_exit_2(value, tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "--smooth-lag" in err[0], err
     assert not (tmp_path / "gtd.csv").exists() and not (tmp_path / "gtd-smoothed.csv").exists()
+
+
+def test_several_lasers_smoothed_rows_are_the_live_rows_late(match, tmp_path):  # noqa: F811
+    """Two lasers' frames merged into one track table (``run_live_several``), 10 Hz each: the lag counts
+    the merged scans (0.3 s: 6), and the smoothed CSV holds every live row, smoothed near it."""
+    from gtsjax.drivers.live_several import run_live_several, warm_up_several
+
+    logs, site, model = match
+    poses = site_poses(site, ["north", "south"])
+    compiled = warm_up_several(model, URG_04LX, poses, filtered=True)
+    n = 30
+    t0, wall0 = time.monotonic() + 0.05, time.time() + 0.05
+    links = {}
+    for name in ("north", "south"):
+        log = logs[name]
+        since = log.stamps[:n] - logs["north"].stamps[0]
+        frames = [_Frame(np.where(log.valid()[i], log.ranges[i], 0.0).astype(np.float32), wall0 + since[i])
+                  for i in range(n)]
+        links[name] = _Link(URG_04LX, frames, [t0 + t for t in since])
+    out = tmp_path / "gtd.csv"
+    stats, _, _ = run_live_several(links, model, poses, out, compiled=compiled, max_frames=2 * n, duration=30.0,
+                                   smooth_lag=0.3)
+    assert stats.frames == 2 * n and stats.smoothing.lag == 6
+    live, smoothed = read_gtd(out), read_gtd(tmp_path / "gtd-smoothed.csv")
+    assert len(live) > 20 and stats.smoothing.rows == len(live)
+    assert [(r.stamp, r.track_id, r.cls) for r in smoothed] == [(r.stamp, r.track_id, r.cls) for r in live]
+    moved = np.array([np.hypot(a.x - b.x, a.y - b.y) for a, b in zip(live, smoothed, strict=True)])
+    assert moved.max() < 0.05 and moved.max() > 0, moved.max()
