@@ -139,7 +139,8 @@ class FixedLag:
         self.smoother = WindowSmoother(params, lag + 1, tracks, parallel)
         self.window = np.zeros(self.smoother.shape, np.float32)
         self.dt = np.zeros(lag + 1, np.float32)
-        self.pending: deque = deque()  # the scans not yet written: (rows, slot of each row)
+        self.pending: deque = deque()  # the scans not yet written: (scan, rows, slot of each row's track id)
+        self.newest = -1  # the window's newest scan, counted from the first
         self.prev = None  # the last scan's (live, ids, heading, cov, main), for its successor's cut and widening
         self.stats = LagStats(lag, None if out is None else Path(out))
         self.writer = writer if writer is not None else GTDWriter(out, units=units, robot=robot)
@@ -168,12 +169,14 @@ class FixedLag:
         w[-1, :, :FILTERED_WIDTH] = filt
         w[-1, :, _LIVE], w[-1, :, _CUT], w[-1, :, _EXTRA] = live, cut, extra
         self.dt[-1] = dt
-        reported = table[:, _REP] > 0.5
-        self.pending.append((rows, dict(zip(ids[reported].tolist(), np.flatnonzero(reported).tolist(), strict=True))))
+        self.newest = self.stats.scans  # the window's newest scan, counted from the first
         self.stats.scans += 1
+        reported = table[:, _REP] > 0.5
+        self.pending.append((self.newest, rows,
+                             dict(zip(ids[reported].tolist(), np.flatnonzero(reported).tolist(), strict=True))))
         if len(self.pending) > self.lag:
             smoothed = self.smoother(w, self.dt)
-            self._write(smoothed, 0, *self.pending.popleft())
+            self._write(smoothed, *self.pending.popleft())
         self.stats.ms.append((time.perf_counter() - t0) * 1e3)
 
     def flush(self) -> None:
@@ -182,10 +185,8 @@ class FixedLag:
         if not self.pending:
             return
         smoothed = self.smoother(self.window, self.dt)
-        first = self.lag + 1 - len(self.pending)
         while self.pending:
-            self._write(smoothed, first, *self.pending.popleft())
-            first += 1
+            self._write(smoothed, *self.pending.popleft())
 
     def close(self) -> None:
         """The window flushed and the CSV closed (safe to call twice; closed even if the flush fails)."""
@@ -194,9 +195,11 @@ class FixedLag:
         finally:
             self.writer.close()
 
-    def _write(self, smoothed: np.ndarray, i: int, rows: "list[TrackRow]", slot_of: dict) -> None:
-        """Scan ``i`` of the window's rows with its slots' smoothed values, written and flushed."""
-        if not rows:
+    def _write(self, smoothed: np.ndarray, scan: int, rows: "list[TrackRow]", slot_of: dict) -> None:
+        """Scan ``scan``'s rows (counted from the first) with its slots' smoothed values in the window,
+        written and flushed."""
+        i = self.lag - (self.newest - scan)  # its place in the window, the newest scan last
+        if not rows or not 0 <= i <= self.lag:
             return
         s = smoothed[i].tolist()
         out = []
