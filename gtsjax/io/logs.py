@@ -259,11 +259,14 @@ def _check_intensities(d: dict[str, np.ndarray], ranges: np.ndarray, bad: Callab
 
 def _check_truth(d: dict[str, np.ndarray], t: int, bad: Callable[[str], NoReturn]) -> None:
     """The labels (optional, together or not at all): classes a 1-D string array, poses ``[T, M, 3]``
-    float with an object's row either whole or all NaN (absent)."""
+    float with an object's row either whole or all NaN (absent); the optional ``truth_names`` (the
+    simulator's, for robots wearing tags) one string per object."""
     has_cls, has_poses = "truth_classes" in d, "truth_poses" in d
     if has_cls != has_poses:
         bad("'truth_classes' and 'truth_poses' must come together")
     if not has_poses:
+        if "truth_names" in d:
+            bad("'truth_names' names labelled objects: it needs 'truth_classes' and 'truth_poses'")
         return
     cls = np.asarray(d["truth_classes"])
     if cls.ndim != 1 or cls.dtype.kind != "U":
@@ -281,6 +284,11 @@ def _check_truth(d: dict[str, np.ndarray], t: int, bad: Callable[[str], NoReturn
         bad(f"'truth_poses' row for object {j} at scan {i} is partly NaN (absent objects need an all-NaN row)")
     if np.isinf(poses).any():
         bad("'truth_poses' has an infinite value")
+    if "truth_names" in d:  # optional (kept in ``ScanLog.extra``): which robot each labelled object is
+        names = np.asarray(d["truth_names"])
+        if names.shape != (m,) or names.dtype.kind != "U":
+            bad(f"'truth_names' must be a string array of shape [{m}] (one name per labelled object), got "
+                f"{names.dtype} of shape {list(names.shape)}")
 
 
 # ------------------------------------------------------------------ a log against a model's scanner geometry

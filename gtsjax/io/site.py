@@ -6,6 +6,12 @@ Several lasers on one field extend the format with an optional ``sensors`` list,
 scanner). A site with ``sensors`` may leave out the top-level ``sensor_pose``; it is then written as
 the first sensor's, so that a program that knows one sensor still reads the file. A site without
 ``sensors`` is one sensor, named ``laser``, at ``sensor_pose``, exactly as before.
+
+Robots wearing reflective tags (``docs/tags.md``) add an optional ``tags`` entry: ``{"cells": N,
+"perimeter_m": P, "range_m": R (optional: the range the cells were sized for), "robots": [{"name",
+"code", "offset_cells"}]}``, each code a string of ``1`` (tape) and ``0`` (body), cell 0 first, as in
+``gtsjax tags``'s ``tags.json``; ``offset_cells`` (optional, 0) how many cells the band is turned as
+mounted. ``gtsjax simulate`` writes it for scenes whose robots wear tags.
 """
 
 import dataclasses
@@ -36,6 +42,40 @@ class SiteSensor:
     model: str | None = None
 
 
+@dataclasses.dataclass(frozen=True)
+class TagWearer:
+    """One robot's band: its name, its code (``1`` tape, ``0`` body, cell 0 first) and how many cells
+    the band is turned as mounted (its cell 0 over the outline's cell ``offset_cells``)."""
+
+    name: str
+    code: str
+    offset_cells: int = 0
+
+    @property
+    def bits(self) -> np.ndarray:
+        return np.array([c == "1" for c in self.code], bool)
+
+
+@dataclasses.dataclass(frozen=True)
+class SiteTags:
+    """The reflective tags a site's robots wear: bands of ``cells`` cells around an outline of
+    ``perimeter_m``, sized for ``range_m`` (``None``: not said), one per robot."""
+
+    cells: int
+    perimeter_m: float
+    robots: tuple[TagWearer, ...]
+    range_m: float | None = None
+
+    def to_json(self) -> dict:
+        return {"cells": self.cells, "perimeter_m": self.perimeter_m,
+                **({"range_m": self.range_m} if self.range_m is not None else {}),
+                "robots": [{"name": w.name, "code": w.code, "offset_cells": w.offset_cells} for w in self.robots]}
+
+    def code_of(self, name: str) -> np.ndarray | None:
+        """The named robot's code as a bool array, ``None`` for a robot without one."""
+        return next((w.bits for w in self.robots if w.name == name), None)
+
+
 #: The name of a site's only sensor when the file has no ``sensors`` list.
 DEFAULT_SENSOR = "laser"
 
@@ -50,6 +90,7 @@ class Site:
     bounds: tuple[float, float, float, float] | None = None
     extra: dict = dataclasses.field(default_factory=dict, compare=False)
     sensors: tuple[SiteSensor, ...] = ()
+    tags: SiteTags | None = None
 
     @property
     def sensor_list(self) -> tuple[SiteSensor, ...]:
@@ -86,6 +127,8 @@ class Site:
         if self.sensors:
             out["sensors"] = [{"name": sen.name, "sensor_pose": list(sen.pose),
                                **({"model": sen.model} if sen.model is not None else {})} for sen in self.sensors]
+        if self.tags is not None:
+            out["tags"] = self.tags.to_json()
         return out
 
     def validate(self, where: object = "site") -> "Site":
@@ -139,13 +182,19 @@ def parse_site(doc: object, where: object = "site") -> Site:
     assert isinstance(doc, dict)
     landmarks = tuple(Landmark(str(lm["class"]), float(lm["x"]), float(lm["y"])) for lm in doc["landmarks"])
     bounds = tuple(float(v) for v in doc["bounds"]) if doc.get("bounds") is not None else None
-    extra = {k: v for k, v in doc.items() if k not in ("landmarks", "sensor_pose", "bounds", "sensors")}
+    extra = {k: v for k, v in doc.items() if k not in ("landmarks", "sensor_pose", "bounds", "sensors", "tags")}
     sensors = tuple(SiteSensor(str(sen["name"]), tuple(float(v) for v in sen["sensor_pose"]),  # type: ignore[arg-type]
                                None if sen.get("model") is None else str(sen["model"]))
                     for sen in doc.get("sensors") or ())
     pose = doc.get("sensor_pose")
     pose = tuple(float(v) for v in pose) if pose is not None else sensors[0].pose
-    return Site(landmarks, pose, bounds, extra, sensors)  # type: ignore[arg-type]
+    tags = None
+    if (t := doc.get("tags")) is not None:
+        tags = SiteTags(int(t["cells"]), float(t["perimeter_m"]),
+                        tuple(TagWearer(str(w["name"]), str(w["code"]), int(w.get("offset_cells") or 0))
+                              for w in t["robots"]),
+                        None if t.get("range_m") is None else float(t["range_m"]))
+    return Site(landmarks, pose, bounds, extra, sensors, tags)  # type: ignore[arg-type]
 
 
 # Coordinates (and the heading) of a site beyond this are a mistake (a unit, an exponent), not a field:
@@ -207,6 +256,8 @@ def _check(doc: object, where: object) -> None:
         _check_pose(bad, doc["sensor_pose"], "'sensor_pose'")
     if doc.get("sensors") is not None:
         _check_sensors(bad, doc["sensors"])
+    if doc.get("tags") is not None:
+        _check_tags(bad, doc["tags"])
     if doc.get("bounds") is not None:
         b = doc["bounds"]
         if not (isinstance(b, list) and len(b) == 4 and all(_is_num(v) for v in b)):
@@ -245,3 +296,41 @@ def _check_sensors(bad, sensors) -> None:
 
             if model not in MODELS:
                 bad(f"sensor {name!r}: unknown scanner model {model!r} (known: {', '.join(sorted(MODELS))})")
+
+
+def _is_int(v: object) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _check_tags(bad, tags) -> None:
+    shape = '{"cells", "perimeter_m", "robots": [{"name", "code", "offset_cells"}]}'
+    if not isinstance(tags, dict):
+        bad(f"'tags' must be an object {shape}")
+    for k in ("cells", "perimeter_m", "robots"):
+        if k not in tags:
+            bad(f"'tags' is missing '{k}' ({shape})")
+    n = tags["cells"]
+    if not _is_int(n) or not 2 <= n <= 64:
+        bad(f"'tags': 'cells' must be a whole number from 2 to 64, got {n!r}")
+    for k in ("perimeter_m", "range_m"):
+        v = tags.get(k)
+        if (k == "perimeter_m" or v is not None) and not (_is_num(v) and 0 < v <= MAX_COORD):
+            bad(f"'tags': '{k}' must be a positive number of metres, got {v!r}")
+    robots = tags["robots"]
+    if not isinstance(robots, list) or not robots:
+        bad("'tags': 'robots' must be a non-empty list of {\"name\", \"code\", \"offset_cells\"} objects")
+    names = set()
+    for i, w in enumerate(robots):
+        if not isinstance(w, dict) or "name" not in w or "code" not in w:
+            bad(f"'tags': robot {i} must be an object with 'name' and 'code'")
+        name, code, off = w["name"], w["code"], w.get("offset_cells", 0)
+        if not isinstance(name, str) or not name:
+            bad(f"'tags': robot {i}: 'name' must be a non-empty string")
+        if name in names:
+            bad(f"'tags': robot {i}: the name {name!r} is used twice")
+        names.add(name)
+        if not (isinstance(code, str) and len(code) == n and set(code) <= {"0", "1"}):
+            bad(f"'tags': robot {name!r}: 'code' must be a string of {n} '0' (body) and '1' (tape), cell 0 first, "
+                f"got {code!r}")
+        if off is not None and not (_is_int(off) and 0 <= off < n):
+            bad(f"'tags': robot {name!r}: 'offset_cells' must be a whole number from 0 to {n - 1}, got {off!r}")
