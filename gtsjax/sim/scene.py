@@ -6,6 +6,10 @@ circles with a position per scan). :func:`render` casts a sensor model's beams f
 per scan and returns ranges as the sensor reports them: nearest hit, stretched by a tilted scan
 plane, with the model's range noise and 1 mm quantisation, dropouts, grazing-angle misses, 0 for no
 return; and intensities from reflectivity, incidence and range where the model reports them.
+
+Robots may wear reflective tags (issue 43, ``docs/tags.md``): :func:`tagged_shape` cuts an outline's
+edges at the cells of a band of retro-reflective tape, each piece of a tape cell as bright as
+:data:`TAPE_REFLECTIVITY` and falling off less with incidence than paint does.
 """
 
 import dataclasses
@@ -47,6 +51,14 @@ OUTLINES: dict[str, tuple[np.ndarray, np.ndarray]] = {
 """The robot outlines the simulator renders, by name: vertices (counter-clockwise, body frame) and
 reflectivity per edge."""
 
+#: Reflectivity of retro-reflective tape seen square on: 5× the Nao's front (0.5), 5.6× its sides
+#: (0.45), the render's ``6000 · reflectivity · falloff(incidence) / √range`` in the same units.
+TAPE_REFLECTIVITY = 2.5
+#: Tape's incidence falloff is ``cos^TAPE_INCIDENCE_EXP`` where paint's is ``cos^0.5``: retro-reflective
+#: glass beads send the beam back towards the laser over a wide cone of incidences, so a tape cell seen
+#: at 60° keeps 87 % of its square-on return where paint keeps 71 %.
+TAPE_INCIDENCE_EXP = 0.2
+
 
 @dataclasses.dataclass(frozen=True)
 class Circle:
@@ -60,6 +72,7 @@ class Circle:
 class Polygon:
     vertices: np.ndarray  # [V, 2] counter-clockwise, in O (static) or in the body frame (moving)
     reflectivity: np.ndarray  # [V] per edge (edge i joins vertex i and i+1)
+    retro: np.ndarray | None = None  # [V] bool per edge: retro-reflective tape (None: none)
 
 
 @dataclasses.dataclass
@@ -95,6 +108,46 @@ def robot_shape(outline: str = "nao") -> Polygon:
     return Polygon(vertices, reflectivity)
 
 
+def outline_perimeter(outline: "str | Polygon") -> float:
+    """The length of a robot's outline (its band's length), metres."""
+    v = (robot_shape(outline) if isinstance(outline, str) else outline).vertices
+    return float(np.linalg.norm(np.roll(v, -1, axis=0) - v, axis=1).sum())
+
+
+def tagged_shape(outline: "str | Polygon", code, offset_cells: int = 0) -> Polygon:
+    """The outline wearing a band of ``N = len(code)`` cells (``docs/tags.md``): the band wraps the
+    outline, its length the perimeter ``P``, cell ``k`` spanning arc lengths ``[k·P/N, (k+1)·P/N)``
+    from the first vertex (the front right corner of the shipped outlines), counter-clockwise (the
+    vertices' order). Each edge is cut at the cell boundaries that fall inside it (collinear extra
+    vertices, none where a boundary meets a vertex); a piece in a tape cell (``code[k]`` True) has
+    reflectivity :data:`TAPE_REFLECTIVITY` and is marked ``retro``, the others keep their edge's.
+    ``offset_cells``: a band mounted turned, its cell 0 over the outline's cell ``offset_cells``."""
+    base = robot_shape(outline) if isinstance(outline, str) else outline
+    code = np.asarray(code, bool)
+    n = code.shape[0]
+    if code.ndim != 1 or n < 1:
+        raise InputError("tag code", f"must be a 1-D array of cells, got shape {list(code.shape)}")
+    v = np.asarray(base.vertices, np.float64)
+    nxt = np.roll(v, -1, axis=0)
+    seg = np.linalg.norm(nxt - v, axis=1)
+    start = np.concatenate([[0.0], np.cumsum(seg)[:-1]])
+    perim = float(seg.sum())
+    cell = perim / n
+    tape = np.roll(code, offset_cells)  # tape[k]: the outline's cell k has tape
+    body_retro = np.zeros(len(v), bool) if base.retro is None else np.asarray(base.retro, bool)
+    verts, refl, retro = [], [], []
+    eps = 1e-9 * perim
+    for i in range(len(v)):
+        cuts = [start[i]] + [k * cell for k in range(1, n) if start[i] + eps < k * cell < start[i] + seg[i] - eps]
+        ends = cuts[1:] + [start[i] + seg[i]]
+        for a, b in zip(cuts, ends, strict=True):
+            verts.append(v[i] + (a - start[i]) / seg[i] * (nxt[i] - v[i]) if a != start[i] else v[i])
+            k = min(n - 1, int((a + b) / 2 // cell))
+            refl.append(TAPE_REFLECTIVITY if tape[k] else float(base.reflectivity[i]))
+            retro.append(bool(tape[k]) or bool(body_retro[i]))
+    return Polygon(np.asarray(verts, np.float64), np.asarray(refl, np.float64), np.asarray(retro, bool))
+
+
 def box(x0, y0, x1, y1, reflectivity=0.6) -> Polygon:
     v = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], dtype=np.float64)
     return Polygon(v, np.full(4, reflectivity))
@@ -108,8 +161,9 @@ def walls(x0, y0, x1, y1, reflectivity=0.5) -> list[Polygon]:
 
 
 def _segments(scene: Scene, sl: slice, t: int):
-    """All segments for scans ``sl`` as arrays ``[T, S]`` (x0, y0, x1, y1) and reflectivity ``[S]``."""
-    xs, refl = [], []
+    """All segments for scans ``sl`` as arrays ``[T, S]`` (x0, y0, x1, y1), reflectivity ``[S]`` and
+    whether each is retro-reflective tape ``[S]``."""
+    xs, refl, retro = [], [], []
     for poly in scene.polygons:
         v = poly.vertices
         n = len(v)
@@ -122,14 +176,20 @@ def _segments(scene: Scene, sl: slice, t: int):
             r = poly.reflectivity
         xs.append(e)
         refl.append(r)
+        retro.append(_retro(poly)[: len(r)])
     for mv in scene.movers:
         xs.append(list(polygon_edges(mv.shape.vertices, mv.poses[sl])))
         refl.append(mv.shape.reflectivity)
+        retro.append(_retro(mv.shape))
     if not xs:
         z = np.zeros((t, 0))
-        return (z, z, z, z), np.zeros(0)
+        return (z, z, z, z), np.zeros(0), np.zeros(0, bool)
     cat = [np.concatenate([e[i] for e in xs], axis=1) for i in range(4)]
-    return cat, np.concatenate(refl)
+    return cat, np.concatenate(refl), np.concatenate(retro)
+
+
+def _retro(poly: Polygon) -> np.ndarray:
+    return np.zeros(len(poly.reflectivity), bool) if poly.retro is None else np.asarray(poly.retro, bool)
 
 
 def _circles(scene: Scene, sl: slice, t: int):
@@ -147,7 +207,32 @@ def cast(scene: Scene, model: SensorModel, sensor_poses: np.ndarray, tilt: np.nd
          sl: slice | None = None):
     """Noise-free geometry for scans ``sl``: true range ``[T, N]`` (inf for no hit), cosine of the
     incidence angle and the reflectivity of what each beam hit."""
+    return _cast(scene, model, sensor_poses, tilt, sl)[:3]
+
+
+#: Elements of the ``[scans, beams, segments]`` arrays one ray cast holds at a time (≈ 64 MB of
+#: float64 each): a chunk of scans is cast in parts of at most this many, the same numbers either way.
+_CAST_ELEMENTS = 1 << 23
+
+
+def _cast(scene: Scene, model: SensorModel, sensor_poses: np.ndarray, tilt: np.ndarray | None = None,
+          sl: slice | None = None):
+    """:func:`cast`, and whether each beam hit retro-reflective tape; scans cast in parts of at most
+    :data:`_CAST_ELEMENTS` beam-segment pairs (every scan's numbers are its own)."""
     sl = slice(None) if sl is None else sl
+    start, stop, _ = sl.indices(sensor_poses.shape[0])
+    per_scan = model.n_beams * max(1, len(scene.circles) + len(scene.moving_circles)
+                                   + sum(len(p.vertices) for p in scene.polygons)
+                                   + sum(len(m.shape.vertices) for m in scene.movers))
+    step = max(1, _CAST_ELEMENTS // per_scan)
+    if sl.step not in (None, 1) or stop - start <= step:
+        return _cast_part(scene, model, sensor_poses, tilt, sl)
+    parts = [_cast_part(scene, model, sensor_poses, tilt, slice(a, min(a + step, stop)))
+             for a in range(start, stop, step)]
+    return tuple(np.concatenate([p[i] for p in parts]) for i in range(4))
+
+
+def _cast_part(scene: Scene, model: SensorModel, sensor_poses: np.ndarray, tilt: np.ndarray | None, sl: slice):
     poses = sensor_poses[sl]
     t = poses.shape[0]
     tilt = np.zeros((t, 2)) if tilt is None else tilt[sl]
@@ -156,6 +241,7 @@ def cast(scene: Scene, model: SensorModel, sensor_poses: np.ndarray, tilt: np.nd
     best = np.full(dx.shape, np.inf)
     cos_inc = np.zeros(dx.shape)
     refl = np.zeros(dx.shape)
+    retro = np.zeros(dx.shape, bool)
     cx, cy, cr, crefl = _circles(scene, sl, t)
     if cr.size:
         tc, cc = ray_circles(ox, oy, dx, dy, cx, cy, cr)
@@ -165,7 +251,7 @@ def cast(scene: Scene, model: SensorModel, sensor_poses: np.ndarray, tilt: np.nd
         best = np.where(upd, tmin, best)
         cos_inc = np.where(upd, np.take_along_axis(cc, i[..., None], -1)[..., 0], cos_inc)
         refl = np.where(upd, crefl[i], refl)
-    (x0, y0, x1, y1), srefl = _segments(scene, sl, t)
+    (x0, y0, x1, y1), srefl, sretro = _segments(scene, sl, t)
     if srefl.size:
         ts, cs = ray_segments(ox, oy, dx, dy, x0, y0, x1, y1)
         ts = np.where(np.isnan(ts), np.inf, ts)
@@ -175,7 +261,8 @@ def cast(scene: Scene, model: SensorModel, sensor_poses: np.ndarray, tilt: np.nd
         best = np.where(upd, tmin, best)
         cos_inc = np.where(upd, np.take_along_axis(cs, i[..., None], -1)[..., 0], cos_inc)
         refl = np.where(upd, srefl[i], refl)
-    return best * stretch, cos_inc, refl
+        retro = np.where(upd, sretro[i], retro)
+    return best * stretch, cos_inc, refl, retro
 
 
 @dataclasses.dataclass(frozen=True)
@@ -197,7 +284,7 @@ def render(scene: Scene, model: SensorModel, sensor_poses: np.ndarray, *, tilt: 
     inten = np.zeros((t_total, model.n_beams), np.float32) if model.has_intensity else None
     for start in range(0, t_total, chunk):
         sl = slice(start, min(start + chunk, t_total))
-        r, cos_inc, refl = cast(scene, model, sensor_poses, tilt, sl)
+        r, cos_inc, refl, retro = _cast(scene, model, sensor_poses, tilt, sl)
         hit = np.isfinite(r)
         r = np.where(hit, r, 0.0)
         if effects.noise:
@@ -209,7 +296,10 @@ def render(scene: Scene, model: SensorModel, sensor_poses: np.ndarray, *, tilt: 
         hit &= (r >= model.range_min) & (r <= model.range_max)
         ranges[sl] = np.where(hit, r, 0.0)
         if inten is not None:
-            i = 6000.0 * refl * np.sqrt(np.clip(cos_inc, 0, 1)) / np.sqrt(np.maximum(r, 0.5))
+            falloff = np.sqrt(np.clip(cos_inc, 0, 1))
+            if retro.any():  # tape: a flatter falloff with incidence; every other hit's numbers as before
+                falloff = np.where(retro, np.clip(cos_inc, 0, 1) ** TAPE_INCIDENCE_EXP, falloff)
+            i = 6000.0 * refl * falloff / np.sqrt(np.maximum(r, 0.5))
             if effects.noise:
                 i = i * (1 + effects.intensity_noise * rng.standard_normal(i.shape))
             inten[sl] = np.where(hit, np.maximum(i, 0.0), 0.0)
