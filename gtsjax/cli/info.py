@@ -57,6 +57,13 @@ def info(
                 x, y, th = site.sensor_pose
                 console.print(f"  sensor pose guess: x={x:.3f} m  y={y:.3f} m  θ={np.degrees(th):.1f}°"
                               f"   bounds: {site.bounds if site.bounds is not None else 'none'}")
+            if site.tags is not None:
+                t = site.tags
+                sized = f", sized for {t.range_m:g} m" if t.range_m is not None else ""
+                console.print(escape(f"  tags: {len(t.robots)} robots, bands of {t.cells} cells, {t.perimeter_m:.3f} m"
+                                     f"{sized}: " + ", ".join(f"{w.name} {w.code}" + (f" (turned {w.offset_cells})"
+                                                                                     if w.offset_cells else "")
+                                                              for w in t.robots)), soft_wrap=True)
         elif _is_gtd(path):
             for line in describe_gtd(path):
                 console.print(escape(line))

@@ -23,6 +23,9 @@ def simulate_cmd(
     robots: int = typer.Option(10, "--robots", min=1, max=14, help="spl-match-*: robots on the field."),
     seconds: float = typer.Option(60.0, "--seconds", min=0.1, help="spl-match-*: how long."),
     referee: bool = typer.Option(True, "--referee/--no-referee", help="spl-match-*: a referee walking about."),
+    tags: bool | None = typer.Option(None, "--tags/--no-tags", help="Robots wearing reflective tags, one code "
+                                     "each, recorded in the site's 'tags' (default: where a scanner reports "
+                                     "intensity, the UTM-30LX; --no-tags renders them bare, as before)."),
     beliefs: Path | None = typer.Option(None, "--beliefs", help="Also write each robot's simulated self-localisation "
                                         "to this folder (NAME.csv, and put-in.json: what was put in), for gtsjax grade."),
     list_: bool = typer.Option(False, "--list", help="List the scenarios and exit."),
@@ -53,7 +56,8 @@ def simulate_cmd(
         check_out_dir(beliefs, "--beliefs")
     t0 = time.perf_counter()
     if is_match(scenario):
-        logs, site_obj = simulate_match(scenario, seed=seed, n_robots=robots, seconds=seconds, referee=referee)
+        logs, site_obj = simulate_match(scenario, seed=seed, n_robots=robots, seconds=seconds, referee=referee,
+                                        tags=tags)
         paths = [out.with_name(f"{out.stem}-{name}{out.suffix or '.npz'}") for name in logs]
         distinct_paths({}, {**{f"--out (laser {name})": p for name, p in zip(logs, paths, strict=True)}, "--site": site})
         for path in paths:
@@ -67,17 +71,22 @@ def simulate_cmd(
             kinds.setdefault((log.n_scans, log.sensor_model), []).append(log)
         each = " and ".join(f"{len(v)} × {n} scans ({sm})" for (n, sm), v in kinds.items())
         Console(stderr=True).print(
-            f"{scenario}: {len(logs)} lasers, {each}, {robots} robots, "
+            f"{scenario}: {len(logs)} lasers, {each}, {robots} robots{_tags_note(site_obj)}, "
             f"{seconds:g} s in {time.perf_counter() - t0:.1f} s -> {', '.join(map(str, paths))}, {site}")
         return
-    log, site_obj = simulate(scenario, seed=seed, n_scans=scans, sensor=sensor)
+    log, site_obj = simulate(scenario, seed=seed, n_scans=scans, sensor=sensor, tags=tags)
     save_log(log, out)
     save_site(site_obj, site)
     _write_beliefs(beliefs, [log], site_obj, seed)
     Console(stderr=True).print(
         f"{scenario}: {log.n_scans} scans × {log.n_beams} beams ({log.sensor_model}, "
-        f"{log.n_scans * (log.stamps[1] - log.stamps[0]) if log.n_scans > 1 else 0:.1f} s) "
+        f"{log.n_scans * (log.stamps[1] - log.stamps[0]) if log.n_scans > 1 else 0:.1f} s){_tags_note(site_obj)} "
         f"in {time.perf_counter() - t0:.1f} s -> {out}, {site}")
+
+
+def _tags_note(site_obj) -> str:
+    t = site_obj.tags
+    return "" if t is None else f", tagged ({len(t.robots)} codes of {t.cells} cells)"
 
 
 def _write_beliefs(folder: Path | None, logs: list, site_obj, seed: int) -> None:

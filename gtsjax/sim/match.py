@@ -15,6 +15,11 @@ Scenario names: ``spl-match-N`` (N lasers, URG-04LX), ``spl-match-N-utm`` (UTM-3
 ``spl-match-N-mixed`` (the first laser and every other one a URG-04LX, the rest UTM-30LX: two
 scanner models on one field, each served by its own trained model); options: the number of robots,
 seconds, a referee or not.
+
+Where a laser reports intensity (``-utm``, ``-mixed``) the robots wear reflective tags by default
+(:mod:`gtsjax.sim.tagging`; in a mixed match on the robots whatever the laser, the URG-04LX simply
+reporting no intensity), their cells sized for the farthest field corner from a UTM-30LX; the site
+says who wears which code (``tags``) and every log each robot's name (``truth_names``).
 """
 
 import dataclasses
@@ -29,6 +34,7 @@ from ..io.site import Landmark, Site, SiteSensor
 from ..sensors import URG_04LX, UTM_30LX, SensorModel
 from .scenarios import T0, lissajous, path_poses, walking_legs
 from .scene import Circle, Mover, MovingCircle, Scene, box, render, robot_shape, walls
+from .tagging import robot_tags, wants_tags
 
 FIELD = (0.0, 0.0, 9.0, 6.0)
 GOAL_POSTS = [("post", 0.0, 2.2, 0.05), ("post", 0.0, 3.8, 0.05), ("post", 9.0, 2.2, 0.05), ("post", 9.0, 3.8, 0.05)]
@@ -113,13 +119,18 @@ def plan_match(n_lasers: int, sensor: "SensorModel | list[SensorModel]", n_robot
     return Match(lasers, sensors, dt, np.stack(robots, 1), legs, scan_rows)
 
 
-def render_match(match: Match, seed: int = 0) -> tuple[dict[str, ScanLog], Site]:
+def render_match(match: Match, seed: int = 0, tags: bool | None = None) -> tuple[dict[str, ScanLog], Site]:
     """One labelled log per laser (its scans at its own times: laser ``k`` on the fine grid's rows
     ``match.rows[k]``: ``k, k + K, …`` for lasers of one scanner model) and the site with every laser
-    in its ``sensors`` list."""
+    in its ``sensors`` list; the robots wearing tags where ``tags`` says
+    (:func:`~gtsjax.sim.tagging.wants_tags`: by default where a laser reports intensity)."""
     st = _scene_statics()
+    n_robots = match.robots.shape[1]
+    worn = (robot_tags(n_robots, "nao", [(pose[:2], m) for (_, pose), m in zip(match.lasers, match.sensors, strict=True)],
+                       FIELD) if wants_tags(tags, match.sensors) else None)
     scene = Scene(circles=list(st.circles), polygons=list(st.polygons),
-                  movers=[Mover(robot_shape(), match.robots[:, m]) for m in range(match.robots.shape[1])],
+                  movers=[Mover(robot_shape() if worn is None else worn.shape(m), match.robots[:, m])
+                          for m in range(n_robots)],
                   moving_circles=[MovingCircle(0.06, leg) for leg in match.legs])
     logs, sensors = {}, []
     guess_rng = np.random.default_rng([seed, 2])
@@ -138,12 +149,14 @@ def render_match(match: Match, seed: int = 0) -> tuple[dict[str, ScanLog], Site]
             angle_increment=m.angle_increment, intensities=inten, range_min=m.range_min, range_max=m.range_max,
             sensor_model=m.name, truth_classes=np.array(["robot"] * match.robots.shape[1]),
             truth_poses=match.robots[rows].astype(np.float64),
-            extra={"truth_sensor_pose": fine_poses[rows].astype(np.float64)})
+            extra={"truth_sensor_pose": fine_poses[rows].astype(np.float64),
+                   **({"truth_names": np.asarray(worn.names, np.str_)} if worn is not None else {})})
         sx, sy, sth = pose
         guess = (float(sx + guess_rng.normal(0, 0.03)), float(sy + guess_rng.normal(0, 0.03)),
                  float(sth + guess_rng.normal(0, math.radians(1.5))))
         sensors.append(SiteSensor(name, guess, m.name))
-    site = Site(tuple(Landmark(c, x, y) for c, x, y, _ in LANDMARKS), sensors[0].pose, FIELD, {}, tuple(sensors))
+    site = Site(tuple(Landmark(c, x, y) for c, x, y, _ in LANDMARKS), sensors[0].pose, FIELD, {}, tuple(sensors),
+                None if worn is None else worn.site_entry())
     return logs, site
 
 
@@ -155,9 +168,9 @@ def is_match(name: str) -> bool:
 
 
 def simulate_match(name: str, *, seed: int = 0, n_robots: int = 10, seconds: float = 60.0,
-                   referee: bool = True) -> tuple[dict[str, ScanLog], Site]:
+                   referee: bool = True, tags: bool | None = None) -> tuple[dict[str, ScanLog], Site]:
     """``spl-match-N[-utm|-mixed]``: N lasers (1, 2 or 4), URG-04LX, UTM-30LX or both (alternating:
-    the first a URG-04LX), ``n_robots`` walking."""
+    the first a URG-04LX), ``n_robots`` walking; ``tags`` as :func:`render_match`."""
     m = MATCH_NAME.match(name)
     if m is None:
         raise InputError(name, "not a match scenario (spl-match-N, spl-match-N-utm or spl-match-N-mixed, N = 1, 2, 4)")
@@ -166,4 +179,4 @@ def simulate_match(name: str, *, seed: int = 0, n_robots: int = 10, seconds: flo
     sensor = ([URG_04LX if k % 2 == 0 else UTM_30LX for k in range(n)] if kind == "-mixed"
               else UTM_30LX if kind == "-utm" else URG_04LX)
     match = plan_match(n, sensor, n_robots=n_robots, seconds=seconds, referee=referee, seed=seed)
-    return render_match(match, seed=seed)
+    return render_match(match, seed=seed, tags=tags)

@@ -10,6 +10,10 @@ every labelled object's pose over time; :func:`simulate` renders it into a :clas
 held, the old grid, walking, carried in view), of either robot outline (the Nao or a box), at any
 scan rate, with clutter at the field's edge if asked; :func:`check_scene` the held-out scenes to check
 the model trained on it. Both render through :func:`render_plan`, as :func:`simulate` does.
+
+Where the scanner reports intensity (a UTM-30LX) the robots wear reflective tags by default
+(:mod:`gtsjax.sim.tagging`): the site records who wears which code (its ``tags`` entry) and the log
+each labelled object's name (``truth_names``); ``tags=False`` renders them bare, as before.
 """
 
 import dataclasses
@@ -24,6 +28,7 @@ from ..io.logs import ScanLog
 from ..io.site import Landmark, Site
 from ..sensors import URG_04LX, UTM_30LX, SensorModel, get_model
 from .scene import Circle, Effects, Mover, MovingCircle, Polygon, Scene, box, render, robot_shape, walls
+from .tagging import RobotTags, robot_tags, wants_tags
 
 T0 = 1_700_000_000.0  # stamps start here (epoch seconds: they need float64, as real logs do)
 
@@ -702,26 +707,34 @@ def plan_scenario(name: str, *, seed: int = 0, n_scans: int | None = None) -> Pl
     return plan
 
 
-def build_scene(plan: Plan) -> Scene:
+def plan_tags(plan: Plan, model: SensorModel) -> RobotTags:
+    """The codes the plan's robots wear when seen by ``model`` from the layout's sensor."""
+    return robot_tags(plan.robots.shape[1], plan.outline, [(plan.layout.sensor_pose[:2], model)], plan.layout.bounds)
+
+
+def build_scene(plan: Plan, tags: RobotTags | None = None) -> Scene:
     st = plan.layout.statics
     shape = robot_shape(plan.outline)
-    movers = [Mover(shape, plan.robots[:, m]) for m in range(plan.robots.shape[1])]
+    movers = [Mover(shape if tags is None else tags.shape(m), plan.robots[:, m]) for m in range(plan.robots.shape[1])]
     legs = [MovingCircle(0.06, leg) for leg in plan.legs]
     return Scene(circles=list(st.circles), polygons=list(st.polygons), movers=movers, moving_circles=legs)
 
 
 def render_plan(plan: Plan, *, seed: int = 0, model: SensorModel | None = None, effects: Effects = Effects(),
-                tilt_deg: tuple[float, float] = (0.0, 0.0), stream: int = 1) -> tuple[ScanLog, Site]:
+                tilt_deg: tuple[float, float] = (0.0, 0.0), stream: int = 1,
+                tags: bool | None = None) -> tuple[ScanLog, Site]:
     """Render a plan into a labelled log and its site file (with a rough sensor-pose guess): the
     layout's sensor model unless ``model`` is given, stamps from ``T0 + 1000 s × seed`` spaced by its
-    period, noise from the seed's stream ``stream``."""
+    period, noise from the seed's stream ``stream``; the robots wearing tags where ``tags`` says
+    (:func:`~gtsjax.sim.tagging.wants_tags`: by default where the model reports intensity)."""
     model = plan.layout.sensor if model is None else model
+    worn = plan_tags(plan, model) if wants_tags(tags, [model]) else None
     rng = np.random.default_rng([seed, stream])
     t = plan.sensor_poses.shape[0]
     tilt = plan.tilt
     if any(tilt_deg):
         tilt = np.repeat(np.radians(np.asarray(tilt_deg, float))[None], t, 0)
-    ranges, inten = render(build_scene(plan), model, plan.sensor_poses, tilt=tilt, rng=rng, effects=effects)
+    ranges, inten = render(build_scene(plan, worn), model, plan.sensor_poses, tilt=tilt, rng=rng, effects=effects)
     lay = plan.layout
     log = ScanLog(
         ranges=ranges,
@@ -734,42 +747,47 @@ def render_plan(plan: Plan, *, seed: int = 0, model: SensorModel | None = None, 
         sensor_model=model.name,
         truth_classes=np.array(["robot"] * plan.robots.shape[1]),
         truth_poses=plan.robots.astype(np.float64),
-        extra={"truth_sensor_pose": plan.sensor_poses.astype(np.float64)},
+        extra={"truth_sensor_pose": plan.sensor_poses.astype(np.float64),
+               **({"truth_names": np.asarray(worn.names, np.str_)} if worn is not None else {})},
     )
     guess_rng = np.random.default_rng([seed, 2])
     sx, sy, sth = plan.sensor_poses[0]
     guess = (float(sx + guess_rng.normal(0, 0.03)), float(sy + guess_rng.normal(0, 0.03)),
              float(sth + guess_rng.normal(0, math.radians(1.5))))
-    site = Site(tuple(Landmark(c, x, y) for c, x, y, _ in lay.landmarks), guess, lay.bounds)
+    site = Site(tuple(Landmark(c, x, y) for c, x, y, _ in lay.landmarks), guess, lay.bounds,
+                tags=None if worn is None else worn.site_entry())
     return log, site
 
 
 def simulate(name: str, *, seed: int = 0, n_scans: int | None = None, sensor: str | None = None,
-             effects: Effects = Effects(), tilt_deg: tuple[float, float] = (0.0, 0.0)) -> tuple[ScanLog, Site]:
-    """Render scenario ``name`` into a labelled log and its site file (with a rough sensor-pose guess)."""
+             effects: Effects = Effects(), tilt_deg: tuple[float, float] = (0.0, 0.0),
+             tags: bool | None = None) -> tuple[ScanLog, Site]:
+    """Render scenario ``name`` into a labelled log and its site file (with a rough sensor-pose guess);
+    ``tags``: robots wearing reflective tags (``None``: where the scanner reports intensity)."""
     plan = plan_scenario(name, seed=seed, n_scans=n_scans)
     return render_plan(plan, seed=seed, model=None if sensor is None else get_model(sensor), effects=effects,
-                       tilt_deg=tilt_deg)
+                       tilt_deg=tilt_deg, tags=tags)
 
 
 def recording(site: str, style: str, *, seed: int = 0, rate_hz: float | None = None, clutter: bool = False,
-              outline: str = "nao", seconds: float | None = None) -> tuple[ScanLog, Site]:
+              outline: str = "nao", seconds: float | None = None, tags: bool | None = None) -> tuple[ScanLog, Site]:
     """A labelled training log of ``site`` ("spl", "lab", "hall") recorded in ``style`` (:data:`STYLES`),
     of a robot of ``outline`` ("nao", "box", "cart"), the site's scanner at ``rate_hz`` (its own rate unless
     given), with chairs, a bag and people at the field's edge if ``clutter``. Grid styles visit an
     even spread of the training grid's points, as many as make about 2000 scans ("grid": all of them);
     ``seconds`` shortens any style to the whole poses (points for "turn") that fit in it, the
-    walk to exactly that long. Returns the log and site file as :func:`simulate` does."""
+    walk to exactly that long. Returns the log and site file as :func:`simulate` does (``tags`` as there)."""
     plan = _recording_plan(site, style, np.random.default_rng(seed), rate_hz=rate_hz, clutter=clutter,
                            outline=outline, seconds=seconds)
-    return render_plan(plan, seed=seed)
+    return render_plan(plan, seed=seed, tags=tags)
 
 
 def check_scene(site: str, kind: str, *, seed: int = 0, rate_hz: float | None = None, outline: str = "nao",
-                clutter: bool = False) -> tuple[ScanLog, Site]:
+                clutter: bool = False, tags: bool | None = None) -> tuple[ScanLog, Site]:
     """A held-out scene to check a model trained on :func:`recording`'s log of the same site, outline and
     rate: ``kind`` "static" (the robot put down at 6 points between the training grid's, any heading,
     2 s each, 1 s away before each) or "walking" (a 30 s Lissajous walk). With ``clutter``, the same
-    room as the recording of this seed; the poses and the noise are the check's own."""
+    room as the recording of this seed; the poses and the noise are the check's own (``tags`` as in
+    :func:`simulate`)."""
     plan = _check_plan(site, kind, np.random.default_rng(seed), rate_hz=rate_hz, outline=outline, clutter=clutter)
-    return render_plan(plan, seed=seed, stream=3)
+    return render_plan(plan, seed=seed, stream=3, tags=tags)
