@@ -171,6 +171,7 @@ class Births(NamedTuple):
     side_var: Float[Array, "tracks 1"]  # the detection's heading variance, every hypothesis's
     side_logp: Float[Array, "tracks sides"]
     count: Int[Array, ""]
+    det: Int[Array, " tracks"] | None = None  # the detection each born track starts from
 
 
 def start_tracks(
@@ -207,7 +208,8 @@ def start_tracks(
     rank_slot = _count_up_to(free) - 1
     match = free[:, None] & born_ok[None, :] & (rank_slot[:, None] == rank_det[None, :])  # [M, K]
     born = jnp.any(match, axis=1)
-    first = table.rows(jnp.argmax(match, axis=1))
+    src = jnp.argmax(match, axis=1).astype(jnp.int32)
+    first = table.rows(src)
     i6 = jnp.arange(NX, dtype=jnp.int32)
     vel_diag = (i6[:, None] == i6[None, :]) & (i6 >= 3)[None, :]  # the velocities' and turn rate's variances
     P0 = jnp.where(
@@ -226,6 +228,7 @@ def start_tracks(
         first.cov[:, 2:3, 2],
         first.side_logp,
         jnp.sum(born).astype(jnp.int32),
+        src,
     )
 
 

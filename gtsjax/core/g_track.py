@@ -114,6 +114,7 @@ algebra), :mod:`.g_assign` (gating and assignment), :mod:`.g_heading` (the headi
 :func:`track_step` runs them in turn, one named phase each; this module re-exports their public names.
 """
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
@@ -127,6 +128,7 @@ from .g_heading import follow_state, main_heading_prior, weigh_headings
 from .g_heading import heading_mixture as heading_mixture
 from .g_heading import merge_duplicates as merge_duplicates
 from .g_heading import side_evidence as side_evidence
+from .g_identity import update_identities
 from .g_kalman import heading_consistent, kalman_update, predict
 from .g_kalman import innovation as innovation
 from .g_kalman import inv2 as inv2
@@ -244,6 +246,14 @@ def track_step(
     tally = confirm_and_end(state, assoc.has, assoc.other_near, spanned, mean, cov, omega_raw, params, watchers)
     births = start_tracks(state, det, flags, assoc.used, tally.live, mean, table, params)
     new = next_state(state, tally, births, headings, mean, cov, params)
+    if state.id_logp is not None:
+        # Identities: each track adds its detection's tag reading; a born track starts from its own.
+        assigned = jnp.where(births.born, births.det, jnp.where(assoc.has, assoc.det_of_track, -1))
+        tag_ll = det.tag_ll if det.tag_ll is not None else jnp.zeros((det.mask.shape[0], state.id_logp.shape[1]),
+                                                                      state.id_logp.dtype)
+        tag_ll = jnp.where(det.mask[:, None], tag_ll, 0.0)
+        id_logp = update_identities(state.id_logp, assigned, tag_ll, births.born | ~new.live)
+        new = eqx.tree_at(lambda s: s.id_logp, new, id_logp, is_leaf=lambda x: x is None)
     if not explain:
         return new, assoc.used
     return new, assoc.used, explain_holds(new, births, tally, mean, params)

@@ -136,9 +136,12 @@ class TrackerState(eqx.Module):
     side_rest: Float[Array, " tracks"]  # the log-weight of a heading none of them is (uniform)
     main: Int[Array, " tracks"]  # the hypothesis the state's heading is
     next_id: Int[Array, ""]
+    # Each track's posterior over the robot identities of the tags (:mod:`.g_identity`), normalised log
+    # probabilities; None: the model reads no tags.
+    id_logp: Float[Array, "tracks ids"] | None = None
 
     @classmethod
-    def empty(cls, max_tracks: int, sides: int = SIDES) -> "TrackerState":
+    def empty(cls, max_tracks: int, sides: int = SIDES, ids: int = 0) -> "TrackerState":
         m = max_tracks
         return cls(
             mean=jnp.zeros((m, NX), _F32),
@@ -156,6 +159,7 @@ class TrackerState(eqx.Module):
             side_rest=jnp.full(m, jnp.log(_REST_P), _F32),
             main=jnp.zeros(m, jnp.int32),
             next_id=jnp.asarray(0, jnp.int32),
+            id_logp=jnp.full((m, ids), -jnp.log(jnp.asarray(ids, _F32)), _F32) if ids else None,
         )
 
 
@@ -185,6 +189,9 @@ class Detections(eqx.Module):
     side_pose: Float[Array, "dets sides 3"] | None = None
     side_logp: Float[Array, "dets sides"] | None = None
     guess: Bool[Array, " dets"] | None = None
+    # Each detection's log-likelihood of each robot identity from its tag (:mod:`.e_tags`; all 0 where
+    # unreadable). ``None``: the model reads no tags.
+    tag_ll: Float[Array, "dets ids"] | None = None
 
 
 class TrackHolds(eqx.Module):

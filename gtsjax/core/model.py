@@ -23,6 +23,7 @@ from .c_filters import Envelope
 from .d_classify import Classifier
 from .e_pose import PoseRegressor
 from .e_refine import Outline
+from .e_tags import TagReader
 from .frontend import FrontEndConfig
 from .g_track import TrackerParams
 from .scan import Beams
@@ -89,6 +90,16 @@ class Model(eqx.Module):
     # The same table's beams of that scanner, filled in likewise: the reach of a model from before its
     # own geometry was kept (:func:`~gtsjax.core.multi.laser_reach`).
     sensor_beams: Beams | None = eqx.field(static=True, default=None)
+    # Reading reflective tags (stage e″, :mod:`~gtsjax.core.e_tags`): the reader, its identities' bands
+    # from the site's tags; None: the model reads no tags. ``tag_names``: the identities' names, in
+    # the order of the reader's patterns.
+    tags: TagReader | None = None
+    tag_names: tuple[str, ...] = eqx.field(static=True, default=())
+
+    @property
+    def n_identities(self) -> int:
+        """How many robot identities the model's tags tell apart (0: it reads no tags)."""
+        return 0 if self.tags is None else int(self.tags.pattern.shape[0])
 
     @property
     def beams(self) -> Beams:

@@ -75,7 +75,7 @@ def init_several(model: "Model | tuple[Model, ...]", sensor_poses: Float[Array, 
         raise ValueError(f"{len(kinds)} kinds for {poses.shape[0]} lasers")
     return SeveralState(
         transforms=jax.vmap(Transform.from_sensor_pose)(poses),
-        tracker=TrackerState.empty(models[0].max_tracks),
+        tracker=TrackerState.empty(models[0].max_tracks, ids=models[0].n_identities),
         n_scans=jnp.zeros(poses.shape[0], jnp.int32),
         reach=jnp.asarray([laser_reach(models[i]) for i in kinds], jnp.float32),
     )

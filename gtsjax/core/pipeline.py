@@ -21,8 +21,10 @@ from .c_filters import envelope_pass, partial_view, shape_quantities
 from .d_classify import classify, gp_inputs
 from .e_pose import regress, to_sensor_frame, vague_headings
 from .e_refine import refine_candidates
+from .e_tags import read_tags
 from .f_maptransform import Transform, poses_to_field, update_transform
 from .frontend import front_end
+from .g_identity import report_identities
 from .g_track import Detections, TrackerState, reported, track_step
 from .geometry import in_bounds, wrap
 from .model import Model
@@ -63,6 +65,7 @@ class Perception(eqx.Module):
     unposed: Int[Array, ""]  # objects beyond their class's cap (see ``e_pose.regress``), dropped
     unlike: Int[Array, ""]  # candidates unlike every training example of their class (open set), dropped
     off_envelope: Int[Array, ""]  # candidates whose best class's shape envelope they lie outside
+    tag_ll: Float[Array, "cands ids"] | None = None  # each candidate's identity log-likelihoods (stage e″)
 
 
 # What became of each candidate slot of a scan (``Perception.reason``, ``Output.cand_reason``), for the
@@ -105,13 +108,16 @@ class Output(eqx.Module):
     unlike: Int[Array, ""]  # candidates unlike every training example of their class (open set), dropped
     off_envelope: Int[Array, ""]  # candidates whose best class's shape envelope they lie outside
     degraded: Bool[Array, ""]  # too few landmarks: the previous transform was kept
+    # The identity each track reports (an index into ``Model.tag_names``, -1: none); None: the model
+    # reads no tags (:mod:`~gtsjax.core.g_identity`).
+    track_robot: Int[Array, " tracks"] | None = None
 
 
 def init_state(model: Model) -> PipelineState:
     """Before the first scan: the user's rough sensor pose as the first transform, no tracks."""
     return PipelineState(
         transform=Transform.from_sensor_pose(model.site.sensor_pose),
-        tracker=TrackerState.empty(model.max_tracks),
+        tracker=TrackerState.empty(model.max_tracks, ids=model.n_identities),
         n_scans=jnp.asarray(0, jnp.int32),
     )
 
@@ -153,10 +159,14 @@ def perceive(model: Model, scan: Scan, *, bucket: bool | None = None, axis_name=
     vague = vague_headings(model.pose, cls, var)
     reason = jnp.where(ok & posed, 6, jnp.where(ok, 5, jnp.where(dec.unlike, 3, jnp.where(
         dec.off_envelope, 4, jnp.where(fe.keep, 2, jnp.where(c.live, 1, 0)))))).astype(jnp.int32)
+    tag_ll = None
+    if model.tags is not None:  # stage e″: the candidates' tags, read along their outlines
+        tag_ll, _, _ = read_tags(model.tags, cls, c.xy, c.ranges, c.intensities, c.mask, sides.side_pose,
+                                 sides.side_logp)
     return Perception(cls, ok & posed, fe.keep, partial, vague & ~sides.refined, scores, sides.pose, sides.cov,
                       sides.side_pose, sides.side_logp, sides.refined, dec.guess & posed & sides.refined, f.origin,
                       reason, d.n_segments, d.n_kept, d.n_overflow, d.n_too_long, unposed, count(dec.unlike),
-                      count(dec.off_envelope))
+                      count(dec.off_envelope), tag_ll)
 
 
 def _inside(site, pose: Float[Array, "n 3"]) -> Bool[Array, " n"]:
@@ -229,7 +239,7 @@ def field_detections(model: Model, tf: Transform, p: Perception, several: bool) 
     tracked = p.ok & model.tracker.tracked[p.cls] & inside
     guess = p.guess & inside
     det = Detections(pose_o, cov_o, p.cls, tracked | guess, p.kept & ~tracked, p.partial, p.vague, side_o, p.side_logp,
-                     guess)
+                     guess, p.tag_ll)
     return det, tracked
 
 
@@ -299,6 +309,9 @@ def update_view(model: Model, prev_tf: Transform, tracker: TrackerState, p: Perc
         off_envelope=p.off_envelope,
         degraded=tf.degraded,
     )
+    if ts.id_logp is not None:
+        out = eqx.tree_at(lambda o: o.track_robot, out, report_identities(ts.id_logp, out.track_mask),
+                          is_leaf=lambda x: x is None)
     return tf, tracker, out
 
 
