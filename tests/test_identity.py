@@ -70,3 +70,48 @@ def test_a_floored_identity_comes_back_after_a_few_clear_reads():
     for _ in range(3):
         logp = update_identities(logp, jnp.zeros(1, jnp.int32), right, jnp.zeros(1, bool))
     assert int(np.argmax(np.asarray(logp)[0])) == 1
+
+
+def test_tracker_keeps_identities_through_a_crossing_and_a_pick_up():
+    """The tracker's wiring (``track_step`` with detections carrying tag reads): two robots cross 0.3 m
+    apart and never swap the identities they report; robot 0 is picked up for 2 s and put down 1 m
+    away, starts a new track, and reports its identity again by reading, not by place."""
+    import jax
+
+    from gtsjax.core.g_track import Detections, TrackerParams, TrackerState, track_step
+
+    params = TrackerParams.default([False, True], rate_hz=10.0)
+    step = jax.jit(track_step)
+    rng = np.random.default_rng(5)
+    n_ids, k = 3, 4
+    state = TrackerState.empty(4, ids=n_ids)
+    n = 100
+    t = np.arange(n) * 0.1
+    a = np.stack([1 + 0.4 * t, 1 + 0.2 * t, np.full(n, 0.46)], 1)
+    b = np.stack([1.3 + 0.4 * t, 2.2 - 0.2 * t, np.full(n, -0.46)], 1)
+    a[60:] += [0.0, 1.0, 0.0]  # put down again 1 m away
+    reported = {0: set(), 1: set()}
+    back = None
+    for i in range(n):
+        seen = [(a[i], 0)] * (not 40 <= i < 60) + [(b[i], 1)]
+        pose = np.zeros((k, 3), np.float32)
+        ll = np.zeros((k, n_ids), np.float32)
+        for j, (p, who) in enumerate(seen):
+            pose[j] = p + rng.normal(0, [0.01, 0.01, 0.03])
+            ll[j] = np.where(np.arange(n_ids) == who, 0.0, -0.6) + rng.normal(0, 0.3, n_ids)
+        cov = np.broadcast_to(np.diag(np.asarray([1e-3, 1e-3, 4e-3], np.float32)), (k, 3, 3)).copy()
+        det = Detections(jnp.asarray(pose), jnp.asarray(cov), jnp.full(k, 1, jnp.int32),
+                         jnp.asarray(np.arange(k) < len(seen)), tag_ll=jnp.asarray(ll))
+        state, _ = step(state, det, jnp.asarray(0.1, jnp.float32), params)
+        robot = np.asarray(report_identities(state.id_logp, state.live & state.confirmed))
+        for s in np.flatnonzero(robot >= 0):
+            p = np.asarray(state.mean[s, :2])
+            dist = {who: np.linalg.norm(p - q[:2]) for q, who in seen}
+            near = min(dist, key=dist.get)
+            if dist[near] > 0.3:  # robot 0's track coasting where it was picked up
+                continue
+            reported[near].add(int(robot[s]))
+            if near == 0 and i >= 60 and back is None:
+                back = i
+    assert reported == {0: {0}, 1: {1}}  # each robot only ever reported as itself
+    assert back is not None and back - 60 <= 20  # robot 0 named again within 2 s of being put down

@@ -22,7 +22,8 @@ def reader_for(codes, offsets, arc, sd=0.25, min_cells=2.0):
         pattern=patterns(codes, offsets), arc=jnp.asarray(arc, jnp.float32)[None], has_arc=jnp.array([True]),
         range_exp=jnp.float32(0.5), tape_mean=jnp.float32(math.log(6000 * TAPE)), tape_sd=jnp.float32(sd),
         body_mean=jnp.float32(math.log(6000 * BODY)), body_sd=jnp.float32(sd), cells=jnp.int32(codes.shape[1]),
-        min_cells=jnp.float32(min_cells), point_cap=jnp.float32(5.0), bin_cap=jnp.float32(3.0))
+        min_cells=jnp.float32(min_cells), point_cap=jnp.float32(5.0), bin_cap=jnp.float32(3.0),
+        weight=jnp.float32(1.0))
 
 
 def arc_length_of(vertices, q):

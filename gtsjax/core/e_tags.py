@@ -18,7 +18,10 @@ For each candidate and each of its side hypotheses (stage e′'s poses, whose pr
    independent reads);
 4. each identity's log-likelihood is the bins' evidence against its band's pattern (``+1`` tape,
    ``-1`` body, at each bin's centre, turned by its offset): one ``[bins] × [bins, ids]`` product,
-   halved (the ratio is tape against body, a pattern's agreement and disagreement cost each half).
+   halved (the ratio is tape against body, a pattern's agreement and disagreement cost each half),
+   times ``weight``: a detection's returns are far from independent reads (one error of its pose
+   moves them all along the band; one glint brightens a run of them), and the tracker multiplies the
+   reads of every scan (:mod:`.g_identity`), so each counts for a fraction.
 
 The identity log-likelihoods of the sides are mixed by the sides' probabilities. A candidate whose
 returns cover fewer than ``min_cells`` cells' worth of bins is *unreadable*: its log-likelihoods are all
@@ -54,6 +57,7 @@ class TagReader(eqx.Module):
     min_cells: Float[Array, ""]  # cells' worth of bins to be readable
     point_cap: Float[Array, ""]
     bin_cap: Float[Array, ""]
+    weight: Float[Array, ""]  # what one detection's read counts for (its returns are not independent reads)
 
 
 def patterns(codes, offsets, bins: int = BINS) -> jnp.ndarray:
@@ -112,7 +116,7 @@ def read_tags(
     llr = _llr(reader, intensities, ranges)  # [n, window]
     per_bin = jnp.einsum("nsw,nswb->nsb", jnp.broadcast_to(llr[:, None, :], b.shape), onehot.astype(llr.dtype))
     per_bin = reader.bin_cap * jnp.tanh(per_bin / reader.bin_cap)
-    ll = 0.5 * jnp.einsum("nsb,jb->nsj", per_bin, reader.pattern)
+    ll = (0.5 * reader.weight) * jnp.einsum("nsb,jb->nsj", per_bin, reader.pattern)
     used = jnp.isfinite(side_logp)
     w = jax.nn.log_softmax(jnp.where(used, side_logp, -jnp.inf), axis=-1)
     mixed = jax.nn.logsumexp(jnp.where(used[..., None], w[..., None] + ll, -jnp.inf), axis=1)

@@ -23,7 +23,7 @@ from .c_filters import Envelope
 from .d_classify import Classifier
 from .e_pose import PoseRegressor
 from .e_refine import Outline
-from .e_tags import TagReader
+from .e_tags import TagReader, patterns
 from .frontend import FrontEndConfig
 from .g_track import TrackerParams
 from .scan import Beams
@@ -177,4 +177,18 @@ class Model(eqx.Module):
             bounds=jnp.asarray(site.bounds if site.bounds is not None else (0.0, 0.0, 0.0, 0.0), _F32),
             has_bounds=jnp.asarray(site.bounds is not None),
         )
-        return eqx.tree_at(lambda m: m.site, self, arrays, is_leaf=lambda x: x is None)
+        model = eqx.tree_at(lambda m: m.site, self, arrays, is_leaf=lambda x: x is None)
+        return model.with_tags(getattr(site, "tags", None))
+
+    def with_tags(self, tags) -> "Model":
+        """The model reading the bands of ``tags`` (a site's :class:`~gtsjax.io.site.SiteTags`: its robots'
+        names, codes and offsets, ``offset_cells`` cells counter-clockwise from the outline's origin);
+        ``None``: reading none. A model trained without tags reads none whatever the site says."""
+        if self.tags is None:
+            return self
+        if tags is None:
+            return dataclasses.replace(self, tags=None, tag_names=())
+        codes = np.stack([np.asarray(w.bits, bool) for w in tags.robots])
+        offsets = np.asarray([w.offset_cells / tags.cells for w in tags.robots], np.float32)
+        reader = dataclasses.replace(self.tags, pattern=patterns(codes, offsets), cells=jnp.asarray(tags.cells, jnp.int32))
+        return dataclasses.replace(self, tags=reader, tag_names=tuple(w.name for w in tags.robots))

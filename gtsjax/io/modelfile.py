@@ -38,6 +38,7 @@ from ..core.c_filters import Envelope
 from ..core.d_classify import Classifier, Support
 from ..core.e_pose import PoseRegressor
 from ..core.e_refine import Outline
+from ..core.e_tags import TagReader
 from ..core.frontend import FrontEndConfig
 from ..core.g_track import TrackerParams
 from ..core.model import Model, SiteArrays
@@ -59,6 +60,7 @@ _TYPES = {
         Envelope,
         PoseRegressor,
         Outline,
+        TagReader,
         TrackerParams,
         SparseGP,
         SharedSparseGP,

@@ -61,6 +61,7 @@ from .motion import motion_limits as motion_limits
 from .outline import fit_outlines, half_turn_symmetry
 from .pose import POSE_GROUPS, fit_landmark_positions, fit_pose_regressors
 from .report import evaluate_examples as evaluate_examples
+from .tags import fit_tags
 
 #: The stages of :func:`train`, in the order it takes them, as its ``stages`` callback names them.
 STAGES = ("labelling", "landmark positions", "labelling, second pass", "classifier", "pose regressors",
@@ -205,12 +206,18 @@ def train(logs: Sequence[ScanLog], site: "Site | Sequence[Site]", cfg: TrainConf
     notes = notes + [row["warning"] for row in learnt if "warning" in row]
     model = _assemble(run, first, n_beams, lab.columns, classifier=classifier, envelope=envelope, pose=pose,
                       tracker=tracker, outline=outline)
+    reader, tags_report = fit_tags(logs, ex, site, classes, mobiles, outline, cfg.frontend.window, run.rng)
+    if reader is not None:
+        first_tags = next(s.tags for s in per_log_sites(site, len(logs)) if getattr(s, "tags", None) is not None)
+        model = dataclasses.replace(model, tags=reader).with_tags(first_tags)
+    notes = notes + ([tags_report["warning"]] if "warning" in tags_report else [])
 
     run.stage("held-out evaluation")
     report = _report(run, model, ex, is_held, ex_lab, lab.bg_info, train_idx=train_idx, calibration=calibration,
                      env_report=env_report, sup_report=sup_report, motion=motion, learnt=learnt,
                      outline_report=outline_report, n_scans=n_scans, degraded=degraded, warnings=notes)
     report["half_turn_mm"] = half_turn_mm  # per mobile class: how far its outline is from its half-turn
+    report["tags"] = tags_report
     report["coverage"], where = coverage(logs, per_log_sites(site, len(logs)), mobiles)
     report["warnings"] = report["warnings"] + where
     if cfg.check_pipeline:

@@ -61,6 +61,9 @@ class Examples:
     # [E, 4] where each example's points are: log index (among the labelled logs; -1: not kept), scan,
     # first beam and beam count of its segment (the outline's training data, ``train.outline``).
     where: np.ndarray | None = None
+    # [E] the labelled object each example is, an index into its log's truth (-1: background, a
+    # landmark, or not known): which robot, for the tags' calibration (``train.tags``).
+    obj: np.ndarray | None = None
 
     def take(self, idx) -> "Examples":
         return Examples(*(None if getattr(self, f.name) is None else getattr(self, f.name)[idx]
@@ -70,7 +73,9 @@ class Examples:
     def concat(exs: "Sequence[Examples]") -> "Examples":
         def field(e, name):
             v = getattr(e, name)
-            return np.full((len(e.cls), 4), -1, np.int64) if v is None and name == "where" else v
+            if v is None and name == "where":
+                return np.full((len(e.cls), 4), -1, np.int64)
+            return np.full(len(e.cls), -1, np.int64) if v is None and name == "obj" else v
 
         return Examples(*(np.concatenate([field(e, f.name) for e in exs]) for f in dataclasses.fields(Examples)))
 
@@ -286,6 +291,7 @@ def label_log(log: ScanLog, fe: dict, tf: dict, site: Site, classes: tuple[str, 
 
     poses = log.truth_poses  # [T, M, 3]
     ambiguous = np.zeros((T, K), bool)
+    obj = np.full((T, K), -1, np.int64)
     for m, name in enumerate(log.truth_classes):
         p = poses[:, m]
         present = ~np.isnan(p[:, 0])
@@ -303,6 +309,7 @@ def label_log(log: ScanLog, fe: dict, tf: dict, site: Site, classes: tuple[str, 
         cls[hit] = classes.index(str(name))
         target[hit, :2] = rel[hit]
         target[hit, 2] = th[hit]
+        obj[hit] = m
         best[hit] = d[hit]
 
     # A scan whose transform could not be estimated gives no labels worth having. With bounds, the
@@ -324,6 +331,7 @@ def label_log(log: ScanLog, fe: dict, tf: dict, site: Site, classes: tuple[str, 
         occluded=fe["occluded"][t_idx, k_idx],
         where=np.stack([np.full(t_idx.shape, log_index), t_idx, fe["start"][t_idx, k_idx],
                         fe["length"][t_idx, k_idx]], -1).astype(np.int64),
+        obj=obj[t_idx, k_idx],
     ), np.where(use, cls, 0)
 
 
