@@ -90,6 +90,9 @@ def evaluate_outputs(model: Model, log: ScanLog, out, *, match_radius: float = 0
         "det_misread_fraction": float(np.mean(np.abs(d_th) > np.radians(30))) if d_th.size else float("nan"),
     }
     res.update(_appearance_figures(np.asarray(tally.e_appear, float)))
+    names = log.extra.get("truth_names")
+    if getattr(out, "track_robot", None) is not None and names is not None and getattr(model, "tag_names", ()):
+        res.update(identity_figures(log, out, model.tag_names, names, classes, present, match_radius))
     sensor_truth = log.extra.get("truth_sensor_pose")
     if sensor_truth is not None:
         res.update(_sensor_figures(log, out, sensor_truth))
@@ -178,6 +181,32 @@ def _score_tracks(log: ScanLog, out, classes, present, since, radius, settle_s, 
                 tally.obj_of_err.append(i)
                 tally.scan_of_err.append(t)
     return tally
+
+
+def identity_figures(log: ScanLog, out, tag_names, truth_names, classes, present, radius: float,
+                     after_s: float = 2.0) -> dict:
+    """The identities read from tags (``Output.track_robot``) against the log's ``truth_names``, over the
+    rows matched to a labelled robot more than ``after_s`` after their track was first reported (issue
+    43's measure): the shares right, wrong and without an identity; and the same over every matched row."""
+    first: dict[int, float] = {}
+    right = wrong = none = all_right = all_rows = 0
+    for t in range(log.n_scans):
+        m = _match_classes(out, t, log.truth_poses[t], present[t], classes, radius)
+        for i in np.flatnonzero(m >= 0):
+            tid = int(out.track_id[t, m[i]])
+            first.setdefault(tid, float(log.stamps[t]))
+            r = int(out.track_robot[t, m[i]])
+            ok = r >= 0 and tag_names[r] == str(truth_names[i])
+            all_rows += 1
+            all_right += int(ok)
+            if log.stamps[t] - first[tid] < after_s:
+                continue
+            right += int(ok)
+            wrong += int(r >= 0 and not ok)
+            none += int(r < 0)
+    n = max(right + wrong + none, 1)
+    return {"identity_rows": right + wrong + none, "identity_right": right / n, "identity_wrong": wrong / n,
+            "identity_none": none / n, "identity_right_all_rows": all_right / max(all_rows, 1)}
 
 
 def _appearance_figures(e_appear: np.ndarray) -> dict:

@@ -70,6 +70,8 @@ def merge_logs(logs: "dict[str, ScanLog]", *, mixed: bool = False) -> Merged:
     if labelled and len({tuple(map(str, logs[n].truth_classes)) for n in names}) != 1:
         raise InputError("replay", "the lasers' logs label different objects; a merged evaluation needs the same")
     extra = {}  # (each laser's true pose is in its own log: in merged order it would read as a bump)
+    if labelled and "truth_names" in first.extra:  # which robot each labelled object is: the same objects
+        extra["truth_names"] = first.extra["truth_names"]
     width = max(logs[n].n_beams for n in names)
 
     def cat(f):

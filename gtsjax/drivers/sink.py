@@ -15,6 +15,7 @@ them to the association, after the latency is taken.
 """
 
 import csv
+import dataclasses
 from pathlib import Path
 
 import jax
@@ -38,7 +39,9 @@ class Sink:
         from ..io.bag_out import LASER
 
         self.classes = model.classes
-        self.writer = GTDWriter(out, units=csv_units, robot=identity is not None)
+        # The identities a model reads from tags (``Output.track_robot``), named in the ``robot`` column.
+        self.tag_names = tuple(getattr(model, "tag_names", ()))
+        self.writer = GTDWriter(out, units=csv_units, robot=identity is not None or bool(self.tag_names))
         self.identity = identity
         # The rows' names, on the frame's path; ``None`` without beliefs, so that path is as it was.
         self.label = identity.label if identity is not None else None
@@ -93,6 +96,12 @@ class Sink:
         self.scans[k] += 1
         self.degraded[k] += int(degraded)
 
+    def name_rows(self, rows: "list[TrackRow]", track_id, track_robot) -> "list[TrackRow]":
+        """``rows`` with the identity each track reports from its tag (``robot``), where it reports one."""
+        robot = {int(t): int(r) for t, r in zip(np.asarray(track_id), np.asarray(track_robot), strict=True)}
+        return [dataclasses.replace(r, robot=self.tag_names[robot[r.track_id]]) if robot.get(r.track_id, -1) >= 0
+                else r for r in rows]
+
     # ------------------------------------------------------------------------------------ a stack
     def add(self, stamps, out, *, lasers=None, frame=None) -> None:
         """Stacked outputs (NumPy, leading axis: scans) of scans stamped ``stamps``, in order.
@@ -106,6 +115,8 @@ class Sink:
             stamp = float(stamps[i])
             rows = rows_from_output(stamp, out.track_id[i], out.track_class[i], out.track_pose[i], out.track_var[i],
                                     out.track_mask[i], self.classes, out.track_cov_xy[i])
+            if self.tag_names and getattr(out, "track_robot", None) is not None:
+                rows = self.name_rows(rows, out.track_id[i], out.track_robot[i])
             self.write(rows)
             k = int(lasers[i])
             if self.wants_output:
