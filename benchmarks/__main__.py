@@ -15,7 +15,7 @@ import time
 import traceback
 from pathlib import Path
 
-SECTIONS = ("pipeline", "reference", "gp", "kalman", "smooth", "smooth_lag", "grade", "scaling", "scip", "live")
+SECTIONS = ("pipeline", "reference", "gp", "kalman", "smooth", "smooth_lag", "tags", "grade", "scaling", "scip", "live")
 HERE = Path(__file__).resolve().parent
 
 

@@ -26,7 +26,7 @@ For each candidate and each of its side hypotheses (stage e′'s poses, whose pr
 The identity log-likelihoods of the sides are mixed by the sides' probabilities. A candidate whose
 returns cover fewer than ``min_cells`` cells' worth of bins is *unreadable*: its log-likelihoods are all
 0 (it says nothing). The cells in view are the extent of its returns along the band (on its most
-probable side) times the band's cells. Fixed shapes: ``cands × sides × window`` points, ``G`` bins, one product per
+probable side, measured from its first return's place) times the band's cells. Fixed shapes: ``cands × sides × window`` points, ``G`` bins, one product per
 identity count, no loop over identities.
 """
 
@@ -34,6 +34,8 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
+
+from .buckets import slots_of
 
 #: Polar angles of the ``arc`` table: ``K`` evenly spaced from −π.
 ARC_ANGLES = 128
@@ -114,25 +116,51 @@ def read_tags(
     b = jnp.clip(jnp.floor(place * bins).astype(jnp.int32), 0, bins - 1)
     onehot = (b[..., None] == jnp.arange(bins, dtype=jnp.int32)[None, None, None, :]) & mask[:, None, :, None]
     llr = _llr(reader, intensities, ranges)  # [n, window]
-    per_bin = jnp.einsum("nsw,nswb->nsb", jnp.broadcast_to(llr[:, None, :], b.shape), onehot.astype(llr.dtype))
+    per_bin = jnp.einsum("nw,nswb->nsb", llr, onehot.astype(llr.dtype))
     per_bin = reader.bin_cap * jnp.tanh(per_bin / reader.bin_cap)
     ll = (0.5 * reader.weight) * jnp.einsum("nsb,jb->nsj", per_bin, reader.pattern)
     used = jnp.isfinite(side_logp)
     w = jax.nn.log_softmax(jnp.where(used, side_logp, -jnp.inf), axis=-1)
     mixed = jax.nn.logsumexp(jnp.where(used[..., None], w[..., None] + ll, -jnp.inf), axis=1)
     mixed = mixed - jnp.max(mixed, axis=-1, keepdims=True)
-    # The band's span in view, on the most probable side: the places turned about their circular mean
-    # (a view shows under half the band, so they sit on one side of it), then their extent.
+    # The band's span in view, on the most probable side: the returns' places measured from the first
+    # return's (a view shows under half the band), then their extent.
     main = jnp.argmax(jnp.where(used, side_logp, -jnp.inf), axis=-1)
     at = jnp.take_along_axis(place, main[:, None, None], axis=1)[:, 0]  # [n, window]
-    ang = 2 * jnp.pi * at
-    zero = jnp.zeros_like(ang)
-    mean = jnp.arctan2(jnp.sum(jnp.where(mask, jnp.sin(ang), zero), -1), jnp.sum(jnp.where(mask, jnp.cos(ang), zero), -1))
-    rel = jnp.mod(ang - mean[:, None] + jnp.pi, 2 * jnp.pi) - jnp.pi
-    span = (jnp.max(jnp.where(mask, rel, -jnp.pi), -1) - jnp.min(jnp.where(mask, rel, jnp.pi), -1)) / (2 * jnp.pi)
+    ref = jnp.take_along_axis(at, jnp.argmax(mask, axis=-1)[:, None], axis=1)
+    rel = jnp.mod(at - ref + 0.5, 1.0) - 0.5
+    span = jnp.max(jnp.where(mask, rel, -0.5), -1) - jnp.min(jnp.where(mask, rel, 0.5), -1)
     cells_seen = jnp.maximum(span, 0.0) * reader.cells.astype(xy.dtype)
     readable = reader.has_arc[cls] & (cells_seen >= reader.min_cells) & jnp.any(mask, axis=-1)
     return jnp.where(readable[:, None], mixed, 0.0), readable, cells_seen
+
+
+def read_candidates(
+    reader: TagReader,
+    max_objects: int,
+    cls: Int[Array, " cands"],
+    sel: Bool[Array, " cands"],
+    scores: Float[Array, "cands classes"],
+    xy: Float[Array, "cands window 2"],
+    ranges: Float[Array, "cands window"],
+    intensities: Float[Array, "cands window"],
+    mask: Bool[Array, "cands window"],
+    side_pose: Float[Array, "cands sides 3"],
+    side_logp: Float[Array, "cands sides"],
+) -> Float[Array, "cands ids"]:
+    """:func:`read_tags` on the ``max_objects`` candidates of ``sel`` (posed candidates of tracked
+    classes) that score highest for their class, as stage e′ picks its fits: the rest of the scan's
+    candidate slots (background, landmarks, empty) are never read. Their log-likelihoods come back to
+    the scan's slots by one gather (:func:`~.buckets.slots_of`), 0 elsewhere."""
+    n = cls.shape[0]
+    own = jnp.take_along_axis(scores, cls[:, None], 1)[:, 0]
+    k = min(max_objects, n)
+    _, idx = jax.lax.top_k(jnp.where(sel, own, -jnp.inf), k)
+    chosen = sel[idx]
+    ll, _, _ = read_tags(reader, cls[idx], xy[idx], ranges[idx], intensities[idx], mask[idx] & chosen[:, None],
+                         side_pose[idx], side_logp[idx])
+    got, src = slots_of(idx, chosen, n)
+    return jnp.where(got[:, None], ll[src], 0.0)
 
 
 def arc_table(vertices, angles: int = ARC_ANGLES):

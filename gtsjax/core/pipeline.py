@@ -21,7 +21,7 @@ from .c_filters import envelope_pass, partial_view, shape_quantities
 from .d_classify import classify, gp_inputs
 from .e_pose import regress, to_sensor_frame, vague_headings
 from .e_refine import refine_candidates
-from .e_tags import read_tags
+from .e_tags import read_candidates
 from .f_maptransform import Transform, poses_to_field, update_transform
 from .frontend import front_end
 from .g_identity import report_identities
@@ -160,9 +160,9 @@ def perceive(model: Model, scan: Scan, *, bucket: bool | None = None, axis_name=
     reason = jnp.where(ok & posed, 6, jnp.where(ok, 5, jnp.where(dec.unlike, 3, jnp.where(
         dec.off_envelope, 4, jnp.where(fe.keep, 2, jnp.where(c.live, 1, 0)))))).astype(jnp.int32)
     tag_ll = None
-    if model.tags is not None:  # stage e″: the candidates' tags, read along their outlines
-        tag_ll, _, _ = read_tags(model.tags, cls, c.xy, c.ranges, c.intensities, c.mask, sides.side_pose,
-                                 sides.side_logp)
+    if model.tags is not None:  # stage e″: the tracked candidates' tags, read along their outlines
+        tag_ll = read_candidates(model.tags, model.max_objects, cls, to_refine, scores, c.xy, c.ranges,
+                                 c.intensities, c.mask, sides.side_pose, sides.side_logp)
     return Perception(cls, ok & posed, fe.keep, partial, vague & ~sides.refined, scores, sides.pose, sides.cov,
                       sides.side_pose, sides.side_logp, sides.refined, dec.guess & posed & sides.refined, f.origin,
                       reason, d.n_segments, d.n_kept, d.n_overflow, d.n_too_long, unposed, count(dec.unlike),

@@ -187,16 +187,26 @@ def identity_figures(log: ScanLog, out, tag_names, truth_names, classes, present
                      after_s: float = 2.0) -> dict:
     """The identities read from tags (``Output.track_robot``) against the log's ``truth_names``, over the
     rows matched to a labelled robot more than ``after_s`` after their track was first reported (issue
-    43's measure): the shares right, wrong and without an identity; and the same over every matched row."""
+    43's measure): the shares right, wrong and without an identity; and the same over every matched row.
+    And each put-down (a robot present again after an absence, not at the log's start): the seconds until
+    a row names it right (``identity_back_s``, NaN: never), and the share back within 1 s."""
     first: dict[int, float] = {}
     right = wrong = none = all_right = all_rows = 0
+    put_down: dict[int, float] = {}  # robot index -> when it was put down, while its name is not back
+    back: list[float] = []
     for t in range(log.n_scans):
+        for i in np.flatnonzero(present[t] & ~present[t - 1]) if t > 0 else ():
+            if i in put_down:
+                back.append(np.nan)  # put down again before its name came back
+            put_down[int(i)] = float(log.stamps[t])
         m = _match_classes(out, t, log.truth_poses[t], present[t], classes, radius)
         for i in np.flatnonzero(m >= 0):
             tid = int(out.track_id[t, m[i]])
             first.setdefault(tid, float(log.stamps[t]))
             r = int(out.track_robot[t, m[i]])
             ok = r >= 0 and tag_names[r] == str(truth_names[i])
+            if ok and int(i) in put_down:
+                back.append(float(log.stamps[t]) - put_down.pop(int(i)))
             all_rows += 1
             all_right += int(ok)
             if log.stamps[t] - first[tid] < after_s:
@@ -204,9 +214,14 @@ def identity_figures(log: ScanLog, out, tag_names, truth_names, classes, present
             right += int(ok)
             wrong += int(r >= 0 and not ok)
             none += int(r < 0)
+    back += [np.nan] * len(put_down)
     n = max(right + wrong + none, 1)
+    b = np.asarray(back, float)
     return {"identity_rows": right + wrong + none, "identity_right": right / n, "identity_wrong": wrong / n,
-            "identity_none": none / n, "identity_right_all_rows": all_right / max(all_rows, 1)}
+            "identity_none": none / n, "identity_right_all_rows": all_right / max(all_rows, 1),
+            "identity_put_downs": int(b.size),
+            "identity_back_within_1s": float(np.mean(np.nan_to_num(b, nan=np.inf) <= 1.0)) if b.size else float("nan"),
+            "identity_back_median_s": float(np.nanmedian(b)) if np.isfinite(b).any() else float("nan")}
 
 
 def _appearance_figures(e_appear: np.ndarray) -> dict:
