@@ -32,6 +32,7 @@ EXPECTED = [
     "scaling.N.160.step_exact", "scaling.chunk.256",
     "scip.decode_me_1081", "scip.stream_me_1081", "scip.encode_me_1081",
     "live.urg-04lx_10hz", "live.utm-30lx_40hz",
+    "tags.step.without", "tags.step.with",
 ]
 OPTIONAL = {"tinygp": ["gp_fit.n100.tinygp"], "dynamax": ["kalman.sequence.dynamax", "kalman.one_step.dynamax"]}
 TARGETS = {"step_p99_urg04lx_8_tracks", "batch_replay_throughput", "speedup_vs_numpy_reference", "gp_fit_speedup_n100",
