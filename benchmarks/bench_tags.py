@@ -6,7 +6,8 @@ the live loop calls it, with and without a tag reader of 10 identities on 8-cell
 arc tables from the model's own learnt outlines, its intensity model a stand-in: what it costs does
 not depend on its values, and the URG-04LX's scans carry no intensity to read). Timed per scan
 (median, p99), and the compiled step's kernels counted both ways (``kernels.count_kernels``), with the
-reader at 10 and at 20 identities: the kernel count must not grow with the identities.
+reader at 10 and at 20 identities: the kernel count must not grow with the identities (not in
+``--quick``: three more compilations of the whole step).
 """
 
 import dataclasses
@@ -56,6 +57,8 @@ def run(ctx) -> None:
                 label=f"live step, URG-04LX, spl-crossing, {name} a tag reader of 10 identities")
     res.ratio("tags.step.with_over_without", "tags.step.with", "tags.step.without",
               meaning="the live step's time with a tag reader / without (issue 43: at most 1.2)")
+    if ctx.quick:  # three more compilations of the whole step: the full run's
+        return
     scan0 = jax_first(scans)
     counts = {}
     for label, model in (("without", plain), ("10 identities", tagged), ("20 identities", with_reader(plain, 20))):

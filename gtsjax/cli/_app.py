@@ -82,6 +82,8 @@ EXAMPLES = {
     "export-tum": ["gtsjax export-tum gtd.csv --out-dir tum"],
     "grade": ["gtsjax grade gtd.csv --robot nao3=nao3.tum --robot nao5=nao5.csv --site site.json",
               "gtsjax grade gtd.csv --robot nao3=match.mcap:/nao3/pose --frame nao3=mirrored --site site.json"],
+    "tags": ["gtsjax tags --robots 10 --perimeter 0.8 --range 9 --names nao1,nao2,nao3,nao4,nao5,nao6,nao7,nao8,nao9,"
+             "nao10 --out-dir tags"],
 }
 
 

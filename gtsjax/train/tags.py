@@ -20,6 +20,7 @@ deviations apart (tape no brighter than the robots' own surface).
 
 from collections.abc import Sequence
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -156,8 +157,7 @@ def fit_tags(logs: Sequence[ScanLog], ex: Examples, site, classes: tuple[str, ..
     q = relative(np.broadcast_to(truth[:, None, :], pts.shape[:2] + (3,)), pts.astype(np.float64))
     d, _ = lookup(outline, jnp.asarray(np.broadcast_to(sub.cls[:, None], mask.shape), jnp.int32),
                   jnp.asarray(q, jnp.float32))
-    place = np.stack([np.asarray(band_place(jnp.asarray(arc[c]), jnp.asarray(q[j], jnp.float32)))
-                      for j, c in enumerate(sub.cls)])
+    place = np.asarray(jax.jit(jax.vmap(band_place))(jnp.asarray(arc[sub.cls]), jnp.asarray(q, jnp.float32)))
     is_tape = np.zeros(mask.shape, bool)
     middle = np.zeros(mask.shape, bool)
     for j, i in enumerate(idx):
