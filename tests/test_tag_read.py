@@ -26,15 +26,20 @@ def reader_for(codes, offsets, arc, sd=0.25, min_cells=2.0):
         weight=jnp.float32(1.0))
 
 
+def _edges_from_origin(vertices):
+    """The polygon's vertices from its origin (the largest ``x − y``), each edge's end, length and the
+    arc length at its start."""
+    v = np.asarray(vertices, float)
+    v = np.roll(v, -int(np.argmax(v[:, 0] - v[:, 1])), axis=0)
+    nxt = np.roll(v, -1, axis=0)
+    seg = np.linalg.norm(nxt - v, axis=1)
+    return v, nxt, seg, np.concatenate([[0.0], np.cumsum(seg)[:-1]])
+
+
 def arc_length_of(vertices, q):
     """Brute force: the arc length (fraction, from the origin vertex, counter-clockwise) of the polygon
     point nearest ``q``."""
-    v = np.asarray(vertices, float)
-    o = int(np.argmax(v[:, 0] - v[:, 1]))
-    v = np.roll(v, -o, axis=0)
-    nxt = np.roll(v, -1, axis=0)
-    seg = np.linalg.norm(nxt - v, axis=1)
-    start = np.concatenate([[0.0], np.cumsum(seg)[:-1]])
+    v, nxt, seg, start = _edges_from_origin(vertices)
     best, s_best = np.inf, 0.0
     for i in range(len(v)):
         e = nxt[i] - v[i]
@@ -87,12 +92,7 @@ def cast(vertices, pose, laser, beam=math.radians(0.25)):
 def ray_arc(vertices, q):
     """Brute force: the arc length (fraction, from the origin vertex, counter-clockwise) where the ray
     from the centre through ``q`` leaves the polygon."""
-    v = np.asarray(vertices, float)
-    o = int(np.argmax(v[:, 0] - v[:, 1]))
-    v = np.roll(v, -o, axis=0)
-    nxt = np.roll(v, -1, axis=0)
-    seg = np.linalg.norm(nxt - v, axis=1)
-    start = np.concatenate([[0.0], np.cumsum(seg)[:-1]])
+    v, nxt, seg, start = _edges_from_origin(vertices)
     d = q / np.linalg.norm(q)
     for i in range(len(v)):
         e = nxt[i] - v[i]

@@ -53,12 +53,14 @@ FREE_GAP = 0.03  # m
 _F32 = jnp.float32
 
 
-def candidate_points(logs: Sequence[ScanLog], ex: Examples, window: int) -> tuple[np.ndarray, np.ndarray]:
+def candidate_points(logs: Sequence[ScanLog], ex: Examples, window: int, intensities: bool = False):
     """The points in S ``[n, window, 2]`` (float32) and their mask of the examples ``ex`` (all from the
-    labelled logs: ``ex.where[:, 0] >= 0``), as the step's candidate windows hold them."""
+    labelled logs: ``ex.where[:, 0] >= 0``), as the step's candidate windows hold them; with
+    ``intensities``, also their intensities ``[n, window]`` (0 where a log has none)."""
     n = len(ex.cls)
     pts = np.zeros((n, window, 2), np.float32)
     mask = np.zeros((n, window), bool)
+    inten = np.zeros((n, window), np.float32)
     lane = np.arange(window)
     for li, log in enumerate(logs):
         rows = np.flatnonzero(ex.where[:, 0] == li)
@@ -73,7 +75,9 @@ def candidate_points(logs: Sequence[ScanLog], ex: Examples, window: int) -> tupl
         a = (np.float32(log.angle_min) + beam.astype(np.float32) * np.float32(log.angle_increment)).astype(np.float32)
         pts[rows] = np.stack([r * np.cos(a), r * np.sin(a)], -1)
         mask[rows] = valid
-    return pts, mask
+        if intensities and log.intensities is not None:
+            inten[rows] = np.where(valid, np.nan_to_num(log.intensities[scan[:, None], beam]), 0.0)
+    return (pts, mask, inten) if intensities else (pts, mask)
 
 
 def truth_in_sensor(ex: Examples) -> np.ndarray:

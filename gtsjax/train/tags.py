@@ -29,7 +29,7 @@ from ..core.e_tags import ARC_ANGLES, TagReader, arc_table, band_place, patterns
 from ..core.geometry import relative
 from ..io.logs import ScanLog
 from .labels import Examples, per_log_sites
-from .outline import truth_in_sensor
+from .outline import candidate_points, truth_in_sensor
 
 #: Returns further than this (m) from the robot's outline at its true pose are not its surface.
 NEAR_OUTLINE = 0.03
@@ -77,31 +77,6 @@ def fit_intensity(intensity: np.ndarray, rng: np.ndarray, tape: np.ndarray) -> t
     u = logi + beta * logr
     return (float(coef[2]), beta, float(u[tape].mean()), float(max(u[tape].std(), 0.05)), float(u[~tape].mean()),
             float(max(u[~tape].std(), 0.05)))
-
-
-def _returns(logs: Sequence[ScanLog], ex: Examples, window: int):
-    """Each example's window of returns: points in S, ranges and intensities ``[n, window]``, mask."""
-    n = len(ex.cls)
-    pts = np.zeros((n, window, 2), np.float32)
-    rng = np.zeros((n, window), np.float32)
-    inten = np.zeros((n, window), np.float32)
-    mask = np.zeros((n, window), bool)
-    lane = np.arange(window)
-    for li, log in enumerate(logs):
-        rows = np.flatnonzero(ex.where[:, 0] == li)
-        if rows.size == 0 or log.intensities is None:
-            continue
-        scan, start, length = ex.where[rows, 1], ex.where[rows, 2], ex.where[rows, 3]
-        beam = np.minimum(start[:, None] + lane[None, :], log.n_beams - 1)
-        inside = (lane[None, :] < np.minimum(length, window)[:, None]) & (start[:, None] + lane[None, :] < log.n_beams)
-        valid = log.valid()[scan[:, None], beam] & inside
-        r = np.where(valid, log.ranges[scan[:, None], beam], 0.0).astype(np.float32)
-        a = (log.angle_min + beam * log.angle_increment).astype(np.float32)
-        pts[rows] = np.stack([r * np.cos(a), r * np.sin(a)], -1)
-        rng[rows] = r
-        inten[rows] = np.where(valid, np.nan_to_num(log.intensities[scan[:, None], beam]), 0.0)
-        mask[rows] = valid
-    return pts, rng, inten, mask
 
 
 def fit_tags(logs: Sequence[ScanLog], ex: Examples, site, classes: tuple[str, ...], mobiles: tuple[str, ...],
@@ -152,7 +127,8 @@ def fit_tags(logs: Sequence[ScanLog], ex: Examples, site, classes: tuple[str, ..
     if idx.size > max_examples:
         idx = rng.choice(idx, max_examples, replace=False)
     sub = ex.take(idx)
-    pts, r, inten, mask = _returns(logs, sub, window)
+    pts, mask, inten = candidate_points(logs, sub, window, intensities=True)
+    r = np.hypot(pts[..., 0], pts[..., 1])
     truth = truth_in_sensor(sub)
     q = relative(np.broadcast_to(truth[:, None, :], pts.shape[:2] + (3,)), pts.astype(np.float64))
     d, _ = lookup(outline, jnp.asarray(np.broadcast_to(sub.cls[:, None], mask.shape), jnp.int32),
