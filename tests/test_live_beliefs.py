@@ -22,6 +22,21 @@ DOC = Path(__file__).resolve().parents[1] / "docs" / "live-beliefs.md"
 
 
 # ------------------------------------------------------------------------------------ the listener
+
+def free_listening_port() -> int:
+    """A UDP port free now and below Linux's ephemeral range (32768 and up): a port from ``bind(0)``,
+    closed and handed to ``run``, could meanwhile become the source port of a sender's first datagram
+    (unbound sockets take an ephemeral port when they send), and ``run`` then finds it in use."""
+    rng = np.random.default_rng()
+    for port in rng.permutation(np.arange(20000, 32000))[:200]:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            try:
+                s.bind(("127.0.0.1", int(port)))
+            except OSError:
+                continue
+            return int(port)
+    raise RuntimeError("no free UDP port in 20000-32000")
+
 def _wait_for(cond, what: str, timeout: float = 10.0) -> None:
     """Polls ``cond`` (what a thread does arrives when it arrives); fails naming ``what``."""
     end = time.monotonic() + timeout
@@ -324,10 +339,7 @@ def test_run_with_beliefs_names_the_tracks_of_three_crossing_robots(tmp_path, ca
         served.append((time.time(), i))
         return base(i)
 
-    free = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    free.bind(("127.0.0.1", 0))
-    port = free.getsockname()[1]
-    free.close()
+    port = free_listening_port()
     ns = doc_sender()
     stop = threading.Event()
     rng = np.random.default_rng(9)
