@@ -84,6 +84,8 @@ EXAMPLES = {
               "gtsjax grade gtd.csv --robot nao3=match.mcap:/nao3/pose --frame nao3=mirrored --site site.json"],
     "tags": ["gtsjax tags --robots 10 --perimeter 0.8 --range 9 --names nao1,nao2,nao3,nao4,nao5,nao6,nao7,nao8,nao9,"
              "nao10 --out-dir tags"],
+    "enrol": ["gtsjax enrol --site site.json --model utm.npz --robot nao3 --log nao3.npz --tags tags/tags.json",
+              "gtsjax enrol --site site.json --model utm.npz --robot nao3 --port /dev/ttyACM0 --seconds 20"],
 }
 
 
@@ -138,3 +140,6 @@ MAX_TRACKS_HELP = ("Track slots (and robots given a pose per scan), in place of 
                    "many as robots on the field, a few more for look-alikes.")
 CONFIRM_HELP = ("Scans of detections before a track is reported (default: the model's, half a second of its training "
                 "logs' scans). More keeps short-lived look-alikes of a robot out and delays every robot's first row.")
+
+
+from . import enrol as _enrol  # noqa: E402,F401  (registers ``gtsjax enrol`` on :data:`app`)

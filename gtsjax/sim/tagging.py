@@ -7,7 +7,8 @@ none, so a scene seen only by URG-04LX lasers is rendered as before, bit for bit
 angle and the farthest a robot is seen from, taken as the farthest point of the field (its bounds)
 from any laser that reads intensity, at most that laser's maximum range. Robot ``m`` (the ``m``-th
 labelled object) is named ``robot{m+1}``, as the simulated beliefs name it, and wears code ``m``, its
-band mounted as designed (cell 0 at the front right corner, no offset).
+band mounted as designed (cell 0 at the front right corner, no offset). A band mounted turned (what
+enrolment measures) is :class:`RobotTags`'s ``offsets``, given in the Python API.
 """
 
 import dataclasses
@@ -24,22 +25,28 @@ from .scene import Polygon, outline_perimeter, robot_shape, tagged_shape
 
 @dataclasses.dataclass(frozen=True)
 class RobotTags:
-    """The bands of a scene's robots: ``codes[m]`` robot ``m``'s (``[M, N]`` bool, cell 0 first)."""
+    """The bands of a scene's robots: ``codes[m]`` robot ``m``'s (``[M, N]`` bool, cell 0 first), mounted
+    turned by ``offsets[m]`` cells (its cell 0 over the outline's cell ``offsets[m]``; empty: none is)."""
 
     outline: str
     codes: np.ndarray
     names: tuple[str, ...]
     perimeter_m: float
     range_m: float
+    offsets: tuple[int, ...] = ()
+
+    def offset(self, m: int) -> int:
+        """How many cells robot ``m``'s band is turned as mounted."""
+        return int(self.offsets[m]) if self.offsets else 0
 
     def shape(self, m: int) -> Polygon:
         """Robot ``m``'s outline wearing its band."""
-        return tagged_shape(self.outline, self.codes[m])
+        return tagged_shape(self.outline, self.codes[m], self.offset(m))
 
     def site_entry(self) -> SiteTags:
         """The site file's ``tags`` entry (:class:`~gtsjax.io.site.SiteTags`)."""
-        wearers = tuple(TagWearer(n, "".join("1" if b else "0" for b in c), 0)
-                        for n, c in zip(self.names, self.codes, strict=True))
+        wearers = tuple(TagWearer(n, "".join("1" if b else "0" for b in c), self.offset(m))
+                        for m, (n, c) in enumerate(zip(self.names, self.codes, strict=True)))
         return SiteTags(int(self.codes.shape[1]), round(self.perimeter_m, 6), wearers, round(self.range_m, 3))
 
 

@@ -1,0 +1,193 @@
+"""Enrolment (``gtsjax.tags.enrol``, ``gtsjax enrol``): the band's evidence per cell against a NumPy loop
+that places each return along the simulator's own tagged outline (the exact arc length), the match of a
+read against known codes at every rotation (a band turned by 2 cells gives its code and offset 2), the
+checks that refuse a read (cells not seen, a code another robot wears, a robot designed to wear another
+code), the site written atomically with the rest unchanged and the previous file kept, and the command's
+bad inputs as one line and exit 2."""
+
+import json
+import math
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from gtsjax.cli import main
+from gtsjax.cli.enrol import write_site
+from gtsjax.core.e_tags import BINS, TagReader, arc_table, patterns
+from gtsjax.errors import InputError
+from gtsjax.io.site import SiteTags, TagWearer
+from gtsjax.sim.scene import NAO_OUTLINE, tagged_shape
+from gtsjax.tags import enrol as E
+from gtsjax.tags.codes import design
+from gtsjax.train.tags import CELL_MARGIN
+
+TAPE, BODY = 3.0, 0.5
+
+
+def _reader(codes, sd=0.3):
+    return TagReader(
+        pattern=patterns(codes, np.zeros(len(codes))), arc=jnp.asarray(arc_table(NAO_OUTLINE), jnp.float32)[None],
+        has_arc=jnp.array([True]), range_exp=jnp.float32(0.5), tape_mean=jnp.float32(math.log(6000 * TAPE)),
+        tape_sd=jnp.float32(sd), body_mean=jnp.float32(math.log(6000 * BODY)), body_sd=jnp.float32(sd),
+        cells=jnp.int32(codes.shape[1]), min_cells=jnp.float32(2.0), point_cap=jnp.float32(5.0),
+        bin_cap=jnp.float32(3.0), weight=jnp.float32(0.02))
+
+
+def _polygon_points(shape, n, rng):
+    """``n`` points on the tagged outline's edges, each with its arc length (fraction from vertex 0, the
+    origin) and whether it lies on tape: the simulator's own geometry."""
+    v = shape.vertices
+    nxt = np.roll(v, -1, axis=0)
+    seg = np.linalg.norm(nxt - v, axis=1)
+    start = np.concatenate([[0.0], np.cumsum(seg)[:-1]])
+    i = rng.choice(len(v), size=n, p=seg / seg.sum())
+    u = rng.random(n)
+    return v[i] + u[:, None] * (nxt[i] - v[i]), (start[i] + u * seg[i]) / seg.sum(), shape.retro[i]
+
+
+def test_band_evidence_matches_a_numpy_loop_on_the_simulators_outline():
+    """Scans of returns on a Nao wearing a 13-cell band turned by 2 cells: the evidence per cell (bins,
+    caps, the cells' middles) against a loop that bins each return by its exact arc length on the
+    simulator's tagged polygon; and the read is the band as mounted."""
+    rng = np.random.default_rng(3)
+    n_cells, scans, per_scan = 13, 40, 60
+    code = design(4, n_cells).codes[1]
+    shape = tagged_shape("nao", code, offset_cells=2)
+    reader = _reader(design(4, n_cells).codes)
+    q = np.zeros((scans, per_scan, 2))
+    s = np.zeros((scans, per_scan))
+    tape = np.zeros((scans, per_scan), bool)
+    for t in range(scans):
+        q[t], s[t], tape[t] = _polygon_points(shape, per_scan, rng)
+    r = rng.uniform(1.0, 8.0, (scans, per_scan))
+    inten = 6000 * np.where(tape, TAPE, BODY) / np.sqrt(r) * np.exp(rng.normal(0, 0.3, r.shape))
+    use = rng.random(r.shape) < 0.9
+    per_bin, count = E.band_evidence(reader, reader.arc[0], jnp.asarray(q, jnp.float32), jnp.asarray(inten, jnp.float32),
+                                     jnp.asarray(r, jnp.float32), jnp.asarray(use))
+    got = E.cell_sums(np.asarray(per_bin), np.asarray(count), n_cells)
+
+    # The loop: each return's ratio, binned by its exact arc length, squashed per scan and bin.
+    want_e, want_seen, want_n = np.zeros(n_cells), np.zeros(n_cells, int), np.zeros(n_cells, int)
+    for t in range(scans):
+        sums, cnt = np.zeros(BINS), np.zeros(BINS)
+        for j in range(per_scan):
+            if not use[t, j]:
+                continue
+            u = math.log(inten[t, j]) + 0.5 * math.log(r[t, j])
+            lt = -0.5 * ((u - math.log(6000 * TAPE)) / 0.3) ** 2
+            lb = -0.5 * ((u - math.log(6000 * BODY)) / 0.3) ** 2
+            b = min(int(s[t, j] * BINS), BINS - 1)
+            sums[b] += min(max(lt - lb, -5.0), 5.0)
+            cnt[b] += 1
+        sums = 3.0 * np.tanh(sums / 3.0)
+        for k in range(n_cells):
+            inside = [b for b in range(BINS) if int((b + 0.5) / BINS * n_cells) == k
+                      and CELL_MARGIN < ((b + 0.5) / BINS * n_cells) % 1 < 1 - CELL_MARGIN]
+            want_e[k] += sums[inside].sum()
+            want_seen[k] += cnt[inside].sum() > 0
+            want_n[k] += cnt[inside].sum()
+    # The arc table is the polygon's at 128 angles: a few returns at a bin's edge land in the next bin.
+    np.testing.assert_allclose(got[0], want_e, rtol=0.05, atol=3.0)
+    assert np.abs(got[1] - want_seen).max() <= 2 and np.abs(got[2] - want_n).sum() <= 0.02 * want_n.sum() + 2
+    read = E.BandRead(n_cells, got[0], got[1], got[2], 0.02, scans)
+    assert read.code_string() == "".join("1" if b else "0" for b in np.roll(code, 2))
+
+
+def _read_of(code, offset, strength=400.0, seen=50):
+    """A clean read of ``code`` mounted turned by ``offset`` cells."""
+    pattern = np.roll(np.asarray(code, bool), offset)
+    n = len(pattern)
+    return E.BandRead(n, np.where(pattern, strength, -strength), np.full(n, seen), np.full(n, 10 * seen), 0.02, seen)
+
+
+def test_match_gives_the_code_and_its_offset():
+    d = design(4, 13)
+    known = [(f"nao{k + 1}", s) for k, s in enumerate(d.strings())]
+    for k in range(4):
+        for off in (0, 2, 7):
+            m = E.match(_read_of(d.codes[k], off), known)
+            E.check(_read_of(d.codes[k], off), m, True)
+            assert (m.name, m.code, m.offset, m.disagree) == (f"nao{k + 1}", d.strings()[k], off, ())
+            assert m.margin >= E.MIN_MARGIN and m.offset_margin >= E.MIN_MARGIN
+
+
+def test_reads_that_do_not_single_out_a_code_are_refused_in_one_line():
+    d = design(4, 13)
+    known = [(f"nao{k + 1}", s) for k, s in enumerate(d.strings())]
+    unseen = _read_of(d.codes[1], 2)
+    unseen = E.BandRead(13, unseen.evidence, np.where(np.arange(13) >= 11, 1, 50), unseen.returns, 0.02, 50)
+    with pytest.raises(InputError, match="cells 11, 12 of 13 were not seen.*turn the robot"):
+        E.check(unseen, E.match(unseen, known), True)
+    other = np.array([c == "1" for c in "1010101010100"])  # no known code: cells disagree
+    read = _read_of(other, 0)
+    with pytest.raises(InputError, match="read 1010101010100.*disagrees in cell"):
+        E.check(read, E.match(read, known), True)
+    weak = _read_of(d.codes[1], 2, strength=5.0)  # nothing decided, codes near alike
+    with pytest.raises(InputError, match="margin"):
+        E.check(weak, E.match(weak, known), True)
+    with pytest.raises(InputError, match="every cell must be decided"):
+        E.check(weak, E.match(weak, []), False)
+    clean = E.match(_read_of(other, 0), [])  # no known codes: the read itself
+    assert (clean.name, clean.code, clean.offset) == (None, "1010101010100", 0)
+
+
+def test_enrolled_adds_replaces_and_refuses():
+    d = design(4, 13)
+    s = d.strings()
+    tags = SiteTags(13, 0.88, (TagWearer("nao1", s[0], 0), TagWearer("nao2", s[2], 1)), 5.0)
+    m = E.match(_read_of(d.codes[1], 2), [(f"nao{k + 1}", c) for k, c in enumerate(s)])
+    new, notes = E.enrolled(tags, "nao2", m)
+    assert new.robots == (TagWearer("nao1", s[0], 0), TagWearer("nao2", s[1], 2)) and "replaced" in notes[0]
+    new, _ = E.enrolled(tags, "nao3", m)
+    assert new.robots[-1] == TagWearer("nao3", s[1], 2) and new.cells == 13 and new.range_m == 5.0
+    worn = SiteTags(13, 0.88, (TagWearer("nao5", s[1], 0),), 5.0)
+    with pytest.raises(InputError, match="already worn by nao5.*--replace"):
+        E.enrolled(worn, "nao2", m)
+    new, notes = E.enrolled(worn, "nao2", m, replace=True)
+    assert new.robots == (TagWearer("nao2", s[1], 2),) and "removed nao5" in notes[0]
+    with pytest.raises(InputError, match="nao2 was designed to wear .*nao3's"):
+        E.enrolled(None, "nao2", E.match(_read_of(d.codes[2], 0), [("nao3", s[2])]),
+                   designed={"nao2": s[1], "nao3": s[2]}, base=SiteTags(13, 0.88, (), 5.0))
+
+
+def test_site_written_atomically_the_rest_unchanged_and_the_previous_kept(tmp_path):
+    site = tmp_path / "site.json"
+    doc = {"landmarks": [{"class": "post", "x": 0.0, "y": 1.3, "note": "ünïcode"}], "sensor_pose": [3.0, 4.0, -1.5708],
+           "bounds": [0.0, 0.0, 6.0, 4.0], "operator": {"name": "x", "list": [1, 2.5]}}
+    before = json.dumps(doc, indent=2) + "\n"
+    site.write_text(before)
+    new = dict(doc, tags=SiteTags(13, 0.88, (TagWearer("nao2", "1101011101000", 2),), 5.0).to_json())
+    assert write_site(new, site, None) == site
+    assert (tmp_path / "site.json.bak").read_text() == before
+    got = json.loads(site.read_text())
+    assert got.pop("tags")["robots"] == [{"name": "nao2", "code": "1101011101000", "offset_cells": 2}]
+    assert got == doc and list(got) == list(doc)
+    out = tmp_path / "other.json"
+    write_site(new, site, out)
+    assert json.loads(out.read_text()) == new
+    assert [p.name for p in tmp_path.iterdir() if p.name.endswith(".tmp")] == []
+
+
+def test_bad_inputs_are_one_line_and_exit_2(tmp_path, capsys):
+    from gtsjax.cli.demo import demo_model_path
+
+    site = tmp_path / "site.json"
+    site.write_text(json.dumps({"landmarks": [{"class": "post", "x": 0.0, "y": 1.3}, {"class": "post", "x": 0.0,
+                                "y": 2.7}, {"class": "post", "x": 6.0, "y": 1.3}], "sensor_pose": [3.0, 4.0, -1.5708],
+                                "bounds": [0.0, 0.0, 6.0, 4.0]}))
+    log = tmp_path / "log.npz"
+    cases = [
+        (["--site", str(tmp_path / "missing.json"), "--model", str(demo_model_path()), "--log", str(log)],
+         "no such file"),
+        (["--site", str(site), "--model", str(demo_model_path()), "--log", str(log)], "reads no tags"),
+        (["--site", str(site), "--model", str(demo_model_path())], "give --log LOG or --port PORT"),
+        (["--site", str(site), "--model", str(demo_model_path()), "--log", str(log), "--tags",
+          str(tmp_path / "nope.json")], "no such file"),
+    ]
+    for args, says in cases:
+        capsys.readouterr()
+        assert main(["enrol", "--robot", "nao3", *args]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and says in err[0], err
+    assert not (tmp_path / "site.json.bak").exists()
