@@ -271,6 +271,38 @@ def test_rows_from_packed_equal_rows_from_output():
     assert [wrap_angle(float(x)) for x in a] == wrap(a).tolist()
 
 
+def test_packed_rows_carry_the_tag_identity_as_batch_replay_names_it():
+    """A model that reads tags: the live rows' ``robot`` (the packed table's robot column, named with the
+    model's ``tag_names``) equals batch replay's naming (:meth:`Sink.name_rows` of the rows from the
+    output arrays, by track id), and a track that reports no identity (-1) stays unnamed."""
+    from gtsjax.drivers.live import rows_from_packed
+    from gtsjax.drivers.sink import Sink
+    from gtsjax.io.gtd import COLUMN, PACKED, rows_from_output
+
+    rng = np.random.default_rng(6)
+    classes, names = ("robot", "post"), ("nao1", "nao2", "nao3")
+    sink = Sink.__new__(Sink)
+    sink.tag_names = names
+    for trial in range(100):
+        m = int(rng.integers(1, 10))
+        packed = np.zeros((m + 1, len(PACKED)), np.float32)
+        packed[:m, COLUMN["track_id"]] = rng.permutation(np.arange(1, 3 * m + 1))[:m]
+        packed[:m, COLUMN["class"]] = rng.integers(0, len(classes), m)
+        packed[:m, COLUMN["x"]:COLUMN["theta"] + 1] = rng.normal(0.0, 3.0, (m, 3))
+        packed[:m, COLUMN["reported"]] = rng.random(m) < 0.7
+        packed[:m, COLUMN["robot"]] = rng.integers(-1, len(names), m)
+        t = packed[:-1]
+        got = rows_from_packed(3.0 + trial, packed, classes, names)
+        plain = rows_from_output(3.0 + trial, t[:, 0].astype(np.int64), t[:, 1].astype(np.int64), t[:, 2:5],
+                                 t[:, 5:8], t[:, COLUMN["reported"]] > 0.5, classes, t[:, 8])
+        want = sink.name_rows(plain, t[:, 0].astype(np.int64), t[:, COLUMN["robot"]].astype(np.int64))
+        assert got == want
+        for row in got:  # and directly: the slot's identity by name, or nothing
+            j = int(t[t[:, 0] == row.track_id][0, COLUMN["robot"]])
+            assert row.robot == (names[j] if j >= 0 else "")
+        assert rows_from_packed(3.0 + trial, packed, classes) == plain  # a model without tags: no names
+
+
 def test_decoder_sample_is_a_block_of_the_links_kind():
     """The warm-up's sample data block decodes (by the link's own decoder) to a frame of the link's
     command: its beams, intensities exactly when the link streams ``ME``; a link that does not say

@@ -16,19 +16,25 @@ def live_view(model, link, stats, output, stamp, laser: str | None = None, names
     """The terminal view: confirmed tracks, latency, the sensor pose as the map transformation sees it,
     frame and fault counters. ``link``: the sensor's link, or with several lasers a dict of them by
     name (a counters line each), ``laser`` naming the one whose scan ``output`` is. ``names``: with
-    ``--beliefs``, each track's robot by track id (a ``robot`` column, empty where none yet)."""
+    ``--beliefs``, each track's robot by track id; a model that reads tags names them by their tags
+    first (a ``robot`` column, empty where none yet)."""
+    tagged = bool(getattr(model, "tag_names", ()))
+    named = names is not None or tagged
     t = Table(title="tracks", expand=False)
-    for col in ("id", "class", "x [m]", "y [m]", "θ [°]", "σx [cm]", "σθ [°]") + (("robot",) if names is not None else ()):
+    for col in ("id", "class", "x [m]", "y [m]", "θ [°]", "σx [cm]", "σθ [°]") + (("robot",) if named else ()):
         t.add_column(escape(col), justify="right")  # units in [] are not Rich markup
     if output is not None:
         m = np.asarray(output.track_mask)
+        read = np.asarray(output.track_robot) if tagged and output.track_robot is not None else None
         for i in np.flatnonzero(m):
             p, v = np.asarray(output.track_pose[i]), np.asarray(output.track_var[i])
             tid = int(output.track_id[i])
+            name = (model.tag_names[int(read[i])] if read is not None and read[i] >= 0
+                    else (names or {}).get(tid, ""))
             t.add_row(str(tid), model.classes[int(output.track_class[i])], f"{p[0]:.3f}",
                       f"{p[1]:.3f}", f"{np.degrees(wrap(p[2])):.1f}",
                       f"{100 * np.sqrt(v[0]):.1f}", f"{np.degrees(np.sqrt(v[2])):.1f}",
-                      *((escape(names.get(tid, "")),) if names is not None else ()))
+                      *((escape(name),) if named else ()))
     med, p99 = stats.latency()
     lines = [f"frames {stats.frames}  rows {stats.rows}  latency median {med:.2f} ms  p99 {p99:.2f} ms  "
              f"late {stats.late}"]

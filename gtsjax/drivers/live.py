@@ -117,11 +117,12 @@ _CLASS_BITS = 24
 
 
 def pack_tracks(o: Output):
-    """The GTD rows' fields of one output as a single ``[M + 1, 14]`` float32 array (the layout
+    """The GTD rows' fields of one output as a single ``[M + 1, 15]`` float32 array (the layout
     :data:`~gtsjax.io.gtd.PACKED`, defined beside its reader; track ids and classes are exact in
     float32 below 2^24), so that one transfer brings a scan's rows to the host, with what the run's
     diagnosis counts (each slot's live flag, hold and estimated motion:
-    :mod:`gtsjax.drivers.diagnose`). The last row holds the scan's status
+    :mod:`gtsjax.drivers.diagnose`) and the identity each track reports from its tag (-1 for none, and
+    for a model that reads no tags). The last row holds the scan's status
     (:data:`~gtsjax.io.gtd.STATUS`): degraded, objects, candidates unlike their class's examples,
     candidates outside their best class's envelope, and the classes detected in the scan as a bit
     field (bit ``c``: class ``c``, for the first 24 classes)."""
@@ -130,7 +131,8 @@ def pack_tracks(o: Output):
     columns = {"track_id": o.track_id, "class": o.track_class, "x": pose[:, 0], "y": pose[:, 1], "theta": pose[:, 2],
                "var_x": var[:, 0], "var_y": var[:, 1], "var_theta": var[:, 2], "cov_xy": o.track_cov_xy,
                "reported": o.track_mask, "live": o.track_live, "hold": o.track_hold, "speed": o.track_speed,
-               "turn_rate": o.track_turn_rate}
+               "turn_rate": o.track_turn_rate,
+               "robot": robot if (robot := getattr(o, "track_robot", None)) is not None else jnp.full_like(o.track_id, -1)}
     tracks = jnp.stack([columns[c].astype(f32) for c in PACKED], axis=1)
     bit = jnp.arange(_CLASS_BITS, dtype=jnp.int32)
     seen = jnp.any(o.det_mask[:, None] & (o.det_class[:, None] == bit[None, :]), axis=0)
@@ -260,7 +262,8 @@ def decoder_sample(link) -> bytes | None:
         return None
 
 
-def warm_host(live_step: "LiveStep", last, class_names, sample: bytes | None = None) -> None:
+def warm_host(live_step: "LiveStep", last, class_names, sample: bytes | None = None,
+              robot_names: "tuple[str, ...]" = ()) -> None:
     """The host's part of a frame's path, run on the last frame and thrown away (``last``: its
     :class:`~gtsjax.io.serial.LinkFrame` and its packed rows as a list; nothing before the first):
     the decoding of a data block like the link's (``sample``, :func:`decoder_sample`, by a decoder of
@@ -275,18 +278,19 @@ def warm_host(live_step: "LiveStep", last, class_names, sample: bytes | None = N
         return
     lf, table = last
     live_step.frame(lf.ranges_m, lf.intensities, 0.0, *(0.0,) * live_step.extras)
-    format_rows(rows_from_packed(lf.stamp, table, class_names))
+    format_rows(rows_from_packed(lf.stamp, table, class_names, robot_names), robot=bool(robot_names))
 
 
-def rows_from_packed(stamp: float, packed: "np.ndarray | list", class_names) -> list:
-    """GTD rows from :func:`pack_tracks`'s array, or its ``tolist()`` (reported tracks, in id order):
+def rows_from_packed(stamp: float, packed: "np.ndarray | list", class_names, robot_names: "tuple[str, ...]" = ()) -> list:
+    """GTD rows from :func:`pack_tracks`'s array, or its ``tolist()`` (reported tracks, in id order,
+    named with ``robot_names``, a model's ``tag_names``, where their tracks report one):
     :func:`~gtsjax.io.gtd.rows_from_table` of its track rows.
 
     The live loop passes the ``tolist()``, made once: on its path right after the step, when the
     interpreter's code has left the caches, each NumPy call costs about ten times what it does in a
     tight loop, so the conversion is plain Python on one list."""
     table = packed.tolist() if isinstance(packed, np.ndarray) else packed
-    return rows_from_table(stamp, table[:-1], class_names)
+    return rows_from_table(stamp, table[:-1], class_names, robot_names)
 
 
 def udp_address(udp: str) -> tuple[str, int]:

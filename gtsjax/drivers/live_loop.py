@@ -52,7 +52,7 @@ class KeepWarm:
     reruns the laser's step on its last frame and the host's part of the path
     (:func:`~gtsjax.drivers.live.warm_host`), once per frame: a laser that stalls is not stepped for."""
 
-    def __init__(self, links: list, stats: LiveStats, classes):
+    def __init__(self, links: list, stats: LiveStats, classes, robot_names: "tuple[str, ...]" = ()):
         self.periods = [link.model.period for link in links]
         self.min_period = min(self.periods)
         self.samples = [decoder_sample(link) for link in links]
@@ -60,7 +60,7 @@ class KeepWarm:
         self.last: list = [None] * len(links)  # each laser's last frame and its packed rows as a list
         self.step_s: deque = deque(maxlen=50)
         self.lead = 0.0
-        self.stats, self.classes = stats, classes
+        self.stats, self.classes, self.robot_names = stats, classes, robot_names
 
     def ran(self, k: int, lf, table: list, t_step: float, t_done: float) -> None:
         """Laser ``k``'s frame ``lf`` went through its step from ``t_step`` to ``t_done``."""
@@ -73,7 +73,7 @@ class KeepWarm:
         """The warm-up for laser ``k``'s next frame, thrown away."""
         self.due[k] = None
         step.warm(state)
-        warm_host(step, self.last[k], self.classes, self.samples[k])
+        warm_host(step, self.last[k], self.classes, self.samples[k], self.robot_names)
         self.stats.warm_ups += 1
 
 
@@ -118,7 +118,7 @@ class LiveSession:
             from .fixed_lag import FixedLag
 
             self.lag = FixedLag(model.tracker, smooth[0], model.max_tracks, smooth[1],
-                                units=self.outputs.csv_units, robot=identity is not None)
+                                units=self.outputs.csv_units, robot=identity is not None or bool(model.tag_names))
         bag = BagOut(out_bag, {n: LaserGeometry.of_sensor(links[n].model) for n in names}) if out_bag is not None else None
         self.sink = Sink(model, out, names=tuple(names) if named else None, bag=bag, view=view,
                          csv_units=self.outputs.csv_units, identity=identity)
@@ -138,7 +138,7 @@ class LiveSession:
         self.on_scan = on_scan
         self.tags = [{"laser": n} if named else {} for n in names]  # what each frame's JSON line adds
         self.scan_args = [(n,) if named else () for n in names]  # what ``on_scan`` gets after the stamp
-        self.warm = KeepWarm(self.links, self.stats, model.classes) if keep_warm else None
+        self.warm = KeepWarm(self.links, self.stats, model.classes, self.sink.tag_names) if keep_warm else None
         self.t_end = None if duration is None else time.monotonic() + duration
         self.stop, self.max_frames = stop, max_frames
 
@@ -184,6 +184,7 @@ def run_loop(session: LiveSession, frames: Frames, state) -> InputError | None:
     stop, t_end, max_frames = session.stop, session.t_end, session.max_frames
     sink, lag = session.sink, session.lag
     label = sink.label  # None without --beliefs: the frame's path is then as it was
+    robot_names = sink.tag_names  # () for a model that reads no tags
     unpack = frames.needs_output or sink.wants_output or on_scan is not None
     failed = None
     try:
@@ -205,7 +206,7 @@ def run_loop(session: LiveSession, frames: Frames, state) -> InputError | None:
             else:  # the filtered states came in the same transfer, columns after the rows'
                 packed = np.asarray(packed)
                 table = packed[:, :N_PACKED].tolist()
-            rows = rows_from_packed(lf.stamp, table, classes)
+            rows = rows_from_packed(lf.stamp, table, classes, robot_names)
             if label is not None:
                 rows = label(rows)
             sink.write(rows)

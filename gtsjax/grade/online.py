@@ -81,11 +81,13 @@ class OnlineIdentity:
         self.renames = 0  # a named track given another robot's name
 
     def label(self, rows: list) -> list:
-        """``rows`` (:class:`~gtsjax.io.gtd.TrackRow`) with their track's robot, where it has one."""
+        """``rows`` (:class:`~gtsjax.io.gtd.TrackRow`) with their track's robot, where it has one and the
+        row is not already named by its tag (a model that reads tags: the laser's reading of the robot
+        itself wins over an association of poses)."""
         names = self.names
         if not names:
             return rows
-        return [replace(r, robot=names[r.track_id]) if r.track_id in names else r for r in rows]
+        return [replace(r, robot=names[r.track_id]) if r.track_id in names and not r.robot else r for r in rows]
 
     def observe(self, stamp: float, rows: list) -> None:
         """One scan's rows, stamped ``stamp`` (laptop time); closes the window when ``stamp`` is past it."""

@@ -12,10 +12,11 @@ optional form :data:`UNITS_HEADER`: the same columns named with their units (``x
 diagonal alone draws as a circle). The reader takes either header, and the spec header followed by
 ``cov_xy``.
 
-``run --beliefs`` appends one more optional column, ``robot``, last after either form: the name of
-the robot the live association (:mod:`gtsjax.grade.online`) gives the track at that scan, empty
-where none. Without ``--beliefs`` the file is as before, byte for byte, so readers of the contract
-see nothing new unless they ask for it.
+``run --beliefs`` and a model that reads reflective tags append one more optional column, ``robot``,
+last after either form: the name of the robot the track is at that scan, empty where none yet. A
+tag's reading (:mod:`gtsjax.core.g_identity`) names it where the model reads tags, else the live
+association of the robots' own beliefs (:mod:`gtsjax.grade.online`). Without either the file is as
+before, byte for byte, so readers of the contract see nothing new unless they ask for it.
 """
 
 import csv
@@ -36,7 +37,7 @@ HEADER = ("stamp", "track_id", "class", "x", "y", "theta", "var_x", "var_y", "va
 # The optional form (``--csv-units``): the spec's columns with their units, and the x–y covariance.
 UNITS_HEADER = ("stamp_s", "track_id", "class", "x_m", "y_m", "theta_rad", "var_x_m2", "var_y_m2", "var_theta_rad2",
                 "cov_xy_m2")
-#: The optional last column ``run --beliefs`` adds: the robot's name, empty where unknown.
+#: The optional last column of ``run --beliefs`` and of models that read tags: the robot's name, empty where unknown.
 ROBOT = "robot"
 # Headers the reader accepts, with whether they hold ``cov_xy``; each may end in :data:`ROBOT` too.
 _BASE = {HEADER: False, HEADER + ("cov_xy",): True, UNITS_HEADER: True, UNITS_HEADER[:-1]: False}
@@ -55,7 +56,7 @@ class TrackRow:
     var_y: float
     var_theta: float
     cov_xy: float = 0.0  # the x–y covariance; 0 where a CSV without the column was read
-    robot: str = ""  # the robot's name from its beliefs (``run --beliefs``); empty where unknown
+    robot: str = ""  # the robot's name from its tag or its beliefs (``run --beliefs``); empty where unknown
 
     def as_dict(self) -> dict:
         """The row for a JSON line; ``robot`` only where a name is known, so that a run without
@@ -110,9 +111,10 @@ def wrap_angle(a: float) -> float:
 
 #: The columns of a scan's track table as the live step hands it to the host in one transfer
 #: (:func:`gtsjax.drivers.live.pack_tracks`), one row per track slot: the GTD row's fields first
-#: (:func:`rows_from_table` reads them), then what the run's diagnosis counts.
+#: (:func:`rows_from_table` reads them), then what the run's diagnosis counts, then the identity the
+#: track reports from its tag (an index into the model's ``tag_names``, -1 for none: issue 43).
 PACKED = ("track_id", "class", "x", "y", "theta", "var_x", "var_y", "var_theta", "cov_xy", "reported", "live", "hold",
-          "speed", "turn_rate")
+          "speed", "turn_rate", "robot")
 #: The packed table's last row, the scan's status, in its first columns: degraded (no new map
 #: transformation), objects, candidates unlike their class's examples, candidates outside their
 #: class's envelope, the classes detected as a bit field.
@@ -120,17 +122,25 @@ STATUS = ("degraded", "n_objects", "unlike", "off_envelope", "detected")
 #: Where each column and status field lies.
 COLUMN = {c: i for i, c in enumerate(PACKED)}
 STATUS_AT = {c: i for i, c in enumerate(STATUS)}
-_ID, _CLS, _X, _Y, _TH, _VX, _VY, _VT, _CXY, _REP = (
-    COLUMN[c] for c in ("track_id", "class", "x", "y", "theta", "var_x", "var_y", "var_theta", "cov_xy", "reported"))
+_ID, _CLS, _X, _Y, _TH, _VX, _VY, _VT, _CXY, _REP, _ROB = (
+    COLUMN[c] for c in ("track_id", "class", "x", "y", "theta", "var_x", "var_y", "var_theta", "cov_xy", "reported",
+                        "robot"))
 
 
-def rows_from_table(stamp: float, table, class_names) -> list[TrackRow]:
+def rows_from_table(stamp: float, table, class_names, robot_names: "tuple[str, ...]" = ()) -> list[TrackRow]:
     """Rows for one scan from its track slots as lists in the :data:`PACKED` layout (numbers;
-    ``reported`` above 0.5 for a reported track), reported tracks only, in id
-    order. Plain Python: the live loop calls it right after the step, where each NumPy call costs
-    many times what it does in a tight loop (see :func:`gtsjax.drivers.live.rows_from_packed`)."""
-    rows = [TrackRow(float(stamp), int(r[_ID]), class_names[int(r[_CLS])], r[_X], r[_Y], wrap_angle(r[_TH]), r[_VX],
-                     r[_VY], r[_VT], r[_CXY]) for r in table if r[_REP] > 0.5]
+    ``reported`` above 0.5 for a reported track), reported tracks only, in id order; with
+    ``robot_names`` (a model's ``tag_names``), each row's ``robot`` the name its track reports from its
+    tag, where it reports one. Plain Python: the live loop calls it right after the step, where each
+    NumPy call costs many times what it does in a tight loop (see
+    :func:`gtsjax.drivers.live.rows_from_packed`)."""
+    if robot_names:
+        rows = [TrackRow(float(stamp), int(r[_ID]), class_names[int(r[_CLS])], r[_X], r[_Y], wrap_angle(r[_TH]),
+                         r[_VX], r[_VY], r[_VT], r[_CXY], robot_names[int(r[_ROB])] if r[_ROB] >= 0 else "")
+                for r in table if r[_REP] > 0.5]
+    else:
+        rows = [TrackRow(float(stamp), int(r[_ID]), class_names[int(r[_CLS])], r[_X], r[_Y], wrap_angle(r[_TH]),
+                         r[_VX], r[_VY], r[_VT], r[_CXY]) for r in table if r[_REP] > 0.5]
     rows.sort(key=lambda row: row.track_id)
     return rows
 
@@ -145,6 +155,7 @@ def rows_from_output(stamp: float, track_id, cls_index, pose, var, mask, class_n
     if cov_xy is not None:
         columns["cov_xy"] = cov_xy
     table = np.zeros((len(mask), len(PACKED)))
+    table[:, COLUMN["robot"]] = -1.0
     for name, values in columns.items():
         table[:, COLUMN[name]] = np.asarray(values, np.float64)
     return rows_from_table(stamp, table.tolist(), class_names)
