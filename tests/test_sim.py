@@ -276,3 +276,34 @@ def test_match_scenario_one_log_per_laser_at_its_own_times(tmp_path):
         assert np.hypot(sen.pose[0] - pose[0], sen.pose[1] - pose[1]) < 0.15 and sen.model == "URG-04LX"
     again, _ = render_match(match, seed=3)
     np.testing.assert_array_equal(again["north"].ranges, north.ranges)  # seeded
+
+
+def test_match_penalties_lift_robots_and_put_them_down_on_their_paths():
+    """``--penalties``: a match without them is the one it always was (the same poses to the bit); with
+    them, each robot is either on its unpenalised path or absent (NaN, in the logs' truth too), the absences last 3–8 s each (merged where one robot's overlap),
+    start after the first 2 s and end before the last 2 s, and a robot put down is where its path has
+    gone on to."""
+    from gtsjax.errors import InputError
+    from gtsjax.sim.match import PENALTY_S, plan_match, render_match
+
+    base = plan_match(2, URG_04LX, n_robots=6, seconds=30.0, seed=4)
+    np.testing.assert_array_equal(plan_match(2, URG_04LX, n_robots=6, seconds=30.0, seed=4, penalties=0).robots,
+                                  base.robots)
+    pen = plan_match(2, URG_04LX, n_robots=6, seconds=30.0, seed=4, penalties=5)
+    gone = np.isnan(pen.robots[..., 0])
+    assert gone.any() and np.all(np.isnan(pen.robots[gone]))
+    np.testing.assert_array_equal(pen.robots[~gone], base.robots[~gone])  # put down on its own path
+    t = np.arange(len(pen.robots)) * pen.dt
+    spans = 0
+    for m in range(6):
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], gone[:, m].astype(int), [0]])))
+        for a, b in zip(edges[0::2], edges[1::2], strict=True):
+            spans += 1
+            assert t[a] >= 2.0 - pen.dt and t[b - 1] <= 30.0 - 2.0
+            assert PENALTY_S[0] - 2 * pen.dt <= t[b - 1] - t[a] + pen.dt  # at least one penalty's length
+    assert 1 <= spans <= 5
+    logs, _ = render_match(pen, seed=4)
+    north = logs["north"]
+    np.testing.assert_array_equal(np.isnan(north.truth_poses[..., 0]), gone[pen.rows[0]])
+    with pytest.raises(InputError, match="penalties"):
+        plan_match(2, URG_04LX, n_robots=6, seconds=9.0, seed=4, penalties=1)

@@ -65,6 +65,8 @@ def evaluate_cmd(
     max_tracks: int | None = typer.Option(None, "--max-tracks", min=1, help=MAX_TRACKS_HELP),
     robots: int = typer.Option(10, "--robots", min=1, max=14, help="spl-match-* scenarios: robots on the field."),
     seconds: float = typer.Option(60.0, "--seconds", min=1.0, help="spl-match-* scenarios: how long."),
+    penalties: int = typer.Option(0, "--penalties", min=0, help="spl-match-* scenarios: robots picked up so many "
+                                  "times in all and put down again (as gtsjax simulate --penalties)."),
     without_outline: bool = typer.Option(False, "--without-outline",
                                          help="Score the model with its learnt outlines left out (no stage e′: "
                                               "headings as the GP reads them), to see what the refinement gains."),
@@ -111,7 +113,7 @@ def evaluate_cmd(
     check_out_dir(out_dir)  # after the inputs are checked (a bad one leaves nothing behind), before any replay
     results = {}
     for spec, name, seed in matches:
-        results.update(_evaluate_match(bases, spec, name, seed, robots, seconds, smooth))
+        results.update(_evaluate_match(bases, spec, name, seed, robots, seconds, smooth, penalties))
     for label, get in jobs:
         log, site_obj, fitted = get()
         if not log.labelled:
@@ -154,8 +156,8 @@ def evaluate_cmd(
         print_warnings(Console(stderr=True), res.get("diagnosis"), base, prefix=f"{label}: ")
 
 
-def _evaluate_match(bases, spec: str, name: str, seed: int, robots: int, seconds: float, smooth: bool = False
-                    ) -> dict:
+def _evaluate_match(bases, spec: str, name: str, seed: int, robots: int, seconds: float, smooth: bool = False,
+                    penalties: int = 0) -> dict:
     """A match of several lasers (``spl-match-N``), scored with each laser alone, with two opposite
     ones (of four) and with all: rows ``SPEC LASER[+LASER...]``. ``bases``: the models, one per
     scanner model of the match's lasers (:func:`~gtsjax.drivers.several.models_for_lasers`)."""
@@ -165,7 +167,7 @@ def _evaluate_match(bases, spec: str, name: str, seed: int, robots: int, seconds
     from ..io.site import one_sensor
     from ..sim.match import simulate_match
 
-    logs, site = simulate_match(name, seed=seed, n_robots=robots, seconds=seconds)
+    logs, site = simulate_match(name, seed=seed, n_robots=robots, seconds=seconds, penalties=penalties)
     names = list(logs)
     models, kinds = models_for_lasers([attach_site(b, one_sensor(site, names[0])) for b in bases], site, names)
     model_of = {n: models[kinds[i]] for i, n in enumerate(names)}

@@ -23,6 +23,9 @@ def simulate_cmd(
     robots: int = typer.Option(10, "--robots", min=1, max=14, help="spl-match-*: robots on the field."),
     seconds: float = typer.Option(60.0, "--seconds", min=0.1, help="spl-match-*: how long."),
     referee: bool = typer.Option(True, "--referee/--no-referee", help="spl-match-*: a referee walking about."),
+    penalties: int = typer.Option(0, "--penalties", min=0, help="spl-match-*: robots picked up so many times in "
+                                  "all, 3–8 s each, and put down where their paths have gone on to (identities "
+                                  "after a put-down: gtsjax evaluate)."),
     tags: bool | None = typer.Option(None, "--tags/--no-tags", help="Robots wearing reflective tags, one code "
                                      "each, recorded in the site's 'tags' (default: where a scanner reports "
                                      "intensity, the UTM-30LX; --no-tags renders them bare, as before)."),
@@ -57,7 +60,7 @@ def simulate_cmd(
     t0 = time.perf_counter()
     if is_match(scenario):
         logs, site_obj = simulate_match(scenario, seed=seed, n_robots=robots, seconds=seconds, referee=referee,
-                                        tags=tags)
+                                        tags=tags, penalties=penalties)
         paths = [out.with_name(f"{out.stem}-{name}{out.suffix or '.npz'}") for name in logs]
         distinct_paths({}, {**{f"--out (laser {name})": p for name, p in zip(logs, paths, strict=True)}, "--site": site})
         for path in paths:

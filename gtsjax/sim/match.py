@@ -47,6 +47,7 @@ SIDE_POLES = [("post", 1.5, 6.35, 0.05), ("post", 7.5, 6.35, 0.05), ("post", 1.5
               ("post", 7.5, -0.35, 0.05)]
 LANDMARKS = GOAL_POSTS + SIDE_POLES
 TRIPOD_OFFSET_M = 0.5  # how far outside the side line a tripod stands
+PENALTY_S = (3.0, 8.0)  # how long a picked-up robot is off the field (uniform; SPL's 45 s shortened to fit a short log)
 
 
 def laser_poses(n: int) -> list[tuple[str, tuple[float, float, float]]]:
@@ -88,12 +89,19 @@ class Match:
 
 
 def plan_match(n_lasers: int, sensor: "SensorModel | list[SensorModel]", n_robots: int = 10, seconds: float = 60.0,
-               referee: bool = True, seed: int = 0) -> Match:
+               referee: bool = True, seed: int = 0, penalties: int = 0) -> Match:
     """Robots walking Lissajous paths in their own cells of the field (a grid of cells, one robot
     each; at 0.1–0.4 m/s, as :func:`~gtsjax.sim.scenarios.path_poses`), the referee walking the
     field's length and back, all on a time grid ``K`` times finer than the fastest laser's period.
     ``sensor``: every laser's scanner, or one per laser. Laser ``k`` scans every ``period / dt``
-    rows of the grid from row ``k``."""
+    rows of the grid from row ``k``.
+
+    ``penalties``: so many times in the match a robot is picked up, as a referee takes a penalised
+    one off the field, and put down again :data:`PENALTY_S` later where its path has gone on to (up
+    to a metre or two from where it was lifted): absent from the scene (and its truth NaN) in between.
+    Each picks a robot and a start at random (after the first 2 s, ending before the last 2 s; a robot
+    picked twice at overlapping times is out for the union). Drawn from a generator of their own:
+    without them a match is the one it always was."""
     if not 1 <= n_robots <= 14:
         raise InputError("spl-match", f"{n_robots} robots: 1 to 14")
     rng = np.random.default_rng(seed)
@@ -116,7 +124,18 @@ def plan_match(n_lasers: int, sensor: "SensorModel | list[SensorModel]", n_robot
         ax, ay = rng.uniform(0.30, 0.40) * cw, rng.uniform(0.28, 0.36) * ch
         robots.append(path_poses(lissajous(cx, cy, ax, ay, rng.uniform(0, 2 * np.pi)), n_fine, dt, rng))
     legs = walking_legs((x0 + 0.5, y0 + 0.8), (x1 - 0.5, y1 - 1.0), n_fine, dt, speed=1.0, rng=rng) if referee else []
-    return Match(lasers, sensors, dt, np.stack(robots, 1), legs, scan_rows)
+    poses = np.stack(robots, 1)
+    if penalties:
+        lo_s, hi_s = PENALTY_S
+        if seconds < 4.0 + hi_s:
+            raise InputError("--penalties", f"a {seconds:g} s match has no room for a penalty of up to {hi_s:g} s "
+                                            f"(at least {4.0 + hi_s:g} s)")
+        prng = np.random.default_rng([seed, 3])
+        for _ in range(penalties):
+            m, dur = int(prng.integers(n_robots)), prng.uniform(lo_s, hi_s)
+            start = prng.uniform(2.0, seconds - 2.0 - dur)
+            poses[int(round(start / dt)):int(round((start + dur) / dt)), m] = np.nan
+    return Match(lasers, sensors, dt, poses, legs, scan_rows)
 
 
 def render_match(match: Match, seed: int = 0, tags: bool | None = None) -> tuple[dict[str, ScanLog], Site]:
@@ -168,9 +187,10 @@ def is_match(name: str) -> bool:
 
 
 def simulate_match(name: str, *, seed: int = 0, n_robots: int = 10, seconds: float = 60.0,
-                   referee: bool = True, tags: bool | None = None) -> tuple[dict[str, ScanLog], Site]:
+                   referee: bool = True, tags: bool | None = None, penalties: int = 0) -> tuple[dict[str, ScanLog], Site]:
     """``spl-match-N[-utm|-mixed]``: N lasers (1, 2 or 4), URG-04LX, UTM-30LX or both (alternating:
-    the first a URG-04LX), ``n_robots`` walking; ``tags`` as :func:`render_match`."""
+    the first a URG-04LX), ``n_robots`` walking, picked up and put down ``penalties`` times
+    (:func:`plan_match`); ``tags`` as :func:`render_match`."""
     m = MATCH_NAME.match(name)
     if m is None:
         raise InputError(name, "not a match scenario (spl-match-N, spl-match-N-utm or spl-match-N-mixed, N = 1, 2, 4)")
@@ -178,5 +198,5 @@ def simulate_match(name: str, *, seed: int = 0, n_robots: int = 10, seconds: flo
     kind = m.group(2)
     sensor = ([URG_04LX if k % 2 == 0 else UTM_30LX for k in range(n)] if kind == "-mixed"
               else UTM_30LX if kind == "-utm" else URG_04LX)
-    match = plan_match(n, sensor, n_robots=n_robots, seconds=seconds, referee=referee, seed=seed)
+    match = plan_match(n, sensor, n_robots=n_robots, seconds=seconds, referee=referee, seed=seed, penalties=penalties)
     return render_match(match, seed=seed, tags=tags)
