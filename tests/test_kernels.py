@@ -48,6 +48,25 @@ def test_a_branch_counts_its_largest_arm():
     assert big <= got <= big + 3  # the larger arm, plus the branch index's own
 
 
+def test_a_branch_returning_many_arrays_is_counted():
+    """A conditional whose result is a tuple of six or more arrays (its type then carries an
+    ``/*index=5*/`` comment in the HLO text) is counted like one of fewer: its branches' kernels are
+    not lost (the counter once read the comment's ``=`` as the end of the instruction's type)."""
+    x = jnp.arange(64, dtype=jnp.float32)
+
+    def arms(k):
+        def f(i, x):
+            return jax.lax.switch(i, [lambda v: tuple(v + j for j in range(k)),
+                                      lambda v: tuple(_body(_body(v)) * (j + 1.0) for j in range(k))], x)
+        return f
+
+    two = count_kernels(compiled_text(lambda x: _body(_body(x)), x)).total
+    for k in (2, 5, 6, 9):
+        hlo = compiled_text(arms(k), jnp.asarray(0, jnp.int32), x)
+        assert (k >= 6) == ("/*index=5*/" in hlo)
+        assert count_kernels(hlo).total >= two, k
+
+
 def test_the_compiled_step_stays_within_its_kernel_budget():
     """The demo model's whole step (a–g, the model closed over as the live driver compiles it): at most
     ``STEP_KERNEL_BUDGET`` kernels, every loop of a known trip count, no call back to the host."""

@@ -399,6 +399,41 @@ def test_refine_candidates_matches_reference(nao):
     np.testing.assert_allclose(side[..., :2], want.side_pose[..., :2], rtol=0, atol=3e-6)
     np.testing.assert_allclose(ref.wrap(side[..., 2] - want.side_pose[..., 2]), 0.0, atol=3e-6)
     np.testing.assert_allclose(np.exp(np.asarray(got.side_logp, np.float64)), np.exp(want.side_logp), rtol=0, atol=1e-5)
+    # With a tag reader, the same call reads the chosen rows' tags (stage e″) along their sides: what
+    # read_tags gives each chosen slot on its own with the sides that come back, 0 for every other slot;
+    # the fits' results as without a reader.
+    from gtsjax.core.e_tags import TagReader, arc_table, patterns, read_tags
+
+    arcs = np.stack([arc_table(NAO_OUTLINE), arc_table(NAO_OUTLINE), arc_table(box)]).astype(np.float32)
+    codes = np.array([[1, 0, 1, 1, 0, 0], [1, 1, 0, 1, 0, 0], [1, 0, 0, 0, 1, 1]], bool)
+    reader = TagReader(pattern=patterns(codes, np.zeros(3)), arc=jnp.asarray(arcs), has_arc=jnp.array([False, True, True]),
+                       range_exp=jnp.float32(0.5), tape_mean=jnp.float32(9.0), tape_sd=jnp.float32(0.4),
+                       body_mean=jnp.float32(8.0), body_sd=jnp.float32(0.4), cells=jnp.int32(6),
+                       min_cells=jnp.float32(1.0), point_cap=jnp.float32(5.0), bin_cap=jnp.float32(3.0),
+                       weight=jnp.float32(1.0))
+    ranges = jnp.asarray(np.linalg.norm(pts, axis=-1), F32)
+    intens = jnp.asarray(rng.uniform(2000.0, 16000.0, mask.shape), F32)
+    read = jax.jit(lambda *a: refine_candidates(outline, max_objects, *a, reader=reader, ranges=ranges,
+                                                intensities=intens))(*args)
+    np.testing.assert_array_equal(np.asarray(read.refined), np.asarray(got.refined))
+    for f in ("pose", "cov", "side_pose", "side_logp"):  # the same to rounding (compiled with more in the program)
+        np.testing.assert_allclose(np.asarray(getattr(read, f)), np.asarray(getattr(got, f)), rtol=1e-5, atol=1e-9)
+    eligible = ok & np.isin(cls, [1, 2])  # kept, of a class with an outline
+    own = np.where(eligible, scores[np.arange(BATCH), cls], -np.inf)
+    chosen = np.zeros(BATCH, bool)
+    chosen[np.argsort(-own, kind="stable")[:max_objects]] = True
+    chosen &= eligible
+    tag_ll = np.asarray(read.tag_ll)
+    assert tag_ll.shape == (BATCH, 3) and chosen.sum() == max_objects
+    for i in range(BATCH):
+        if not chosen[i]:
+            np.testing.assert_array_equal(tag_ll[i], 0.0)
+            continue
+        one, _, _ = read_tags(reader, jnp.asarray(cls[i:i + 1], jnp.int32), jnp.asarray(pts[i:i + 1]), ranges[i:i + 1],
+                              intens[i:i + 1], jnp.asarray(mask[i:i + 1]), read.side_pose[i:i + 1],
+                              read.side_logp[i:i + 1])
+        np.testing.assert_allclose(tag_ll[i], np.asarray(one)[0], rtol=1e-5, atol=1e-5)
+    assert np.any(tag_ll[chosen] != 0.0)
     # and a model without outlines: the default sides everywhere
     none = _refine_candidates(None, max_objects, *args)
     want = ref.refine_candidates(

@@ -32,6 +32,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from .buckets import bucketed_rows, slots_of
+from .e_tags import TagReader, read_tags
 from .geometry import wrap
 
 POINTS = 32  # points per candidate the fit uses: a longer segment is thinned evenly (a robot at 1.5–3.6 m
@@ -298,18 +299,29 @@ class Sides(eqx.Module):
     side_pose: Float[Array, "cands sides 3"]
     side_logp: Float[Array, "cands sides"]
     refined: Bool[Array, " cands"]
+    # Stage e″'s identity log-likelihoods where a tag reader was given (0 for candidates not read),
+    # read on the fits' own rows (:func:`refine_candidates`); None without a reader.
+    tag_ll: Float[Array, "cands ids"] | None = None
 
 
 def refine_candidates(outline: "Outline | None", max_objects: int, cls: Int[Array, " cands"], ok: Bool[Array, " cands"],
                       scores: Float[Array, "cands classes"], xy: Float[Array, "cands window 2"],
                       mask: Bool[Array, "cands window"], pose: Float[Array, "cands 3"],
-                      cov: Float[Array, "cands 3 3"], bucket: bool = False, axis_name=None) -> Sides:
+                      cov: Float[Array, "cands 3 3"], bucket: bool = False, axis_name=None, *,
+                      reader: "TagReader | None" = None, ranges: Float[Array, "cands window"] | None = None,
+                      intensities: Float[Array, "cands window"] | None = None) -> Sides:
     """Stage e′ on a scan's candidates: the ``max_objects`` kept candidates of classes with an outline
     that score highest for their class are refined (:func:`refine`); every other candidate keeps its
     GP pose and gets its class's side hypotheses from the GP's heading (:func:`prior_sides`). With
     ``bucket``, the fits run on the smallest of a few fixed counts of candidates that holds those
     present (:func:`~gtsjax.core.buckets.bucketed_rows`: a scan with one robot pays for one), as the
-    pose GPs do (``e_pose.regress``; ``axis_name`` as there)."""
+    pose GPs do (``e_pose.regress``; ``axis_name`` as there).
+
+    With a tag ``reader`` (stage e″, :func:`~gtsjax.core.e_tags.read_tags`), the same chosen rows are
+    read along their outlines from their sides (``ranges``, ``intensities``: the candidates' returns)
+    in the same call, and come back with the fits' results by the same gather: the selection, the
+    rows' gathers and their return to the scan's slots are shared, not done twice (each is a kernel
+    of its own on a CPU)."""
     n = cls.shape[0]
     dt = pose.dtype
     if outline is None:
@@ -324,15 +336,28 @@ def refine_candidates(outline: "Outline | None", max_objects: int, cls: Int[Arra
     _, idx = jax.lax.top_k(jnp.where(sel, own, -jnp.inf), k)
     chosen = sel[idx]
     args = (cls[idx], chosen, xy[idx], mask[idx], pose[idx], cov[idx])
-    run = lambda a: refine(outline, *a)  # noqa: E731
-    r = bucketed_rows(run, args, jnp.sum(chosen, dtype=jnp.int32), axis_name) if bucket else run(args)
-    done = chosen & r.fitted
-    got, src = slots_of(idx, done, n)
-    parts = (r.pose, r.cov, r.side_pose, r.side_logp)
+    if reader is not None:
+        args = args + (ranges[idx], intensities[idx])
+
+    def run(a):
+        r = refine(outline, *a[:6])
+        if reader is None:
+            return r, None
+        c, ch, pts, m, rr, it = a[0], a[1], a[2], a[3], a[6], a[7]
+        return r, read_tags(reader, c, pts, rr, it, m & ch[:, None], r.side_pose, r.side_logp)[0]
+
+    r, ll = bucketed_rows(run, args, jnp.sum(chosen, dtype=jnp.int32), axis_name) if bucket else run(args)
+    # Every chosen row comes back (its reading does, fitted or not); a fit's results only where it fitted.
+    back, src = slots_of(idx, chosen, n)
+    parts = (r.pose, r.cov, r.side_pose, r.side_logp, r.fitted.astype(pose.dtype)[:, None]) + (
+        () if ll is None else (ll.astype(pose.dtype),))
     rows = jnp.concatenate([a.reshape(k, -1) for a in parts], -1)[src]
     out, at = [], 0
-    for full, part in zip((pose, cov, side_pose, side_logp), parts, strict=True):
+    fitted_at = sum(a[0].size for a in parts[:4])
+    got = back & (rows[:, fitted_at] > 0.5)
+    for full, part in zip((pose, cov, side_pose, side_logp), parts, strict=False):
         w = part[0].size
         out.append(jnp.where(got.reshape((-1,) + (1,) * (full.ndim - 1)), rows[:, at:at + w].reshape(full.shape), full))
         at += w
-    return Sides(*out, got)
+    tag_ll = None if ll is None else jnp.where(back[:, None], rows[:, fitted_at + 1:], 0.0)
+    return Sides(*out, got, tag_ll)

@@ -150,8 +150,11 @@ def perceive(model: Model, scan: Scan, *, bucket: bool | None = None, axis_name=
     pose_s, cov_s = to_sensor_frame(f.origin, f.heading, rel, var)
     c = fe.candidates
     to_refine = (ok | dec.guess) & posed & model.tracker.tracked[cls]
+    # Stage e″ (the tags) reads on stage e′'s own rows where the model has outlines (sharing their selection).
+    reads = model.tags is not None and model.outline is not None
     sides = refine_candidates(model.outline, model.max_objects, cls, to_refine, scores, c.xy, c.mask, pose_s, cov_s,
-                              bucket, axis_name)
+                              bucket, axis_name, reader=model.tags if reads else None, ranges=c.ranges,
+                              intensities=c.intensities)
     d = fe.diagnostics
     unposed = jnp.sum(ok & ~posed, dtype=jnp.int32)
     count = lambda m: jnp.sum(m, dtype=jnp.int32)
@@ -159,8 +162,8 @@ def perceive(model: Model, scan: Scan, *, bucket: bool | None = None, axis_name=
     vague = vague_headings(model.pose, cls, var)
     reason = jnp.where(ok & posed, 6, jnp.where(ok, 5, jnp.where(dec.unlike, 3, jnp.where(
         dec.off_envelope, 4, jnp.where(fe.keep, 2, jnp.where(c.live, 1, 0)))))).astype(jnp.int32)
-    tag_ll = None
-    if model.tags is not None:  # stage e″: the tracked candidates' tags, read along their outlines
+    tag_ll = sides.tag_ll
+    if model.tags is not None and not reads:  # outlines left out: the tags read from the GP's sides alone
         tag_ll = read_candidates(model.tags, model.max_objects, cls, to_refine, scores, c.xy, c.ranges,
                                  c.intensities, c.mask, sides.side_pose, sides.side_logp)
     return Perception(cls, ok & posed, fe.keep, partial, vague & ~sides.refined, scores, sides.pose, sides.cov,
