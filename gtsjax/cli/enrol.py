@@ -144,6 +144,7 @@ def _print_read(console: Console, read, mt) -> None:
         what = ("tape" if p[k] > 0.5 else "body") if d[k] else ("not seen" if read.seen[k] < 5 else "?")
         table.add_row(str(k), what, f"{p[k]:.3f}", f"{read.evidence[k]:+.0f}", str(read.seen[k]), str(read.returns[k]))
     console.print(table)
+    console.print(read.turned_note())
     if mt.name is not None:
         console.print(f"best: {mt.code} ({mt.name}) turned {mt.offset} cells; margin {mt.margin:.1f} to the next code"
                       + (f" ({mt.next_code}, {mt.next_name})" if mt.next_code else "")

@@ -14,6 +14,23 @@ squashed per scan. The bins in the middle of each cell (away from its edges by
 :data:`~gtsjax.train.tags.CELL_MARGIN` of a cell, where which cell a return is in is uncertain) sum,
 over the log, to the cell's evidence.
 
+**Headings on the wrong side.** Which part of the band a return lies on is read from the track's
+heading, and a robot's outline is nearly the same turned (a Nao's half a turn): a track's heading can
+lie on another side of the robot for a while, most of all through a model trained briefly, the kind a
+site has. Summed as they come, such scans add the band turned to the band as it is, and the read is a
+blend that fits no code. So each scan is read under the track's heading and under it turned by each
+of the class's side hypotheses (the outline's learnt ``sides``, the headings its views are misread
+as) and by half a turn (:data:`HALF_TURN`, where no side is near it), and which of them the scan
+shows is decided by the band itself, as an EM that labels scans (:func:`choose_sides`): all scans
+start on one side; the consensus is the band summed over the scans as labelled; each scan then takes
+the side under which its evidence agrees best with the consensus of the others (``½ Σ_b e_b ·
+tanh(½ w E_b)``, its bins' ratios against the consensus's belief of tape, itself left out), the
+track's own side favoured by :data:`OWN_SIDE_PRIOR` (log-odds), for :data:`SIDE_ITERATIONS` rounds.
+Started from each side in turn, the labelling with the highest total agreement stands: labellings
+that differ by turning every scan agree equally, and the prior then keeps the one that takes the
+fewest scans as turned, so the band is read on the side the track holds most of the time. The
+number of scans taken as turned is printed.
+
 **Deciding.** A cell shown by fewer than :data:`MIN_SEEN` scans was not seen; the read stops there
 (the robot must be turned so that every side faces the laser). A cell's probability of tape is
 ``σ(w · evidence)``, ``w`` the reader's weight (what one detection's read counts for in the step: a
@@ -48,6 +65,12 @@ CONFIDENT = 0.95
 MIN_MARGIN = 3.0
 #: Above this share of the scans that show a tagged robot, two of them shown at once is two robots.
 TWO_ROBOTS_SHARE = 0.2
+#: Side hypotheses within this angle (rad) of half a turn stand for it; else half a turn is added.
+HALF_TURN_NEAR = math.radians(20.0)
+#: Log-odds by which a scan is taken to show the track's own side rather than another, a priori.
+OWN_SIDE_PRIOR = 1.5
+#: Rounds of the side labelling (each reassigns every scan at once).
+SIDE_ITERATIONS = 6
 #: Scans read by one compiled call (the last padded).
 CHUNK = 256
 
@@ -64,6 +87,7 @@ class BandRead:
     returns: np.ndarray  # [N]
     weight: float
     scans: int  # scans that showed the robot
+    turned: tuple[tuple[float, int], ...] = ()  # (heading offset, rad; scans read turned by it), each side but the track's
 
     @property
     def p_tape(self) -> np.ndarray:
@@ -81,6 +105,14 @@ class BandRead:
 
     def unseen(self) -> list[int]:
         return [int(k) for k in np.flatnonzero(self.seen < MIN_SEEN)]
+
+    def turned_note(self) -> str:
+        """How many scans were read with the heading turned, and by how much."""
+        n = sum(k for _, k in self.turned)
+        if not n:
+            return f"every one of the {self.scans} scans read at the track's heading"
+        parts = ", ".join(f"{k} by {math.degrees(a):+.0f}°" for a, k in self.turned if k)
+        return f"{n} of the {self.scans} scans read with the track's heading turned ({parts}): it lay on another side"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -118,6 +150,58 @@ def band_evidence(reader: TagReader, arc: Float[Array, " angles"], q: Float[Arra
 
     per_bin, count = jax.vmap(one)(b, llr, ok)
     return reader.bin_cap * jnp.tanh(per_bin / reader.bin_cap), count
+
+
+@jax.jit
+def side_evidence(reader: TagReader, arc: Float[Array, " angles"], offsets: Float[Array, " sides"],
+                  q: Float[Array, "scans beams 2"], intensity: Float[Array, "scans beams"],
+                  rng: Float[Array, "scans beams"], use: Bool[Array, "scans beams"]
+                  ) -> tuple[Float[Array, "scans sides bins"], Float[Array, "scans sides bins"]]:
+    """:func:`band_evidence` with the heading turned by each of ``offsets``: the points ``q`` (in the
+    frame of the track's pose) in the frame of the pose turned by each."""
+    def turned(a):
+        c, s = jnp.cos(a), jnp.sin(a)  # the frame turned by a: points turned by −a
+        qa = jnp.stack([c * q[..., 0] + s * q[..., 1], -s * q[..., 0] + c * q[..., 1]], -1)
+        return band_evidence(reader, arc, qa, intensity, rng, use)
+
+    per_bin, count = jax.vmap(turned)(offsets)
+    return jnp.moveaxis(per_bin, 0, 1), jnp.moveaxis(count, 0, 1)
+
+
+def side_offsets(outline, cls: int) -> np.ndarray:
+    """The heading offsets (rad) a scan of class ``cls`` is read under: the track's own (0), the class's
+    other side hypotheses, and half a turn where none is within :data:`HALF_TURN_NEAR` of it."""
+    sides = np.asarray(outline.sides[cls], np.float64)[np.asarray(outline.side_mask[cls], bool)]
+    out = [0.0] + [float(wrap(a)) for a in sides if abs(float(wrap(a))) > 1e-6]
+    if all(abs(float(wrap(a - math.pi))) > HALF_TURN_NEAR for a in out):
+        out.append(math.pi)
+    return np.asarray(out)
+
+
+def choose_sides(per_bin: np.ndarray, weight: float, prior: float = OWN_SIDE_PRIOR,
+                 iterations: int = SIDE_ITERATIONS) -> np.ndarray:
+    """Per scan, the side (index into the offsets, 0 the track's own) its evidence ``per_bin`` ``[scans,
+    sides, bins]`` is read under: the EM of the module (every start, the best total agreement)."""
+    t, n_sides, _ = per_bin.shape
+    rows = np.arange(t)
+    bias = np.where(np.arange(n_sides) == 0, 0.0, -prior)
+    best, best_total = np.zeros(t, int), -np.inf
+    for start in range(n_sides):
+        side = np.full(t, start)
+        for _ in range(iterations):
+            own = per_bin[rows, side]  # [T, B]
+            others = own.sum(0)[None] - own  # the consensus without the scan itself
+            score = 0.5 * np.einsum("tsb,tb->ts", per_bin, np.tanh(0.5 * weight * others)) + bias
+            new = np.argmax(score, 1)
+            if np.array_equal(new, side):
+                break
+            side = new
+        own = per_bin[rows, side]
+        others = own.sum(0)[None] - own
+        total = float((0.5 * (own * np.tanh(0.5 * weight * others)).sum(1) + bias[side]).sum())
+        if total > best_total + 1e-9:
+            best, best_total = side, total
+    return best
 
 
 def cell_sums(per_bin: np.ndarray, count: np.ndarray, cells: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -193,9 +277,12 @@ def read_log(reader: TagReader, model, log, out, cells: int) -> BandRead:
     outline = model.outline
     evidence = np.zeros(cells)
     seen, returns = np.zeros(cells, int), np.zeros(cells, int)
+    turned: dict[float, int] = {}
     for c in np.unique(cls[keep]):
         rows = keep[cls[keep] == c]
         rp = in_sensor[cls[keep] == c]
+        offsets = side_offsets(outline, int(c))
+        bins, counts = [], []
         for a in range(0, len(rows), CHUNK):
             t, p = rows[a:a + CHUNK], rp[a:a + CHUNK]
             pad = CHUNK - len(t)
@@ -207,10 +294,18 @@ def read_log(reader: TagReader, model, log, out, cells: int) -> BandRead:
             args = [np.pad(x, [(0, pad)] + [(0, 0)] * (x.ndim - 1)) for x in
                     (q.astype(np.float32), np.nan_to_num(log.intensities[t]).astype(np.float32),
                      rng.astype(np.float32), use)]
-            per_bin, count = band_evidence(reader, reader.arc[int(c)], *map(jnp.asarray, args))
-            e, s, r = cell_sums(np.asarray(per_bin)[:len(t)], np.asarray(count)[:len(t)], cells)
-            evidence, seen, returns = evidence + e, seen + s, returns + r
-    return BandRead(cells, evidence, seen, returns, float(reader.weight), int(len(keep)))
+            per_bin, count = side_evidence(reader, reader.arc[int(c)], jnp.asarray(offsets, jnp.float32),
+                                           *map(jnp.asarray, args))
+            bins.append(np.asarray(per_bin)[:len(t)])
+            counts.append(np.asarray(count)[:len(t)])
+        per_bin, count = np.concatenate(bins), np.concatenate(counts)
+        side = choose_sides(per_bin, float(reader.weight))
+        pick = np.arange(len(side))
+        e, s, r = cell_sums(per_bin[pick, side], count[pick, side], cells)
+        evidence, seen, returns = evidence + e, seen + s, returns + r
+        for j in range(1, len(offsets)):
+            turned[float(offsets[j])] = turned.get(float(offsets[j]), 0) + int((side == j).sum())
+    return BandRead(cells, evidence, seen, returns, float(reader.weight), int(len(keep)), tuple(turned.items()))
 
 
 def match(read: BandRead, known: list[tuple[str, str]]) -> Match:
