@@ -22,14 +22,16 @@ blend that fits no code. So each scan is read under the track's heading and unde
 of the class's side hypotheses (the outline's learnt ``sides``, the headings its views are misread
 as) and by half a turn (:data:`HALF_TURN`, where no side is near it), and which of them the scan
 shows is decided by the band itself, as an EM that labels scans (:func:`choose_sides`): all scans
-start on one side; the consensus is the band summed over the scans as labelled; each scan then takes
+start on the track's side; the consensus is the band summed over the scans as labelled; each scan then takes
 the side under which its evidence agrees best with the consensus of the others (``½ Σ_b e_b ·
 tanh(½ w E_b)``, its bins' ratios against the consensus's belief of tape, itself left out), the
 track's own side favoured by :data:`OWN_SIDE_PRIOR` (log-odds), for :data:`SIDE_ITERATIONS` rounds.
-Started from each side in turn, the labelling with the highest total agreement stands: labellings
-that differ by turning every scan agree equally, and the prior then keeps the one that takes the
-fewest scans as turned, so the band is read on the side the track holds most of the time. The
-number of scans taken as turned is printed.
+It starts from the track's side only, so the band is read on the side the track holds most of the
+time: a labelling that turns every scan agrees with its own consensus about as well (the outline is
+nearly the same turned) and, compared by their totals, such a labelling won once the prior was
+weak. A scan whose heading is off by less than a side (tens of degrees) may be taken as turned too:
+its evidence is misplaced under every hypothesis, and the one that agrees best is kept. The number
+of scans taken as turned is printed.
 
 **Deciding.** A cell shown by fewer than :data:`MIN_SEEN` scans was not seen; the read stops there
 (the robot must be turned so that every side faces the laser). A cell's probability of tape is
@@ -181,27 +183,19 @@ def side_offsets(outline, cls: int) -> np.ndarray:
 def choose_sides(per_bin: np.ndarray, weight: float, prior: float = OWN_SIDE_PRIOR,
                  iterations: int = SIDE_ITERATIONS) -> np.ndarray:
     """Per scan, the side (index into the offsets, 0 the track's own) its evidence ``per_bin`` ``[scans,
-    sides, bins]`` is read under: the EM of the module (every start, the best total agreement)."""
+    sides, bins]`` is read under: the EM of the module, started from the track's side."""
     t, n_sides, _ = per_bin.shape
     rows = np.arange(t)
     bias = np.where(np.arange(n_sides) == 0, 0.0, -prior)
-    best, best_total = np.zeros(t, int), -np.inf
-    for start in range(n_sides):
-        side = np.full(t, start)
-        for _ in range(iterations):
-            own = per_bin[rows, side]  # [T, B]
-            others = own.sum(0)[None] - own  # the consensus without the scan itself
-            score = 0.5 * np.einsum("tsb,tb->ts", per_bin, np.tanh(0.5 * weight * others)) + bias
-            new = np.argmax(score, 1)
-            if np.array_equal(new, side):
-                break
-            side = new
-        own = per_bin[rows, side]
-        others = own.sum(0)[None] - own
-        total = float((0.5 * (own * np.tanh(0.5 * weight * others)).sum(1) + bias[side]).sum())
-        if total > best_total + 1e-9:
-            best, best_total = side, total
-    return best
+    side = np.zeros(t, int)
+    for _ in range(iterations):
+        own = per_bin[rows, side]  # [T, B]
+        others = own.sum(0)[None] - own  # the consensus without the scan itself
+        new = np.argmax(0.5 * np.einsum("tsb,tb->ts", per_bin, np.tanh(0.5 * weight * others)) + bias, 1)
+        if np.array_equal(new, side):
+            break
+        side = new
+    return side
 
 
 def cell_sums(per_bin: np.ndarray, count: np.ndarray, cells: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
