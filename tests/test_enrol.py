@@ -201,11 +201,11 @@ TURNED = 2  # cells the simulated band is turned as mounted
 @pytest.fixture(scope="session")
 def tagged(tmp_path_factory):
     """A cheap model that reads tags (300 ``spl-train`` scans rendered for a UTM-30LX, the tiny fixture's
-    training settings: a model as weak as a site's first, whose headings often lie on another side of
-    the robot), and logs of one robot wearing the first code of 13 cells turned by :data:`TURNED`
-    cells: turned once round in place in view (12 s), and standing still as long (one side shown). The
-    cheap training's views part tape from body by 1.6 standard deviations, under the 2 the training
-    asks of a site's logs: the gate is lowered for it here (what is read is tested, not the gate)."""
+    training settings: a model as weak as a site's first), and logs of one robot wearing the first
+    code of 13 cells turned by :data:`TURNED` cells: turned once round in place in view (8 s, after
+    1 s still), and standing still as long (one side shown). The cheap training's views part tape from
+    body by 1.6 standard deviations, under the 2 the training asks of a site's logs: the gate is
+    lowered for it here (what is read is tested, not the gate)."""
     import dataclasses
 
     from gtsjax.io import save_log, save_site
@@ -238,7 +238,7 @@ def tagged(tmp_path_factory):
         return log, site
 
     rate = 1.0 / UTM_30LX.period
-    turning = np.concatenate([np.zeros(int(rate)), np.linspace(0.0, 2 * math.pi, int(12 * rate))])
+    turning = np.concatenate([np.zeros(int(rate)), np.linspace(0.0, 2 * math.pi, int(8 * rate))])
     _, site = render(turning, "turning")
     render(np.full(turning.size, 0.3), "standing")  # as long: the replay compiled once serves both
     assert site.tags is not None and site.tags.robots[0].offset_cells == TURNED
@@ -348,3 +348,24 @@ def test_enrol_reads_the_band_where_the_tracks_heading_lay_half_a_turn_off(tagge
     assert out.strip().split("\t") == ["robot1", tagged["site"].tags.robots[0].code, str(TURNED)], err
     turned, shown = map(int, re.search(r"(\d+) of the (\d+) scans read with the track's heading turned", err).groups())
     assert 0.3 * shown < turned < 0.5 * shown, err
+
+
+def test_enrol_from_the_emulated_sensor_over_a_pseudo_terminal(tagged, tmp_path, capsys):
+    """``--port``: the turning log served by the emulated UTM-30LX over a real pseudo-terminal (ranges
+    and intensities, in a loop), recorded for 10 s (the log once round) through the live run's machinery, then read: the
+    code and offset 2, and the recording kept where ``--record`` says."""
+    from gtsjax.io import load_log
+    from gtsjax.sensors import UTM_30LX
+    from gtsjax.sim.emulator import SensorEmulator, log_source
+
+    site = tmp_path / "site.json"
+    site.write_text(json.dumps(_site_doc(tagged["site"])))
+    with SensorEmulator(UTM_30LX, log_source(load_log(tagged["dir"] / "turning.npz"))) as emu:
+        code = main(["enrol", "--site", str(site), "--model", str(tagged["model"]), "--robot", "robot1",
+                     "--port", emu.path, "--seconds", "10", "--record", str(tmp_path / "rec.npz")])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    assert out.strip().split("\t") == ["robot1", tagged["site"].tags.robots[0].code, str(TURNED)], err
+    rec = load_log(tmp_path / "rec.npz")
+    assert rec.intensities is not None and rec.n_scans > 100
+    assert json.loads(site.read_text())["tags"]["robots"][0]["offset_cells"] == TURNED
