@@ -20,12 +20,13 @@ lie on another side of the robot for a while, most of all through a model traine
 site has. Summed as they come, such scans add the band turned to the band as it is, and the read is a
 blend that fits no code. So each scan is read under the track's heading and under it turned by each
 of the class's side hypotheses (the outline's learnt ``sides``, the headings its views are misread
-as) and by half a turn (:data:`HALF_TURN`, where no side is near it), and which of them the scan
-shows is decided by the band itself, as an EM that labels scans (:func:`choose_sides`): all scans
-start on the track's side; the consensus is the band summed over the scans as labelled; each scan then takes
-the side under which its evidence agrees best with the consensus of the others (``½ Σ_b e_b ·
-tanh(½ w E_b)``, its bins' ratios against the consensus's belief of tape, itself left out), the
-track's own side favoured by :data:`OWN_SIDE_PRIOR` (log-odds), for :data:`SIDE_ITERATIONS` rounds.
+as) and by half a turn (where no side is within :data:`HALF_TURN_NEAR` of it), and which of them the scan
+shows is decided by the band itself, as an EM that labels scans (:func:`choose_sides`): all
+scans start on the track's side; the consensus is the band summed over the scans as labelled; each
+scan then takes the side under which its evidence agrees best with the consensus of the others
+(``½ Σ_b e_b · tanh(½ w E_b)``: its bins' ratios, a log-likelihood ratio per bin, against the
+consensus's belief of tape, the scan itself left out), the track's own side favoured by
+:data:`OWN_SIDE_PRIOR` (log-odds), for at most :data:`SIDE_ITERATIONS` rounds.
 It starts from the track's side only, so the band is read on the side the track holds most of the
 time: a labelling that turns every scan agrees with its own consensus about as well (the outline is
 nearly the same turned) and, compared by their totals, such a labelling won once the prior was
@@ -89,7 +90,7 @@ class BandRead:
     returns: np.ndarray  # [N]
     weight: float
     scans: int  # scans that showed the robot
-    turned: tuple[tuple[float, int], ...] = ()  # (heading offset, rad; scans read turned by it), each side but the track's
+    turned: tuple[tuple[float, int], ...] = ()  # (heading offset in rad, scans read turned by it) per other side
 
     @property
     def p_tape(self) -> np.ndarray:
@@ -114,7 +115,7 @@ class BandRead:
         if not n:
             return f"every one of the {self.scans} scans read at the track's heading"
         parts = ", ".join(f"{k} by {math.degrees(a):+.0f}°" for a, k in self.turned if k)
-        return f"{n} of the {self.scans} scans read with the track's heading turned ({parts}): it lay on another side"
+        return f"{n} of the {self.scans} scans read with the track's heading turned ({parts})"
 
 
 @dataclasses.dataclass(frozen=True)
