@@ -369,3 +369,36 @@ def test_enrol_from_the_emulated_sensor_over_a_pseudo_terminal(tagged, tmp_path,
     rec = load_log(tmp_path / "rec.npz")
     assert rec.intensities is not None and rec.n_scans > 100
     assert json.loads(site.read_text())["tags"]["robots"][0]["offset_cells"] == TURNED
+
+
+def test_run_names_the_robot_by_its_tag_live(tagged, tmp_path, capsys):
+    """Identities live (issue 43 item 3): ``gtsjax run`` on the emulated UTM-30LX over a real
+    pseudo-terminal, the site listing the robot's band as mounted and another robot's: the CSV gains the
+    ``robot`` column, the robot is named by its tag once its reads add up, and never as the other
+    robot; the JSON lines on stdout carry the same names."""
+    from gtsjax.io import load_log
+    from gtsjax.io.gtd import read_gtd
+    from gtsjax.sensors import UTM_30LX
+    from gtsjax.sim.emulator import SensorEmulator, log_source
+
+    site = tmp_path / "site.json"
+    doc = _site_doc(tagged["site"])
+    doc["tags"]["robots"][0]["offset_cells"] = TURNED  # as enrolled
+    site.write_text(json.dumps(doc))
+    out = tmp_path / "live.csv"
+    with SensorEmulator(UTM_30LX, log_source(load_log(tagged["dir"] / "turning.npz"))) as emu:
+        code = main(["run", "--port", emu.path, "--site", str(site), "--model", str(tagged["model"]), "--out", str(out),
+                     "--duration", "9", "--json", "--quiet"])
+    stdout, err = capsys.readouterr()
+    assert code == 0, err
+    assert out.read_text().splitlines()[0].endswith(",robot")
+    rows = read_gtd(out)
+    assert len(rows) > 100, err
+    t0 = rows[0].stamp
+    late = [r for r in rows if r.stamp - t0 > 3.0]
+    names = [r.robot for r in late]
+    assert names.count("robot1") > 0.8 * len(late), sorted(set(names))
+    assert "robot2" not in {r.robot for r in rows}
+    sent = [json.loads(x) for x in stdout.splitlines() if x.startswith("{")]
+    named = [row.get("robot", "") for line in sent for row in line["tracks"]]
+    assert named and named.count("robot1") >= len(names)
