@@ -355,7 +355,7 @@ def refine_candidates(outline: "Outline | None", max_objects: int, cls: Int[Arra
     out, at = [], 0
     fitted_at = sum(a[0].size for a in parts[:4])
     got = back & (rows[:, fitted_at] > 0.5)
-    for full, part in zip((pose, cov, side_pose, side_logp), parts, strict=False):
+    for full, part in zip((pose, cov, side_pose, side_logp), parts[:4], strict=True):
         w = part[0].size
         out.append(jnp.where(got.reshape((-1,) + (1,) * (full.ndim - 1)), rows[:, at:at + w].reshape(full.shape), full))
         at += w

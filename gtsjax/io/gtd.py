@@ -134,13 +134,10 @@ def rows_from_table(stamp: float, table, class_names, robot_names: "tuple[str, .
     tag, where it reports one. Plain Python: the live loop calls it right after the step, where each
     NumPy call costs many times what it does in a tight loop (see
     :func:`gtsjax.drivers.live.rows_from_packed`)."""
-    if robot_names:
-        rows = [TrackRow(float(stamp), int(r[_ID]), class_names[int(r[_CLS])], r[_X], r[_Y], wrap_angle(r[_TH]),
-                         r[_VX], r[_VY], r[_VT], r[_CXY], robot_names[int(r[_ROB])] if r[_ROB] >= 0 else "")
-                for r in table if r[_REP] > 0.5]
-    else:
-        rows = [TrackRow(float(stamp), int(r[_ID]), class_names[int(r[_CLS])], r[_X], r[_Y], wrap_angle(r[_TH]),
-                         r[_VX], r[_VY], r[_VT], r[_CXY]) for r in table if r[_REP] > 0.5]
+    rows = [TrackRow(float(stamp), int(r[_ID]), class_names[int(r[_CLS])], r[_X], r[_Y], wrap_angle(r[_TH]),
+                     r[_VX], r[_VY], r[_VT], r[_CXY],
+                     robot_names[int(r[_ROB])] if robot_names and r[_ROB] >= 0 else "")
+            for r in table if r[_REP] > 0.5]
     rows.sort(key=lambda row: row.track_id)
     return rows
 
