@@ -49,7 +49,10 @@ def side_evidence(
     usable = jnp.isfinite(z_logp)[:, None, :]
     ll = jnp.where(usable, z_logp[:, None, :] - 0.5 * d2 - 0.5 * jnp.log(2 * jnp.pi * S), -jnp.inf)
     ev = jnp.logaddexp(jax.nn.logsumexp(ll, axis=-1), jnp.log(_OUTLIER_P / (2 * jnp.pi)))
-    near = jnp.argmin(jnp.where(usable, d2, jnp.inf), axis=-1).astype(jnp.int32)  # [M, j]
+    # The side that most likely explains each hypothesis: its probability times its likelihood there
+    # (S is one for all sides). The nearest side alone would let a track that drifted a few degrees
+    # take the detection's least likely side beside it over its most likely one.
+    near = jnp.argmax(ll, axis=-1).astype(jnp.int32)  # [M, j]
     return ev, near, _select(nu, near), S[..., 0], _select(d2, near)  # S is the same for every side h
 
 

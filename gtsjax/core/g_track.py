@@ -32,7 +32,9 @@ uncertain as its heading; an assigned detection's evidence for hypothesis ``j`` 
 N(z_h; φ_j, σ_j² + r)`` over its sides, with a floor for a heading none of them explains
 (:func:`side_evidence`); the log-weights fade towards uniform with the time constant
 ``heading_memory`` and add the evidence; each hypothesis but the main one (below) takes its nearest
-detection side as a one-dimensional Kalman update where it passes the heading gate. Under the rest,
+detection side (the likeliest to explain it: the largest ``log p(h) − (z_h − φ_j)² / 2(σ_j² + r)``, so
+that a track a few degrees off does not take a side of little probability beside it over the one
+the detection favours) as a one-dimensional Kalman update where it passes the heading gate. Under the rest,
 any heading read is as likely as any other (``1/2π``); what it learns from the read is that the
 heading is near it: its weight splits into a hypothesis at the read (``1 − _OUTLIER_P``: added to the hypothesis that already
 explains the read, or, where none does, a new one in place of the weakest, whose weight goes back to

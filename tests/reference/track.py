@@ -78,7 +78,8 @@ class Tracker:
     p_h``; one side, its heading, by default) and heading variance ``r`` has the evidence ``e_j =
     log(Σ_h p_h N(z_h; φ_j, σ_j² + r) + OUTLIER_P / 2π)``; every scan ``w_j ← exp(−dt /
     heading_memory) w_j + e_j`` (no ``e_j`` without such a detection), and ``w_u`` fades the same way.
-    Each hypothesis but ``main`` whose nearest side passes ``heading_gate`` takes it as a scalar Kalman
+    Each hypothesis but ``main`` whose nearest side (the side ``h`` of the largest ``log p_h − (z_h −
+    φ_j)² / 2(σ_j² + r)``, the likeliest to explain it) passes ``heading_gate`` takes it as a scalar Kalman
     update. Then the rest reads the detection's most probable side ``z``: ``log(1 − OUTLIER_P) / 2π``
     plus ``w_u`` goes to the hypothesis that (updated) has ``z`` within the gate with the smallest
     normalised distance, or where none has, to a new hypothesis ``z`` (variance ``r``) in place of the
@@ -90,7 +91,7 @@ class Tracker:
     rest's. Where the most probable hypothesis has more than ``SWITCH_ODDS`` times the weight of
     ``main``, it becomes ``main``: the filter's heading is set to that hypothesis's predicted heading
     and variance, uncorrelated with the rest of the state. The filter's update then uses the side
-    nearest ``main``'s predicted heading; after it, ``main`` is the filter's heading and variance. A
+    nearest ``main``'s predicted heading (in that sense); after it, ``main`` is the filter's heading and variance. A
     new track's hypotheses are its detection's sides (variance ``r``, log-weights ``log p_h + log(1 −
     REST_P)``), ``main`` the most probable, its rest ``log REST_P``."""
 
@@ -152,8 +153,8 @@ class Tracker:
         used = [j for j in range(n) if np.isfinite(t.logw[j])]
         sides = [] if zh is None else [h for h in range(len(zh)) if np.isfinite(zlp[h])]
 
-        def nearest(j):  # the detection's side nearest hypothesis j's prediction
-            return min(sides, key=lambda h: abs(wrap(zh[h] - phi[j])))
+        def nearest(j):  # the detection's side most likely to explain hypothesis j's prediction
+            return max(sides, key=lambda h: zlp[h] - 0.5 * wrap(zh[h] - phi[j]) ** 2 / (var[j] + r))
 
         fade = math.exp(-dt / self.heading_memory)
         logw = np.full(n, -np.inf)
