@@ -38,13 +38,14 @@ CASES = {
     "put down for seconds per pose, hall, 10 Hz, box": dict(site="hall", style="hold", rate_hz=None, outline="box",
                                                             clutter=False, seconds=200.0,
                                                             training_says="detected in only"),
-    # A walk sees the robot side-on: training warns so, and position suffers from the heading misreads.
+    # A walk sees the robot side-on: training warns so. Stage e′'s search over every side reads the
+    # headings of the sides it rarely showed (0.9° put down, 1.4° walking); the robot put down shows
+    # sides the walk showed in a few scans only, and the GP's positions of those are 2.4 cm off.
     "walking, SPL field, 10 Hz, Nao, clutter": dict(site="spl", style="walk", rate_hz=None, outline="nao",
                                                     clutter=True, seconds=120.0,
-                                                    position_short="heading misread from sides a walk never "
-                                                                   "showed: 3.5 cm (issue 38, item 5)",
-                                                    heading_short={k: "sides a walk never showed misread: 68–78° "
-                                                                      "(issue 38, item 5)" for k in ("static", "walking")}),
+                                                    position_short={"static": "put down side-on, sides a walk "
+                                                                              "showed in few scans: 2.4 cm "
+                                                                              "(issue 38, item 5)"}),
     # Carried from pose to pose over the whole field (450 s, 18 points): fewer points leave the robot
     # unseen where the check scenes put it, and training warns so.
     "carried between poses, SPL field, 10 Hz, Nao": dict(site="spl", style="carried", rate_hz=None, outline="nao",
@@ -124,9 +125,9 @@ def test_the_model_reads_the_heading(scored, request):
 
 
 def test_the_model_places_the_robot_within_2_cm(scored, request):
-    case, _, res = scored
-    if "position_short" in case:  # a known shortfall: strict, so that its fix is noticed
-        request.applymarker(pytest.mark.xfail(strict=True, reason=case["position_short"]))
+    case, kind, res = scored
+    if kind in case.get("position_short", {}):  # a known shortfall: strict, so that its fix is noticed
+        request.applymarker(pytest.mark.xfail(strict=True, reason=case["position_short"][kind]))
     assert res["position_rmse_m"] <= 0.02, res
 
 

@@ -172,7 +172,10 @@ def test_reference_refines_what_the_model_refines(tiny, precision):
         refined += int(done.sum())
         ok = r.ok
         pose = np.asarray(p.pose_s, np.float64)[kept]
-        np.testing.assert_allclose(pose[ok, :2], r.pose_s[ok, :2], rtol=0, atol=tol_xy)  # the GP's positions
+        # The GP's positions, or where a fit left the side the GP read (and the class takes the fit's
+        # position there), the fit's: float32's Gauss–Newton round-off, as its headings'.
+        np.testing.assert_allclose(pose[ok & ~done, :2], r.pose_s[ok & ~done, :2], rtol=0, atol=tol_xy)
+        np.testing.assert_allclose(pose[ok & done, :2], r.pose_s[ok & done, :2], rtol=0, atol=tol_xy if exact else 1e-3)
         # In float32, a candidate whose two likeliest sides the reference holds within a factor of three of
         # each other (a near-tie: the tracker's heading mixture takes no side on less) can land its fit on
         # either with float32's last bits, and a vague heading (a variance the tracker takes no heading
@@ -184,8 +187,11 @@ def test_reference_refines_what_the_model_refines(tiny, precision):
         np.testing.assert_allclose(wrap(pose[fit, 2] - r.pose_s[fit, 2]), 0.0, atol=tol_fit)  # the fits' headings
         var = np.asarray(p.cov_s, np.float64)[kept][fit, 2, 2]
         np.testing.assert_allclose(var, r.cov_s[fit, 2, 2], rtol=tol_var)
-        side = np.asarray(p.side_pose, np.float64)[kept][ok]
-        np.testing.assert_allclose(wrap(side[..., 2] - r.sides.side_pose[ok, :, 2]), 0.0, atol=tol_side)
+        # Every side with a probability is one of ours (two sides of equal probability in either order).
+        side = np.asarray(p.side_pose, np.float64)[kept]
+        for i in np.flatnonzero(ok):
+            for h in np.flatnonzero(np.isfinite(r.sides.side_logp[i])):
+                assert np.min(np.abs(wrap(side[i, :, 2] - r.sides.side_pose[i, h, 2]))) <= tol_side, (t, i, h)
         sure = ok & firm
         np.testing.assert_allclose(np.exp(np.asarray(p.side_logp, np.float64)[kept][sure]),
                                    np.exp(r.sides.side_logp[sure]), rtol=0, atol=tol_p)

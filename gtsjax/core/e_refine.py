@@ -1,12 +1,17 @@
 """Stage e′, outline refinement: each posed candidate's points aligned to its class's learnt outline,
-from the GP's pose and from the GP's heading turned to each of the outline's other sides.
+from the GP's pose, from the GP's heading turned to each of the outline's other sides, and from it
+turned every 45° (a search over every side).
 
 The GP of stage e reads a pose from a characteristic vector, a summary of the points; where two sides
 of a robot give similar vectors it reads the wrong side (3–6 % of scans on the SPL field, the bulk of
 the heading's RMSE). The points themselves say more: only one side of the outline fits them. So
 every candidate of a class with an outline (:class:`Outline`, learnt by ``gtsjax train``:
 :mod:`gtsjax.train.outline`) gets a fixed number of Gauss–Newton steps (Levenberg–Marquardt damped,
-iteratively reweighted), per side hypothesis ``h``, from ``(x̂, ŷ, θ̂ + o_h)``:
+iteratively reweighted), per start ``h``, from ``(x̂, ŷ, θ̂ + o_h)``: ``o_h`` the class's learnt
+sides (the GP's held-out misreads), then every 45° not within 30° of one (:data:`SEARCH_DEG`). The
+learnt sides are where the GP misreads views like those it was trained on; a view of a side the
+labels rarely showed (a robot recorded walking, seen side-on) is misread by any angle, which only a
+search over the whole turn finds. Each point and the fit:
 
 * each point ``p`` (in S) costs the outline's signed distance at ``Rot(θ)ᵀ (p − t)`` (bilinear in a
   grid of distances and gradients, Cauchy-weighted so that a leg merged into the segment does not pull);
@@ -14,21 +19,26 @@ iteratively reweighted), per side hypothesis ``h``, from ``(x̂, ŷ, θ̂ + o_h)
   the body between the laser and what it saw is charged for it (otherwise one flat face would fit
   its own mirror image, body towards the sensor, as well as the truth).
 
-What comes out per candidate and hypothesis: the refined pose, the fit's robust cost, and from the
-costs the posterior probability of each side (``-temperature · cost`` plus a prior that the GP read
-the right side, both calibrated on held-out examples at training). The most probable side gives the
-candidate's heading; the Gauss–Newton Hessian, scaled by the residual and a calibrated factor, its
-heading's variance. Positions stay the GP's (see :func:`refine` for why). Every side's pose and probability go on to the tracker (stage g), whose heading is a
-mixture over the sides. A candidate with fewer than ``min_points`` points or a fit whose residual is
-above its class's ``max_rms`` keeps the GP's pose and variance, and its sides are the GP's heading
-turned by the offsets with the prior alone.
+What comes out per candidate and start: the refined pose, the fit's robust cost, and from the costs
+the posterior probability of each (``-temperature · cost`` plus a prior: that the GP read the right
+side, ``prior_right``, and of the rest the searched turns' share, ``prior_search``, all calibrated on
+held-out examples at training). Fits that end within 30° of a more probable one are that side (it
+takes their probability); the ``SIDES`` most probable sides go on to the tracker (stage g), whose
+heading is a mixture over them, best first. The most probable side gives the candidate's heading;
+the Gauss–Newton Hessian, scaled by the residual and a calibrated factor, its heading's variance.
+Positions stay the GP's, but where a fit leaves the side the GP read and the class was calibrated to
+take the fit's position there (``side_position``; see :func:`refine` for why). A candidate with fewer
+than ``min_points`` points or a fit whose residual is above its class's ``max_rms`` keeps the GP's
+pose and variance, and its sides are the GP's heading turned by the offsets with the prior alone.
 
-Fixed shapes throughout: ``cands × sides × window`` points, ``ITERATIONS`` steps (a loop of a fixed trip count).
+Fixed shapes throughout: ``cands × SEARCH × window`` points, ``ITERATIONS`` steps (a loop of a fixed trip
+count), the ``SIDES`` best by one ``top_k``.
 """
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from .buckets import bucketed_rows, slots_of
@@ -38,7 +48,22 @@ from .geometry import wrap
 POINTS = 32  # points per candidate the fit uses: a longer segment is thinned evenly (a robot at 1.5–3.6 m
 # from a URG-04LX has 12–30 points; a close one up to the window's 96)
 ITERATIONS = 6  # Gauss–Newton steps per hypothesis (from 5 cm / 10° off, 80 % of views are within 1 mm / 0.1° by the 6th)
-SIDES = 4  # side hypotheses per candidate (the GP's heading and up to three others)
+SIDES = 4  # side hypotheses per candidate that go on to the tracker (the most probable of those searched)
+# Besides the class's learnt sides, every fit also starts from the GP's heading turned by each of these
+# (degrees; those within ``_SEARCH_APART`` of a learnt side are left out): a view of a side the labels
+# rarely showed is misread by any angle, not only by the learnt sides' (on a walk-trained Nao, 100–150°
+# where the learnt sides were ±40°), and six steps from 45° off bring 98 % of views home.
+SEARCH_DEG = (45.0, 90.0, 135.0, 180.0, -135.0, -90.0, -45.0)
+_SEARCH_APART = 0.5235987755982988  # 30°
+SEARCH = SIDES + len(SEARCH_DEG)  # fits per candidate
+# A fit that ends within this of the GP's heading is on the side the GP read, and keeps the GP's
+# position; one on another side takes its own (the GP's position was read for the wrong side).
+GP_SIDE = 0.5235987755982988  # 30°
+# Fits that end closer than this are one side (the most probable's heading, all their probability): the
+# learnt sides are as far apart, and a second fit a few degrees from the best (a start that stopped short,
+# a partial view's other minimum) would be the side nearest a track's heading that has drifted towards it,
+# and the track would follow it.
+_MERGE = 0.5235987755982988  # 30°
 _MAX_STEP_XY = 0.05  # m per step
 _MAX_STEP_TH = 0.35  # rad per step
 _DAMPING = 1e-3  # Levenberg–Marquardt: relative to the Hessian's diagonal
@@ -66,6 +91,12 @@ class Outline(eqx.Module):
     robust: Float[Array, ""]  # m: the Cauchy weight's scale
     free_gap: Float[Array, ""]  # m: how far before each point the ray must be outside the outline
     min_points: Int[Array, ""]
+    # Of the probability that the GP misread the side, the share of the searched turns (:data:`SEARCH_DEG`)
+    # against the learnt sides (calibrated; None in models trained before the search: not searched).
+    prior_search: Float[Array, " classes"] | None = None
+    # Whether a fit on another side than the GP read takes its own position (calibrated: where that was
+    # nearer the truth on held-out views than the GP's; None in models trained before: never).
+    side_position: Bool[Array, " classes"] | None = None
 
 
 class Refined(eqx.Module):
@@ -228,31 +259,43 @@ def refine(outline: Outline, cls: Int[Array, " n"], run: Bool[Array, " n"], pts:
     class with an outline. Where the fit fails (not run, too few points, every side's residual too
     high: ``fitted`` False) the GP's pose and covariance stand and the sides carry the prior alone."""
     dt = pts.dtype
-    offsets = outline.sides[cls]  # [n, sides]
-    use_side = outline.side_mask[cls]
+    if outline.prior_search is None:  # a model calibrated before the search: its learnt sides only
+        offsets, use_side = outline.sides[cls], outline.side_mask[cls]  # [n, SIDES]
+    else:
+        offsets, use_side = search_sides(outline.sides[cls], outline.side_mask[cls])  # [n, SEARCH]
     start = jnp.concatenate([jnp.broadcast_to(pose_gp[:, None, :2], offsets.shape + (2,)),
                              (pose_gp[:, 2:3] + offsets)[..., None]], -1)
     pose, cost, H = fit(outline, cls, pts, mask, start)
     n_pts = jnp.minimum(jnp.sum(mask, -1), POINTS).astype(dt)  # as many as the fit used (compact)
     # Side probabilities: the fit's evidence (calibrated temperature) and the prior that the GP was right.
-    prior = side_prior(use_side, outline.prior_right[cls].astype(dt))
+    search = None if outline.prior_search is None else outline.prior_search[cls].astype(dt)
+    prior = side_prior(use_side, outline.prior_right[cls].astype(dt), search)
     rms = jnp.sqrt(cost / jnp.maximum(n_pts, 1.0)[:, None])
     ok_fit = run & (n_pts >= outline.min_points.astype(dt))
     good = ok_fit[:, None] & (rms <= outline.max_rms[cls][:, None]) & use_side
     fitted = jnp.any(good, -1)
     loglik = jnp.where(good, -outline.temperature[cls][:, None] * cost, -jnp.inf)
     logp_fit = jax.nn.log_softmax(jnp.where(use_side, prior + jnp.where(fitted[:, None], loglik, 0.0), -jnp.inf), -1)
-    # Positions stay the GP's; headings are the fits'. The GP reads positions in the frame the labels
-    # were made in, the map transformation's, which differs from the points' own geometry by the
-    # transformation's errors (on the SPL field up to 3 cm at 4 m): on held-out views a fit's position,
-    # or the GP's moved by the difference of two fits, was further from the truth than the GP's
-    # (1.7–2.0 cm RMSE against 1.5), while the fit's heading was four times as good as the GP's.
-    fitted_pose = jnp.concatenate([jnp.broadcast_to(pose_gp[:, None, :2], pose[..., :2].shape), pose[..., 2:]], -1)
+    # Headings are the fits'. Positions on the side the GP read stay the GP's: it reads positions in
+    # the frame the labels were made in, the map transformation's, which differs from the points' own
+    # geometry by the transformation's errors (on the SPL field up to 3 cm at 4 m): on held-out views a
+    # fit's position, or the GP's moved by the difference of two fits, was further from the truth than
+    # the GP's (1.7–2.0 cm RMSE against 1.5), while the fit's heading was four times as good as the
+    # GP's. On another side the GP's position is that of a misread (4.7 cm off on a walk-trained Nao's
+    # held-out views, the fit's 3.0 cm; on a cart's, 1.5 and 2.0 cm): there the class takes whichever
+    # was nearer on its held-out views (``side_position``).
+    on_gp = jnp.abs(wrap(pose[..., 2] - pose_gp[:, None, 2])) < GP_SIDE
+    if outline.side_position is None:
+        on_gp = jnp.ones_like(on_gp)
+    else:
+        on_gp = on_gp | ~outline.side_position[cls][:, None]
+    fitted_pose = jnp.concatenate([jnp.where(on_gp[..., None], pose_gp[:, None, :2], pose[..., :2]), pose[..., 2:]], -1)
     # Where nothing fitted, the sides are the GP's heading turned, with the prior alone.
     start_sides = start.at[..., 2].set(wrap(start[..., 2]))
     side_pose = jnp.where(good[..., None], fitted_pose, start_sides)
-    side_logp = jnp.where(use_side, logp_fit, -jnp.inf)
-    best = jnp.argmax(side_logp, -1)
+    side_logp = merge_sides(side_pose[..., 2], jnp.where(use_side, logp_fit, -jnp.inf))
+    top_logp, top = jax.lax.top_k(side_logp, SIDES)  # the SIDES most probable go on, best first
+    best = top[:, 0]
     take = lambda a: jnp.take_along_axis(a, best.reshape((-1,) + (1,) * (a.ndim - 1)), 1)[:, 0]  # noqa: E731
     # Heading variance: the residual variance times the inverse Hessian's heading entry, calibrated;
     # the position's stays the GP's.
@@ -264,7 +307,32 @@ def refine(outline: Outline, cls: Int[Array, " n"], run: Bool[Array, " n"], pts:
     fit_ok = take(good)
     pose_out = jnp.where(fit_ok[:, None], take(side_pose), pose_gp)
     cov_out = jnp.where(fit_ok[:, None, None], cov_fit, cov_gp)
-    return Refined(pose_out, cov_out, side_pose, side_logp, fit_ok, jnp.where(fit_ok, take(rms), 0.0))
+    return Refined(pose_out, cov_out, jnp.take_along_axis(side_pose, top[..., None], 1), top_logp, fit_ok,
+                   jnp.where(fit_ok, take(rms), 0.0))
+
+
+def merge_sides(heading: Float[Array, "n search"], logp: Float[Array, "n search"]) -> Float[Array, "n search"]:
+    """Fits from several starts that end on one heading (within :data:`_MERGE`) are one side: the most
+    probable of them keeps the probability of all (``-inf`` for the others), so that the sides that go
+    on are distinct headings and not one heading several times over."""
+    k = logp.shape[-1]
+    ok = jnp.isfinite(logp)
+    same = (jnp.abs(wrap(heading[:, :, None] - heading[:, None, :])) < _MERGE) & ok[:, :, None] & ok[:, None, :]
+    first = (jnp.arange(k)[:, None] < jnp.arange(k)[None, :])[None]
+    ahead = (logp[:, :, None] > logp[:, None, :]) | ((logp[:, :, None] == logp[:, None, :]) & first)  # [n, i, j]
+    twin = jnp.any(same & ahead, 1)  # j has a more probable twin
+    merged = jax.nn.logsumexp(jnp.where(same, logp[:, None, :], -jnp.inf), -1)  # [n, i]: over its twins j
+    return jnp.where(twin | ~ok, -jnp.inf, merged)
+
+
+def search_sides(offsets: Float[Array, "*n sides"], use: Bool[Array, "*n sides"]
+                 ) -> tuple[Float[Array, "*n search"], Bool[Array, "*n search"]]:
+    """The turns of the GP's heading every fit starts from: the class's learnt sides (``offsets``, used
+    where ``use``), then :data:`SEARCH_DEG`'s, each used unless within 30° of a used learnt side."""
+    fill = jnp.broadcast_to(jnp.radians(jnp.asarray(SEARCH_DEG, offsets.dtype)), offsets.shape[:-1] + (len(SEARCH_DEG),))
+    near = jnp.abs(wrap(fill[..., :, None] - offsets[..., None, :])) < _SEARCH_APART
+    return (jnp.concatenate([offsets, fill], -1),
+            jnp.concatenate([use, ~jnp.any(use[..., None, :] & near, -1)], -1))
 
 
 # The side hypotheses of a class with no learnt outline (and of every class of a model trained before
@@ -273,12 +341,27 @@ DEFAULT_SIDES = (0.0, 0.5 * 3.141592653589793, 3.141592653589793, -0.5 * 3.14159
 DEFAULT_PRIOR_RIGHT = 0.9
 
 
-def side_prior(use: Bool[Array, "n sides"], p_right: Float[Array, " n"]) -> Float[Array, "n sides"]:
-    """The prior log-probability of each side: the GP's (side 0) ``p_right``, the other used sides
-    sharing the rest (unnormalised where sides are unused)."""
-    k = jnp.maximum(jnp.sum(use, -1).astype(p_right.dtype) - 1.0, 1.0)
-    first = jnp.arange(use.shape[1], dtype=jnp.int32)[None, :] == 0
-    return jnp.where(first, jnp.log(p_right)[:, None], jnp.log((1.0 - p_right) / k)[:, None])
+def side_prior(use: Bool[Array, "n sides"], p_right: Float[Array, " n"], search: Float[Array, " n"] | None = None
+               ) -> Float[Array, "n sides"]:
+    """The prior log-probability of each side: the GP's (side 0) ``p_right``; the rest shared by the
+    other used learnt sides (columns below ``SIDES``) and, with ``search``, the used searched turns
+    (the columns after): those get ``search`` of it, the learnt sides the rest (each group all of it
+    where the other has none). Unnormalised where sides are unused."""
+    dt = p_right.dtype
+    k = use.shape[1]
+    col = np.arange(k)[None, :]
+    # The used learnt sides and searched turns counted as sums of columns, which fuse with what uses
+    # them (a reduction would be a kernel of its own on a CPU).
+    u = use.astype(dt)
+    k_l = sum((u[:, j:j + 1] for j in range(1, min(k, SIDES))), jnp.zeros_like(u[:, :1]))
+    k_s = sum((u[:, j:j + 1] for j in range(SIDES, k)), jnp.zeros_like(u[:, :1]))
+    f = jnp.zeros_like(p_right) if search is None else search
+    f = jnp.where(k_s > 0, jnp.where(k_l > 0, f[:, None], 1.0), 0.0)
+    rest = jnp.log1p(-p_right)[:, None]
+    # Where a group is empty, its (unused) columns get any value: the caller masks them.
+    return jnp.where(col == 0, jnp.log(p_right)[:, None],
+                     jnp.where(col < SIDES, rest + jnp.log1p(-f) - jnp.log(jnp.maximum(k_l, 1.0)),
+                               rest + jnp.log(jnp.maximum(f, 1e-30)) - jnp.log(jnp.maximum(k_s, 1.0))))
 
 
 def prior_sides(pose: Float[Array, "n 3"], offsets: Float[Array, "n sides"], use: Bool[Array, "n sides"],

@@ -34,7 +34,7 @@ from ..io.logs import ScanLog
 from ..io.site import Site
 from ..precision import exact_products
 from ..sensors import MODELS, with_scanner
-from .bounds import shape_rows
+from .bounds import outline_rows, shape_rows
 from .check import check_pipeline, coverage, held_mask, simulated_checks, verdict
 from .classifier import fit_classifier, fit_support, landmark_lookalikes
 from .classifier import fit_envelope as fit_envelope
@@ -202,7 +202,7 @@ def train(logs: Sequence[ScanLog], site: "Site | Sequence[Site]", cfg: TrainConf
     outline, outline_report = fit_outlines(logs, ex, is_held, classes, mobiles, pose, cfg.frontend.window, run.rng,
                                            turns=turns)
     tracker, rate_hz, motion, learnt = _motion_limits(run, logs, env_report, sup_report)
-    learnt = learnt + half_turn_rows
+    learnt = learnt + half_turn_rows + outline_rows(outline_report)
     notes = notes + [row["warning"] for row in learnt if "warning" in row]
     model = _assemble(run, first, n_beams, lab.columns, classifier=classifier, envelope=envelope, pose=pose,
                       tracker=tracker, outline=outline)

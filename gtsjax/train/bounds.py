@@ -57,6 +57,41 @@ HALF_TURN = Bound("distance from its half-turn", "mm", 0.0, 1e3, (0.0, 1e3), "--
                   "within 3 mm of its half-turn a class's heading is read modulo 180°")
 
 
+# Stage e′'s side posterior (``train.outline.calibrate_outline``), learnt on the class's held-out views:
+# the prior that the GP read the right side, and of the rest the share of the search over every 45°.
+# The search's share never falls below 5 %: held-out views come from the recording the GP learnt from
+# and cannot show how often it misreads the sides that recording rarely showed.
+SIDE_PRIOR = Bound("prior of the GP's side", "", 0.3, 0.99, (0.3, 0.99), None,
+                   "the share of held-out views whose side the GP read right, from 0.3 to 0.99")
+SEARCH_PRIOR = Bound("prior of the searched sides", "", 0.05, 0.8, (0.05, 0.8), None,
+                     "never below 0.05: held-out views cannot show how often sides the labels rarely showed are "
+                     "misread")
+
+
+def outline_rows(outline_report: dict) -> list[dict]:
+    """Rows of the learnt-parameter table for each class's calibrated side posterior and where a fit on
+    another side takes its position from (``train.outline.fit_outlines``'s report)."""
+    rows = []
+    for c, rep in outline_report.items():
+        cal = rep.get("calibration")
+        if cal is None or not rep.get("used", False):
+            continue
+        n = f"{cal['examples']} held-out views"
+        rows.append(entry(SIDE_PRIOR, c, cal["prior_right"], "learnt", n))
+        rows.append(entry(SEARCH_PRIOR, c, cal["prior_search"], "learnt", n))
+        off = cal["off_side"]
+        if "gp_rmse_cm" in off:
+            ev = (f"{off['examples']} held-out views refined to another side than the GP read: its position "
+                  f"{off['gp_rmse_cm']:g} cm off, the fit's {off['fit_rmse_cm']:g} cm")
+        else:
+            ev = "no held-out view refined to another side than the GP read"
+        rows.append({"class": c, "parameter": "position on another side", "unit": "",
+                     "value": 1.0 if off["position_from"] == "fit" else 0.0, "source": "learnt",
+                     "evidence": ev + f" (1: the fit's, with {off['min_examples']} such views or more; 0: the GP's)",
+                     "hard_range": [0.0, 1.0], "plausible": [0.0, 1.0]})
+    return rows
+
+
 def clamp(bound: Bound, value: float) -> float:
     return float(min(max(value, bound.floor), bound.ceiling))
 

@@ -18,14 +18,19 @@ the height of a laser, a convex or nearly convex shape, is not affected.
 **Side hypotheses.** The outline turned by α is compared with itself (the mean distance of the
 turned polyline from the outline, the best translation within ±6 cm): the turns where that is a local
 minimum, at least 30° from 0 and from one another, up to three, are the sides a partial view may
-be taken for, and the hypotheses stage e′ tests besides the GP's heading.
+be taken for, and the hypotheses stage e′ tests besides the GP's heading (in practice the GP's
+held-out misreads give them: :func:`fit_outlines`). Stage e′ also starts fits every 45° around the
+GP's heading (``e_refine.SEARCH_DEG``), for the sides the labels rarely showed.
 
-**Calibration** (held-out examples of the class, refined from the GP's poses as the step does; a
-class whose refined headings are less precise there than the GP's, by the median error, keeps the
-GP's: its outline is not used):
+**Calibration** (held-out examples of the class, refined from the GP's poses from every start as the
+step does; a class whose refined headings are less precise there than the GP's, by the median error,
+keeps the GP's: its outline is not used):
 ``max_rms`` (a fit with a larger residual fails: 1.5 × the 99th percentile of the right side's
-residual), the temperature and the prior of the side posterior (maximum likelihood of the true side),
-and the factors that calibrate the covariance ``s² H⁻¹`` (as the GP variances are calibrated).
+residual), the temperature and the priors of the side posterior (that the GP read the right side,
+and the searched turns' share of the rest, never below 5 %: :data:`SEARCH_SHARES`; maximum
+likelihood of the true side), whether a fit on another side than the GP read takes its own position
+(where on these views it was nearer the truth than the GP's, with at least :data:`MIN_OFF_SIDE` of
+them), and the factors that calibrate the covariance ``s² H⁻¹`` (as the GP variances are calibrated).
 """
 
 import dataclasses
@@ -38,7 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..core.e_pose import PoseRegressor, regress_one_class, to_sensor_frame
-from ..core.e_refine import DEFAULT_PRIOR_RIGHT, DEFAULT_SIDES, POINTS, SIDES, Outline, fit
+from ..core.e_refine import DEFAULT_PRIOR_RIGHT, DEFAULT_SIDES, GP_SIDE, POINTS, SIDES, Outline, fit, search_sides
 from ..core.geometry import compose, relative, wrap
 from ..drivers.evaluation import heading_error
 from ..io.logs import ScanLog
@@ -315,11 +320,18 @@ def misread_modes(err: np.ndarray, most: int = SIDES - 1, apart_deg: float = 30.
 
 
 
+def searched_sides(outline: Outline, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Class ``k``'s turns of the GP's heading that stage e′'s fits start from, and which are used
+    (:func:`gtsjax.core.e_refine.search_sides`)."""
+    offs, use = search_sides(outline.sides[k], outline.side_mask[k])
+    return np.asarray(offs, np.float64), np.asarray(use, bool)
+
+
 def refine_examples(outline: Outline, k: int, pts, mask, pose_gp, chunk: int = 1024, offsets=None):
     """Stage e′'s fit on examples of class ``k`` from their GP poses turned by ``offsets`` (default:
-    the class's sides): every side's pose, cost and Hessian (host arrays)."""
-    offsets = np.asarray(outline.sides[k]) if offsets is None else np.asarray(offsets)
-    starts = np.concatenate([np.broadcast_to(pose_gp[:, None, :2], (len(pose_gp), SIDES, 2)),
+    the turns the step searches, :func:`searched_sides`): every start's pose, cost and Hessian (host arrays)."""
+    offsets = searched_sides(outline, k)[0] if offsets is None else np.asarray(offsets)
+    starts = np.concatenate([np.broadcast_to(pose_gp[:, None, :2], (len(pose_gp), len(offsets), 2)),
                              (pose_gp[:, 2:3] + offsets[None, :])[..., None]], -1)
     poses, costs, hs = [], [], []
     for i in range(0, len(pts), chunk):
@@ -335,19 +347,40 @@ def refine_examples(outline: Outline, k: int, pts, mask, pose_gp, chunk: int = 1
     return np.concatenate(poses), np.concatenate(costs), np.concatenate(hs)
 
 
-def side_logp(cost, usable, temperature, prior_right):
-    """The side posterior ``[n, sides]`` of :func:`gtsjax.core.e_refine.refine` (NumPy)."""
-    k = max(int(usable.sum()) - 1, 1)
-    prior = np.where(np.arange(cost.shape[1]) == 0, math.log(prior_right), math.log((1 - prior_right) / k))
-    ll = np.where(usable[None], prior[None] - temperature * cost, -np.inf)
+def side_prior_np(usable: np.ndarray, prior_right: float, search: float) -> np.ndarray:
+    """:func:`gtsjax.core.e_refine.side_prior` for one class's used sides (NumPy; ``-inf`` where unused)."""
+    col = np.arange(len(usable))
+    k_l = int(np.sum(usable & (col > 0) & (col < SIDES)))
+    k_s = int(np.sum(usable & (col >= SIDES)))
+    f = (search if k_l else 1.0) if k_s else 0.0
+    with np.errstate(divide="ignore"):
+        out = np.where(col == 0, math.log(prior_right), np.where(
+            col < SIDES, np.log1p(-prior_right) + np.log1p(-f) - math.log(max(k_l, 1)),
+            np.log1p(-prior_right) + np.log(max(f, 1e-30)) - math.log(max(k_s, 1))))
+    return np.where(usable, out, -np.inf)
+
+
+def side_logp(cost, usable, temperature, prior_right, search=0.0):
+    """The side posterior ``[n, sides]`` of :func:`gtsjax.core.e_refine.refine` (NumPy, before the
+    fits that end on one heading are merged)."""
+    ll = np.where(usable[None], side_prior_np(usable, prior_right, search)[None] - temperature * cost, -np.inf)
     ll = ll - ll.max(1, keepdims=True)
     return ll - np.log(np.sum(np.exp(ll), 1, keepdims=True))
 
 
-def _side_nll(cost, right, usable, temperature, prior_right):
+def _side_nll(cost, right, usable, temperature, prior_right, search=0.0):
     """Mean negative log-probability of the right heading: of the sides whose fit lands on it."""
-    p = np.exp(side_logp(cost, usable, temperature, prior_right))
+    p = np.exp(side_logp(cost, usable, temperature, prior_right, search))
     return -np.mean(np.log(np.maximum(np.sum(np.where(right, p, 0.0), 1), 1e-12)))
+
+
+# The share of a misread's prior that the searched turns get (``Outline.prior_search``), chosen on
+# held-out views among these. Never below 5 %: the held-out views come from the recording the GP
+# was trained on, and cannot show how often it misreads a side that recording rarely showed.
+SEARCH_SHARES = (0.05, 0.2, 0.5, 0.8)
+# Held-out views whose fit left the GP's side that the choice of their position is made on: with fewer,
+# the GP's position stands.
+MIN_OFF_SIDE = 10
 
 
 def calibrate_outline(outline: Outline, k: int, pts, mask, pose_gp, truth, right_deg: float = 20.0,
@@ -356,7 +389,7 @@ def calibrate_outline(outline: Outline, k: int, pts, mask, pose_gp, truth, right
     outline and a summary: GP and refined errors side by side (headings modulo ``2π/turns``: a class
     alike turned half a turn is judged on what its views can tell)."""
     poses, cost, H = refine_examples(outline, k, pts, mask, pose_gp)
-    usable = np.asarray(outline.side_mask[k])
+    usable = searched_sides(outline, k)[1]
     n_pts = np.minimum(mask.sum(1), POINTS).astype(float)  # as many as the fit uses (e_refine.compact)
     err_th = np.abs(wrap(poses[..., 2] - truth[:, None, 2]))  # [n, sides]
     err_th = np.where(usable[None], err_th, np.inf)
@@ -367,21 +400,29 @@ def calibrate_outline(outline: Outline, k: int, pts, mask, pose_gp, truth, right
     max_rms = 1.5 * float(np.quantile(rms_right, 0.99)) if rms_right.size >= 20 else 0.05
     good = has_right & (rms[np.arange(len(label)), label] <= max_rms)
     right = (err_th < math.radians(right_deg)) & (rms <= max_rms)
-    best = (math.inf, 1.0, 0.9)
+    best = (math.inf, 1.0, 0.9, SEARCH_SHARES[0])
+    c_good, r_good = np.where(rms <= max_rms, cost, 1e3)[good], right[good]
     for temp in np.geomspace(1.0, 1e6, 61):
         for pr in (0.3, 0.5, 0.7, 0.8, 0.9, 0.95, 0.98, 0.99):
-            nll = _side_nll(np.where(rms <= max_rms, cost, 1e3)[good], right[good], usable, temp, pr) if good.any() else 0.0
-            if nll < best[0]:
-                best = (nll, float(temp), pr)
-    _, temperature, prior_right = best
+            for sh in SEARCH_SHARES:
+                nll = _side_nll(c_good, r_good, usable, temp, pr, sh) if good.any() else 0.0
+                if nll < best[0]:
+                    best = (nll, float(temp), pr, sh)
+    _, temperature, prior_right, search = best
     # The side each example would get, its pose and covariance factor s² H⁻¹.
-    kk = max(int(usable.sum()) - 1, 1)
-    prior = np.where(np.arange(SIDES) == 0, math.log(prior_right), math.log((1 - prior_right) / kk))
+    prior = side_prior_np(usable, prior_right, search)
     score = np.where(usable[None] & (rms <= max_rms), prior[None] - temperature * cost, -np.inf)
     fitted = np.isfinite(score).any(1) & (n_pts >= MIN_POINTS)
     chosen = np.argmax(score, 1)
     idx = np.arange(len(chosen))
-    pose_r = np.concatenate([pose_gp[:, :2], np.where(fitted, poses[idx, chosen, 2], pose_gp[:, 2])[:, None]], -1)
+    # Where the fit left the side the GP read, whose position is nearer the truth there: the GP's (read
+    # for a side it misread) or the fit's? The step takes the fit's where it was nearer on these views.
+    off_gp = fitted & (np.abs(wrap(poses[idx, chosen, 2] - pose_gp[:, 2])) >= GP_SIDE)
+    rmse = lambda p: float(np.sqrt(np.mean(np.sum((p[off_gp] - truth[off_gp, :2]) ** 2, 1)))) if off_gp.any() else math.nan  # noqa: E731
+    off_rmse = {"gp": rmse(pose_gp[:, :2]), "fit": rmse(poses[idx, chosen, :2])}
+    side_position = bool(off_gp.sum() >= MIN_OFF_SIDE and off_rmse["fit"] < off_rmse["gp"])
+    pose_r = np.concatenate([np.where((off_gp & side_position)[:, None], poses[idx, chosen, :2], pose_gp[:, :2]),
+                             np.where(fitted, poses[idx, chosen, 2], pose_gp[:, 2])[:, None]], -1)
     s2 = cost[idx, chosen] / np.maximum(n_pts - 3, 1)
     cov = s2[:, None, None] * np.linalg.inv(H[idx, chosen] + 1e-9 * np.eye(3))
     err = pose_r - truth
@@ -398,7 +439,8 @@ def calibrate_outline(outline: Outline, k: int, pts, mask, pose_gp, truth, right
         side_mask=outline.side_mask, temperature=upd(outline.temperature, temperature),
         prior_right=upd(outline.prior_right, prior_right), max_rms=upd(outline.max_rms, max_rms),
         cov_scale=upd(outline.cov_scale, jnp.asarray(scale, _F32)), robust=outline.robust,
-        free_gap=outline.free_gap, min_points=outline.min_points)
+        free_gap=outline.free_gap, min_points=outline.min_points,
+        prior_search=upd(outline.prior_search, search), side_position=upd(outline.side_position, side_position))
     e_gp = pose_gp - truth
     e_gp[:, 2] = wrap(e_gp[:, 2])
 
@@ -411,7 +453,10 @@ def calibrate_outline(outline: Outline, k: int, pts, mask, pose_gp, truth, right
 
     return outline, {"examples": int(len(truth)), "fitted_fraction": round(float(fitted.mean()), 4),
                      "max_rms_mm": round(1000 * max_rms, 2), "temperature": round(temperature, 1),
-                     "prior_right": prior_right, "cov_scale": [round(float(v), 3) for v in scale],
+                     "prior_right": prior_right, "prior_search": search,
+                     "off_side": {"examples": int(off_gp.sum()), "min_examples": MIN_OFF_SIDE,
+                                  "position_from": "fit" if side_position else "gp",
+                                  **{f"{k}_rmse_cm": round(100 * v, 2) for k, v in off_rmse.items() if math.isfinite(v)}}, "cov_scale": [round(float(v), 3) for v in scale],
                      "gp": summary(e_gp), "refined": summary(err)}
 
 
@@ -508,7 +553,8 @@ class _OutlineArrays:
             temperature=jnp.zeros(n_c, _F32), prior_right=jnp.asarray(self.prior_right),
             max_rms=jnp.full(n_c, 0.05, _F32), cov_scale=jnp.ones((n_c, 3), _F32),
             robust=jnp.asarray(ROBUST, _F32), free_gap=jnp.asarray(FREE_GAP, _F32),
-            min_points=jnp.asarray(MIN_POINTS, jnp.int32))
+            min_points=jnp.asarray(MIN_POINTS, jnp.int32), prior_search=jnp.full(n_c, SEARCH_SHARES[0], _F32),
+            side_position=jnp.zeros(n_c, bool))
 
 
 def _held_out_poses(ex: Examples, k: int, is_held: np.ndarray, own: np.ndarray, pose_k: PoseRegressor,

@@ -24,6 +24,13 @@ DAMPING = 1e-3  # times the diagonal of the normal matrix
 RIDGE = 1e-9  # added to the normal matrix's diagonal (every solve)
 DEFAULT_SIDES = (0.0, 0.5 * math.pi, math.pi, -0.5 * math.pi)
 DEFAULT_PRIOR_RIGHT = 0.9
+# gtsjax: ``e_refine.SEARCH_DEG``, ``_SEARCH_APART``, ``_GP_SIDE``, ``_MERGE``: the turns every fit also
+# starts from (those within 30° of a used learnt side left out); a fit within 30° of the GP's heading is
+# on its side; fits that end within 30° of each other are one side.
+SEARCH_DEG = (45.0, 90.0, 135.0, 180.0, -135.0, -90.0, -45.0)
+SEARCH_APART = math.radians(30.0)
+GP_SIDE = math.radians(30.0)
+MERGE = math.radians(30.0)
 
 
 @dataclasses.dataclass
@@ -43,6 +50,8 @@ class Outline:
     robust: float
     free_gap: float
     min_points: int
+    prior_search: np.ndarray | None = None  # [classes]: None, the searched turns are not used
+    side_position: np.ndarray | None = None  # [classes] bool: None, never
 
     @classmethod
     def of(cls, outline) -> "Outline":
@@ -53,6 +62,8 @@ class Outline:
             temperature=f(outline.temperature), prior_right=f(outline.prior_right), max_rms=f(outline.max_rms),
             cov_scale=f(outline.cov_scale), robust=float(outline.robust), free_gap=float(outline.free_gap),
             min_points=int(outline.min_points),
+            prior_search=None if outline.prior_search is None else f(outline.prior_search),
+            side_position=None if outline.side_position is None else np.asarray(outline.side_position, bool),
         )
 
 
@@ -158,14 +169,53 @@ def fit(ol: Outline, cls, pts, mask, start):
     return poses, costs, hs
 
 
-def side_prior(p_right: float, use) -> np.ndarray:
-    """Log-prior of each side: ``log p_right`` for the GP's own (side 0), the rest shared equally by
-    the other used sides; ``-inf`` for unused sides."""
-    k = max(int(np.sum(use)) - 1, 1)
+def side_prior(p_right: float, use, search: float | None = None) -> np.ndarray:
+    """Log-prior of each side: ``log p_right`` for the GP's own (side 0); the rest to the other used
+    learnt sides (the first ``SIDES``) and the used searched turns (after them): ``search`` of it
+    shared by the searched turns, the remainder by the learnt sides, all of it to one group where the
+    other has no used side; ``-inf`` for unused sides."""
+    use = np.asarray(use, bool)
+    learnt = [j for j in range(1, min(len(use), SIDES)) if use[j]]
+    searched = [j for j in range(SIDES, len(use)) if use[j]]
+    share = 0.0 if not searched else (1.0 if not learnt else float(search or 0.0))
+    out = np.full(len(use), -np.inf)
     with np.errstate(divide="ignore"):
-        out = np.array([math.log(p_right) if p_right > 0 else -math.inf] + [
-            math.log((1.0 - p_right) / k) if p_right < 1 else -math.inf for _ in range(len(use) - 1)])
+        out[0] = math.log(p_right) if p_right > 0 else -math.inf
+        for j in learnt:
+            out[j] = math.log((1.0 - p_right) * (1.0 - share) / len(learnt)) if (1.0 - p_right) * (1.0 - share) > 0 else -math.inf
+        for j in searched:
+            out[j] = math.log((1.0 - p_right) * share / len(searched)) if (1.0 - p_right) * share > 0 else -math.inf
     return np.where(use, out, -np.inf)
+
+
+def searched_starts(ol: Outline, k: int) -> tuple[list[float], list[bool]]:
+    """Class ``k``'s turns of the GP's heading that fits start from, and which are used: its learnt
+    sides, then ``SEARCH_DEG``'s unless within ``SEARCH_APART`` of a used learnt side (none used in a
+    model without ``prior_search``)."""
+    offs = [float(o) for o in ol.sides[k]]
+    use = [bool(u) for u in ol.side_mask[k]]
+    for d in SEARCH_DEG:
+        a = math.radians(d)
+        near = any(use[j] and abs(wrap(a - offs[j])) < SEARCH_APART for j in range(len(offs)))
+        offs.append(a)
+        use.append(ol.prior_search is not None and not near)
+    return offs, use
+
+
+def merge(heading, logp) -> np.ndarray:
+    """Fits that end within ``MERGE`` of a more probable one (ties: the earlier) are dropped (``-inf``);
+    each kept one gets the probability of every fit within ``MERGE`` of it, its own included."""
+    n = len(logp)
+    out = np.full(n, -np.inf)
+    for j in range(n):
+        if not np.isfinite(logp[j]):
+            continue
+        twins = [i for i in range(n) if np.isfinite(logp[i]) and abs(wrap(heading[i] - heading[j])) < MERGE]
+        if any(logp[i] > logp[j] or (logp[i] == logp[j] and i < j) for i in twins if i != j):
+            continue
+        top = max(logp[i] for i in twins)
+        out[j] = top + math.log(sum(math.exp(logp[i] - top) for i in twins))
+    return out
 
 
 def log_normalise(a: np.ndarray) -> np.ndarray:
@@ -188,44 +238,57 @@ class Refined:
 
 
 def refine(ol: Outline, cls, run, pts, mask, pose_gp, cov_gp) -> Refined:
-    """Stage e′ (``e_refine.refine``) candidate by candidate: a fit per used side from the GP's pose
-    turned by the side's offset; a side is good where the candidate is run, has ``min_points`` points
-    or more and the side's RMS residual ``sqrt(cost / points)`` is at most the class's ``max_rms``.
-    With a good side, the side posterior is the prior plus ``-temperature · cost`` over the good sides
-    (the others impossible), each good side's pose is the GP's position with the fit's heading, and the
-    most probable side gives the candidate's heading and heading variance ``cost / (points − 3) ·
-    (H + 10⁻⁹ I)⁻¹_θθ · cov_scale_θ`` (uncorrelated with the GP's position). Without, the GP's pose and
-    covariance stand and the sides are the GP's heading turned, with the prior alone."""
+    """Stage e′ (``e_refine.refine``) candidate by candidate: a fit from the GP's pose turned by each
+    start of :func:`searched_starts`; a start is good where the candidate is run, has ``min_points``
+    points or more, the start is used and its fit's RMS residual ``sqrt(cost / points)`` is at most the
+    class's ``max_rms``. With a good start, the posterior is the prior (:func:`side_prior`) plus
+    ``-temperature · cost`` over the good starts (the others impossible); each good start's pose is
+    the fit's heading with the GP's position, or the fit's position where the class's
+    ``side_position`` says so and the fit ended ``GP_SIDE`` or more from the GP's heading. Without a
+    good start, the starts' headings with the prior alone. The starts are merged (:func:`merge`) and
+    the ``SIDES`` most probable (ties: the earlier) are the sides, best first; the best gives the
+    candidate's pose where its start was good, and its heading variance ``cost / (points − 3) ·
+    (H + 10⁻⁹ I)⁻¹_θθ · cov_scale_θ`` (uncorrelated with the GP's position). Otherwise the GP's pose and
+    covariance stand."""
     pose_gp, cov_gp = np.asarray(pose_gp, np.float64), np.asarray(cov_gp, np.float64)
-    n, h = len(cls), ol.sides.shape[1]
-    out = Refined(pose_gp.copy(), cov_gp.copy(), np.zeros((n, h, 3)), np.full((n, h), -np.inf), np.zeros(n, bool),
-                  np.zeros(n), np.zeros((n, h, 3)), np.zeros((n, h)))
+    n, h = len(cls), ol.sides.shape[1] + len(SEARCH_DEG)
+    out = Refined(pose_gp.copy(), cov_gp.copy(), np.zeros((n, SIDES, 3)), np.full((n, SIDES), -np.inf),
+                  np.zeros(n, bool), np.zeros(n), np.zeros((n, h, 3)), np.zeros((n, h)))
     for i in range(n):
         k = int(cls[i])
-        use = ol.side_mask[k]
+        offs, use = searched_starts(ol, k)
         p = thin(np.asarray(pts[i], np.float64)[np.asarray(mask[i], bool)])
         n_pts = len(p)
-        starts = [np.array([pose_gp[i, 0], pose_gp[i, 1], pose_gp[i, 2] + ol.sides[k, j]]) for j in range(h)]
+        starts = [np.array([pose_gp[i, 0], pose_gp[i, 1], pose_gp[i, 2] + offs[j]]) for j in range(h)]
         fits = [fit_one(ol, k, p, s) for s in starts]
         good = np.zeros(h, bool)
         for j in range(h):
             out.fit_pose[i, j], out.cost[i, j] = fits[j][0], fits[j][1]
             rms = math.sqrt(fits[j][1] / max(n_pts, 1))
             good[j] = bool(run[i]) and n_pts >= ol.min_points and rms <= ol.max_rms[k] and use[j]
-        prior = side_prior(ol.prior_right[k], use)
+        prior = side_prior(ol.prior_right[k], use, None if ol.prior_search is None else ol.prior_search[k])
         if good.any():
             logp = log_normalise(np.where(good, prior - ol.temperature[k] * out.cost[i], -np.inf))
         else:
             logp = log_normalise(prior)
-        out.side_logp[i] = np.where(use, logp, -np.inf)
+        logp = np.where(use, logp, -np.inf)
+        side_pose = np.zeros((h, 3))
         for j in range(h):
-            heading = fits[j][0][2] if good[j] else wrap(starts[j][2])
-            out.side_pose[i, j] = [pose_gp[i, 0], pose_gp[i, 1], heading]
-        best = int(np.argmax(out.side_logp[i]))
+            if not good[j]:
+                side_pose[j] = [pose_gp[i, 0], pose_gp[i, 1], wrap(starts[j][2])]
+                continue
+            fitted = fits[j][0]
+            own_xy = (ol.side_position is not None and ol.side_position[k]
+                      and abs(wrap(fitted[2] - pose_gp[i, 2])) >= GP_SIDE)  # another side than the GP read
+            side_pose[j] = [*(fitted[:2] if own_xy else pose_gp[i, :2]), fitted[2]]
+        logp = merge(side_pose[:, 2], logp)
+        order = sorted(range(h), key=lambda j: (-logp[j], j))[:SIDES]  # the most probable, best first
+        out.side_pose[i], out.side_logp[i] = side_pose[order], logp[order]
+        best = order[0]
         if good[best]:
             out.fitted[i] = True
             out.rms[i] = math.sqrt(fits[best][1] / max(n_pts, 1))
-            out.pose[i] = out.side_pose[i, best]
+            out.pose[i] = side_pose[best]
             s2 = fits[best][1] / max(n_pts - 3.0, 1.0)
             var_th = s2 * np.linalg.inv(fits[best][2] + RIDGE * np.eye(3))[2, 2] * ol.cov_scale[k, 2]
             cov = cov_gp[i].copy()
