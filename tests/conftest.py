@@ -105,7 +105,8 @@ def _train_tiny(d: Path) -> dict:
     from gtsjax.sim import simulate
     from gtsjax.train import TrainConfig, train
 
-    config = dataclasses.replace(TrainConfig(), max_per_class=60, max_pose_examples=80, n_inducing=32, restarts=1)
+    config = dataclasses.replace(TrainConfig(), max_per_class=60, max_pose_examples=80, n_inducing=32, restarts=1,
+                                 check_pipeline=False)  # a model to run; training's tracking check is tested apart
     train_log, site = simulate("spl-train", seed=11, n_scans=500)
     legs, _ = simulate("spl-legs", seed=12, n_scans=150)
     model, report = train([train_log, legs], site, config)

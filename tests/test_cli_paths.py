@@ -213,7 +213,8 @@ def utm_plain(tmp_path_factory):
     from gtsjax.train import TrainConfig, train
 
     d = tmp_path_factory.mktemp("utm")
-    config = dataclasses.replace(TrainConfig(), max_per_class=60, max_pose_examples=80, n_inducing=32, restarts=1)
+    config = dataclasses.replace(TrainConfig(), max_per_class=60, max_pose_examples=80, n_inducing=32, restarts=1,
+                                 check_pipeline=False)  # a model to run; training's tracking check is tested apart
     train_log, site = simulate("spl-train", seed=11, n_scans=500, sensor="UTM-30LX")
     legs, _ = simulate("spl-legs", seed=12, n_scans=150, sensor="UTM-30LX")
     assert train_log.intensities is not None and legs.intensities is not None

@@ -216,7 +216,8 @@ def tagged(tmp_path_factory):
     from gtsjax.train import tags as train_tags
 
     d = tmp_path_factory.mktemp("enrol")
-    config = dataclasses.replace(TrainConfig(), max_per_class=60, max_pose_examples=80, n_inducing=32, restarts=1)
+    config = dataclasses.replace(TrainConfig(), max_per_class=60, max_pose_examples=80, n_inducing=32, restarts=1,
+                                 check_pipeline=False)  # a model to run; training's tracking check is tested apart
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(train_tags, "MIN_SEPARATION", 1.5)
         train_log, train_site = simulate("spl-train", seed=11, n_scans=300, sensor="UTM-30LX")
