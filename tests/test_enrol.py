@@ -7,7 +7,9 @@ bad inputs as one line and exit 2."""
 
 import json
 import math
+import os
 import re
+import stat
 
 import jax.numpy as jnp
 import numpy as np
@@ -153,13 +155,18 @@ def test_enrolled_adds_replaces_and_refuses():
 
 
 def test_site_written_atomically_the_rest_unchanged_and_the_previous_kept(tmp_path):
+    """In place: the previous file kept as .bak, every other entry as it was, the file's permission bits
+    kept (a temporary file's 0600 once replaced a site's 0644); to --out: a new file with the mode the
+    umask gives a new file; no temporary file left behind."""
     site = tmp_path / "site.json"
     doc = {"landmarks": [{"class": "post", "x": 0.0, "y": 1.3, "note": "ünïcode"}], "sensor_pose": [3.0, 4.0, -1.5708],
            "bounds": [0.0, 0.0, 6.0, 4.0], "operator": {"name": "x", "list": [1, 2.5]}}
     before = json.dumps(doc, indent=2) + "\n"
     site.write_text(before)
+    site.chmod(0o640)
     new = dict(doc, tags=SiteTags(13, 0.88, (TagWearer("nao2", "1101011101000", 2),), 5.0).to_json())
     assert write_site(new, site, None) == site
+    assert stat.S_IMODE(site.stat().st_mode) == 0o640
     assert (tmp_path / "site.json.bak").read_text() == before
     got = json.loads(site.read_text())
     assert got.pop("tags")["robots"] == [{"name": "nao2", "code": "1101011101000", "offset_cells": 2}]
@@ -167,7 +174,44 @@ def test_site_written_atomically_the_rest_unchanged_and_the_previous_kept(tmp_pa
     out = tmp_path / "other.json"
     write_site(new, site, out)
     assert json.loads(out.read_text()) == new
-    assert [p.name for p in tmp_path.iterdir() if p.name.endswith(".tmp")] == []
+    umask = os.umask(0)
+    os.umask(umask)
+    fresh = tmp_path / "fresh"
+    fresh.touch()  # what open() gives a new file here
+    assert stat.S_IMODE(out.stat().st_mode) == stat.S_IMODE(fresh.stat().st_mode) == 0o666 & ~umask
+    assert [p.name for p in tmp_path.iterdir() if p.name.endswith((".tmp", ".part"))] == []
+
+
+def test_outputs_naming_an_input_are_refused_before_any_work(tmp_path, capsys):
+    """``--out`` naming the log, the model or the tags file, ``--record`` naming the site or the model
+    (directly or through a link), an --out in a folder that cannot be made: each one line, exit 2,
+    before anything is read or written: every input as it was, in content and mode (``enrol --out
+    LOG`` once replaced a 22 MB log with the site, ``--record SITE`` the site with a recording)."""
+    files = {name: tmp_path / name for name in ("site.json", "model.npz", "log.npz", "tags.json")}
+    for i, p in enumerate(files.values()):
+        p.write_bytes(f"input {i}\n".encode())  # never read: the guard comes first
+        p.chmod(0o644)
+    (tmp_path / "link.npz").symlink_to(files["log.npz"])
+    base = ["enrol", "--robot", "nao3", "--site", files["site.json"], "--model", files["model.npz"]]
+    cases = [
+        (["--log", files["log.npz"], "--out", files["log.npz"]], "is both --out and the input --log"),
+        (["--log", files["log.npz"], "--out", tmp_path / "link.npz"], "is both --out and the input --log"),
+        (["--log", files["log.npz"], "--out", files["model.npz"]], "is both --out and the input --model"),
+        (["--log", files["log.npz"], "--tags", files["tags.json"], "--out", files["tags.json"]], "the input --tags"),
+        (["--port", "/dev/null", "--record", files["site.json"]], "is both --record and the input --site"),
+        (["--port", "/dev/null", "--record", files["model.npz"]], "is both --record and the input --model"),
+        (["--log", files["log.npz"], "--record", tmp_path / "r.npz"], "with --log there is nothing to record"),
+        (["--log", files["log.npz"], "--out", "/proc/no/site.json"], "cannot create the folder"),
+        (["--log", files["log.npz"], "--out", files["log.npz"] / "site.json"], "is a file, not a folder"),
+    ]
+    for args, says in cases:
+        capsys.readouterr()
+        assert main([str(a) for a in [*base, *args]]) == 2, args
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and says in err[0] and "Traceback" not in err[0], (args, err)
+        for i, p in enumerate(files.values()):
+            assert p.read_bytes() == f"input {i}\n".encode() and stat.S_IMODE(p.stat().st_mode) == 0o644, (args, p)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([*files, "link.npz"])
 
 
 def test_bad_inputs_are_one_line_and_exit_2(tmp_path, capsys):

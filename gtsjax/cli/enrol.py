@@ -16,7 +16,9 @@ from rich.console import Console
 from rich.table import Table
 
 from ..errors import InputError
+from ..io.atomic import atomic_write
 from ._app import app
+from ._common import check_out_file, distinct_paths
 
 
 def _designed(path: Path | None) -> dict | None:
@@ -35,22 +37,22 @@ def _designed(path: Path | None) -> dict | None:
 
 
 def write_site(doc: dict, path: Path, out: Path | None) -> Path:
-    """Write the site document atomically: a temporary file beside the target, then renamed over it;
-    in place (``out`` None), the previous file kept as ``SITE.json.bak``."""
+    """Write the site document atomically (:func:`~gtsjax.io.atomic.atomic_write`: whole or not at all,
+    its permissions kept); in place (``out`` None), the previous file kept as ``SITE.json.bak``."""
     target = path if out is None else out
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent or ".")
     try:
-        with os.fdopen(fd, "w") as f:
-            f.write(json.dumps(doc, indent=2, ensure_ascii=False) + "\n")
-            f.flush()
-            os.fsync(f.fileno())
         if out is None:
-            shutil.copy2(path, path.with_name(path.name + ".bak"))
-        os.replace(tmp, target)
+            shutil.copy2(path, backup_of(path))
+        with atomic_write(target, "w", encoding="utf-8") as f:
+            f.write(json.dumps(doc, indent=2, ensure_ascii=False) + "\n")
     except OSError as err:
-        Path(tmp).unlink(missing_ok=True)
         raise InputError(target, f"cannot be written ({err.strerror or err})") from None
     return target
+
+
+def backup_of(site: Path) -> Path:
+    """Where an in-place enrolment keeps the previous site file."""
+    return site.with_name(site.name + ".bak")
 
 
 @app.command("enrol")
@@ -79,6 +81,15 @@ def enrol_cmd(
     console = Console(stderr=True, soft_wrap=True)
     if (log is None) == (port is None):
         raise InputError("enrol", "give --log LOG or --port PORT (one of them)")
+    if record is not None and port is None:
+        raise InputError("--record", "keeps what --port records; with --log there is nothing to record")
+    # Before any work: nothing it writes may be one of its inputs, and every output can be written.
+    distinct_paths({"--site": site, "--model": model_path, "--log": log, "--tags": tags_json},
+                   {"--out": out, "--record": record, "the backup of --site": None if out is not None else backup_of(site)})
+    if out is not None:
+        check_out_file(out, "--out")
+    if record is not None:
+        check_out_file(record, "--record")
     if not robot.strip():
         raise InputError("--robot", "must be a non-empty name")
     site_obj = load_site(site)

@@ -19,6 +19,7 @@ import numpy as np
 
 from ..core.scan import Beams
 from ..errors import InputError, InputWarning
+from .atomic import atomic_write
 from .npz import check_npz
 
 REQUIRED = ("ranges", "stamps", "angle_min", "angle_increment")
@@ -106,16 +107,8 @@ def save_log(log: ScanLog, path: str | os.PathLike) -> None:
     temporary name, then renamed), so a crash never leaves a half-written log under ``path``."""
     path = Path(path)
     log.validate(path)
-    tmp = path.with_name(path.name + ".part")
-    try:
-        with open(tmp, "wb") as f:
-            np.savez(f, **log.to_dict())
-            f.flush()
-            os.fsync(f.fileno())
-    except BaseException:
-        tmp.unlink(missing_ok=True)  # a full disk (or Ctrl-C) leaves no half-written .part behind
-        raise
-    os.replace(tmp, path)
+    with atomic_write(path) as f:  # a full disk (or Ctrl-C) leaves the previous file, and no .part
+        np.savez(f, **log.to_dict())
 
 
 def load_log(path: str | os.PathLike) -> ScanLog:

@@ -45,6 +45,7 @@ from ..core.model import Model, SiteArrays
 from ..errors import InputError
 from ..gp import GP, Hyperparameters, SharedSparseGP, SparseGP
 from ..sensors import with_scanner
+from .atomic import atomic_write
 from .npz import check_npz
 
 FORMAT = "gtsjax-model"
@@ -315,10 +316,8 @@ def save_model(model: Model, path: str | os.PathLike, *, summary: dict | None = 
         "summary": summary or {},
         "schema": schema,
     }
-    tmp = path.with_name(path.name + ".part")
-    with open(tmp, "wb") as f:
+    with atomic_write(path) as f:
         np.savez(f, **{_HEADER_KEY: np.asarray(json.dumps(header))}, **leaves)
-    os.replace(tmp, path)
 
 
 def is_model_file(path: str | os.PathLike) -> bool:

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from .atomic import atomic_write
 
 
 @dataclasses.dataclass(frozen=True)
@@ -154,7 +155,8 @@ def one_sensor(site: Site, name: str | None, where: object = "site") -> Site:
 def save_site(site: Site, path: str | os.PathLike) -> None:
     path = Path(path)
     site.validate(path)
-    path.write_text(json.dumps(site.to_json(), indent=2) + "\n")
+    with atomic_write(path, "w", encoding="utf-8") as f:
+        f.write(json.dumps(site.to_json(), indent=2) + "\n")
 
 
 def load_site(path: str | os.PathLike) -> Site:
