@@ -210,6 +210,22 @@ MORE_BAD = {
                                        "--out", "{o}/o.csv", "--udp", "127.0.0.1:99999"], "PORT in 1–65535"),
     "plot --out a text file": (None, ["plot", "{d}/gtd.csv", "--site", "{d}/site.json", "--out", "{o}/p.txt"],
                                "must name a figure file"),
+    # Scenario seeds (issue 54: three tracebacks, and a colon with no seed run as seed 1000 in silence).
+    "evaluate a scenario of seed abc": (None, ["evaluate", "--model", "demo", "--scenario", "spl-eval:abc", "--out-dir",
+                                               "{o}/ev"], "the seed 'abc' is not an integer"),
+    "evaluate a scenario of seed -1": (None, ["evaluate", "--model", "demo", "--scenario", "spl-eval:-1", "--out-dir",
+                                              "{o}/ev"], "the seed -1 is out of range"),
+    "evaluate a scenario with no seed after its colon": (None, ["evaluate", "--model", "demo", "--scenario", "spl-eval:",
+                                                                "--out-dir", "{o}/ev"], "no seed after the colon"),
+    "simulate with seed -1": (None, ["simulate", "spl-eval", "--seed", "-1", "--out", "{o}/x.npz", "--site",
+                                     "{o}/x.json"], "'--seed'"),
+    # A class the labels do not have (once ignored in silence), before any fitting.
+    "train --max-speed for a class the labels lack": (None, ["train", "{d}/log.npz", "--site", "{d}/site.json", "--out",
+                                                             "{o}/m.npz", "--max-speed", "tractor=1"],
+                                                      "no class 'tractor' in the labels"),
+    # A usage error (an unknown option) is one line too, not Click's box of six.
+    "an option no command has": (None, ["replay", "{d}/log.npz", "--site", "{d}/site.json", "--model", "demo", "--out",
+                                        "{o}/o.csv", "--smooth-lag", "1"], "No such option: --smooth-lag"),
 }
 
 
@@ -264,8 +280,9 @@ def test_an_empty_journal_does_not_block_the_next_recording(tmp_path):
                                   ["train", "{d}/log.npz", "--site", "{d}/site.json", "--out", "{o}/m.npz",
                                    "--max-pose", "-5"]])
 def test_settings_out_of_range_are_refused_before_any_work(inputs, tmp_path, capsys, args):
-    """Click's usage error (exit 2, the option named) before a scene is served or a log read."""
+    """Click's usage error, in one line (exit 2, the option named) before a scene is served or a log read."""
     capsys.readouterr()
     assert main([a.format(d=inputs, o=tmp_path) for a in args]) == 2
-    assert args[-2] in capsys.readouterr().err
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("gtsjax: ") and args[-2] in err[0], err
     assert list(tmp_path.iterdir()) == []

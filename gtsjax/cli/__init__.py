@@ -212,20 +212,43 @@ def main(argv: list[str] | None = None) -> int:
     return code
 
 
+def usage_line(err: Exception) -> str:
+    """A usage error (an unknown option, a value of the wrong type or out of its range, a missing
+    argument) as one line, as every other mistake of a user is: the command, Click's message, where the
+    options are listed. Click's own form is a box of five or six lines."""
+    ctx = getattr(err, "ctx", None)
+    where = ctx.command_path if ctx is not None else "gtsjax"
+    message = " ".join((err.format_message() if hasattr(err, "format_message") else str(err)).split())
+    command = where.partition(" ")[2]
+    return f"{command + ': ' if command else ''}{message} (see {where} --help)"
+
+
 def _dispatch(stopped: list[int], argv: list[str] | None) -> int:
     """The command's exit status (see :func:`main`)."""
+    import typer
+
     try:
-        command()(args=_spread(_vocabulary(sys.argv[1:] if argv is None else list(argv))), prog_name="gtsjax")
+        rv = command().main(args=_spread(_vocabulary(sys.argv[1:] if argv is None else list(argv))),
+                            prog_name="gtsjax", standalone_mode=False)
     except InputError as err:
         print(f"gtsjax: {err}", file=sys.stderr)
         return 2
+    except typer.Abort:  # Ctrl-C or end of input at a prompt
+        return _interrupted(stopped)
+    except typer.TyperException as err:  # Click's usage errors (its exceptions derive from it)
+        print(f"gtsjax: {usage_line(err)}", file=sys.stderr)
+        return getattr(err, "exit_code", 2)
     except KeyboardInterrupt:
         return _interrupted(stopped)
     except SystemExit as exc:
-        code = exc.code
-        if code == _TYPER_INTERRUPTED or (stopped and code in (0, None)):
-            return _interrupted(stopped)
-        return code if isinstance(code, int) else (0 if code is None else 2)
+        rv = exc.code
+    # Typer returns the status a command exits with (``typer.Exit``), or the command's own return value
+    # (None): Ctrl-C inside a command is its status 130.
+    code = rv if isinstance(rv, int) and not isinstance(rv, bool) else (0 if rv is None else 2)
+    if code == _TYPER_INTERRUPTED or (stopped and code == 0):
+        return _interrupted(stopped)
+    if code != 0:
+        return code
     # A command that stops itself cleanly on SIGTERM or SIGHUP (``run`` closes its files and returns)
     # still says so, with the status a stopped command has (128 + the signal), as it would have had the
     # signal come a moment earlier, while it compiled.

@@ -11,6 +11,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from ._app import CONFIRM_HELP, MAX_TRACKS_HELP, app, fail
+from ._checks import scenario_spec
 from ._common import check_out_dir
 
 # The ground truth as written (confirmed tracks), and the paper's per-sample figures (each scan's
@@ -91,11 +92,11 @@ def evaluate_cmd(
     base = bases[0]
     jobs, matches = [], []
     for spec in scenario or []:
-        name, _, seed = spec.partition(":")
+        name, seed = scenario_spec(spec)
         if is_match(name):
-            matches.append((spec, name, int(seed or 1000)))
+            matches.append((spec, name, seed))
             continue
-        jobs.append((spec, lambda name=name, seed=seed: (*simulate(name, seed=int(seed or 1000)), False)))
+        jobs.append((spec, lambda name=name, seed=seed: (*simulate(name, seed=seed), False)))
     if logs:
         site_obj = one_sensor(load_site(site), sensor, site)
         for p in logs:  # every log is read and checked before the first is evaluated: a bad one fails fast

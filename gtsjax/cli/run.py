@@ -152,7 +152,7 @@ def emulate_cmd(
     scenario: str = typer.Argument(..., help="Scenario name (gtsjax simulate --list) or a scan log (.npz)."),
     sensor: str | None = typer.Option(None, "--scanner", help="Scanner model to emulate: URG-04LX, UTM-30LX "
                                                                 "(default: the scenario's)."),
-    seed: int = typer.Option(0, help="Scenario seed."),
+    seed: int = typer.Option(0, min=0, help="Scenario seed (an integer from 0 up)."),
     checksum_errors: float = typer.Option(0.0, min=0.0, max=1.0, help="Probability of a bad checksum per data block."),
     line_errors: float = typer.Option(0.0, min=0.0, max=1.0, help="Probability of a bad checksum per data line (several per block)."),
     drop_bytes: float = typer.Option(0.0, min=0.0, max=1.0, help="Probability of dropped bytes per data block."),

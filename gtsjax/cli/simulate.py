@@ -17,7 +17,7 @@ def simulate_cmd(
     scenario: str | None = typer.Argument(None, help="Scenario name (see --list)."),
     out: Path | None = typer.Option(None, "--out", help="Scan log (.npz) to write."),
     site: Path | None = typer.Option(None, "--site", help="Site file (.json) to write."),
-    seed: int = typer.Option(0, help="Seed: noise, paths and the rough sensor-pose guess."),
+    seed: int = typer.Option(0, min=0, help="Seed (an integer from 0 up): noise, paths and the rough sensor-pose guess."),
     scans: int | None = typer.Option(None, "--scans", min=1, help="Number of scans (default: the scenario's)."),
     sensor: str | None = typer.Option(None, "--scanner", help="Scanner model: URG-04LX, UTM-30LX (default: the scenario's)."),
     robots: int = typer.Option(10, "--robots", min=1, max=14, help="spl-match-*: robots on the field."),

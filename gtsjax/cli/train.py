@@ -26,6 +26,7 @@ from ..io.modelfile import save_model
 from ..io.site import one_sensor
 from ..train import TrainConfig, fit_background, train
 from ._app import app
+from ._checks import check_class_names
 from ._common import check_out_file, distinct_paths, load_input
 
 
@@ -125,6 +126,13 @@ def train_cmd(
                               heading_turns=_turns(heading_turns),
                               check_pipeline=check)
     loaded = [load_log(p) for p in logs]
+    if loaded and all(log.labelled for log in loaded):  # a class the labels do not have is a typo, said now
+        from ..train.labels import class_list
+
+        known = class_list(loaded, sites[0])[0][1:]
+        for option, given in (("--max-speed", cfg.max_speed), ("--max-turn-rate", cfg.max_turn_rate),
+                              ("--heading-turns", cfg.heading_turns)):
+            check_class_names(option, given, known, "the labels and the site's landmarks")
     bg = [load_input(p, background_topic if _is_bag(p) else None, console) for p in background]
     if loaded and loaded[0].labelled:  # every input checked before the minutes of fitting
         bg = fit_background(loaded[0], bg, [str(p) for p in background])
