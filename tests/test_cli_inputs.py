@@ -223,6 +223,9 @@ MORE_BAD = {
     "train --max-speed for a class the labels lack": (None, ["train", "{d}/log.npz", "--site", "{d}/site.json", "--out",
                                                              "{o}/m.npz", "--max-speed", "tractor=1"],
                                                       "no class 'tractor' in the labels"),
+    # A lag of 10^6 s grew to 16.5 GB in 15 s.
+    "run --smooth-lag of a million seconds": (None, ["run", "--port", "/dev/null", "--site", "{d}/site.json", "--model",
+                                                     "demo", "--out", "{o}/o.csv", "--smooth-lag", "1e6"], "at most 60 s"),
     # A usage error (an unknown option) is one line too, not Click's box of six.
     "an option no command has": (None, ["replay", "{d}/log.npz", "--site", "{d}/site.json", "--model", "demo", "--out",
                                         "{o}/o.csv", "--smooth-lag", "1"], "No such option: --smooth-lag"),

@@ -107,8 +107,31 @@ def test_tags_command_writes_bands_that_reread_to_their_codes(tmp_path, capsys):
     (["--scanner", "URG-04LX"], "reports no intensity"),
     (["--names", "a,b"], "needs 4 distinct"),
     (["--range", "40"], "at most"),
+    # Millimetres for metres: a 23 MB SVG per robot, for minutes each, before.
+    (["--perimeter", "800"], "800 looks like millimetres: give metres, 0.8"),
+    (["--height", "30"], "30 looks like millimetres: give metres, 0.03"),
+    (["--perimeter", "-1"], "not a plausible band length"),
 ])
 def test_tags_command_refuses_in_one_line(tmp_path, capsys, args, message):
     rc = main(["tags", "--robots", "4", "--perimeter", "0.8", "--range", "6", "--out-dir", str(tmp_path / "t"), *args])
-    err = capsys.readouterr().err
-    assert rc == 2 and message in err and "Traceback" not in err
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and message in err[0], err
+    assert not (tmp_path / "t").exists()
+
+
+def test_tags_stopped_part_way_leaves_no_bands(tmp_path, capsys, monkeypatch):
+    """Ctrl-C while the bands are written (after two of four SVGs, in the PDF): none of the bands, no
+    tags.json; a folder that held other files keeps them."""
+    import gtsjax.tags.band as band
+
+    out = tmp_path / "t"
+    out.mkdir()
+    (out / "mine.txt").write_text("kept")
+
+    def stop(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(band, "bands_pdf", stop)
+    rc = main(["tags", "--robots", "4", "--perimeter", "0.8", "--range", "6", "--out-dir", str(out)])
+    assert rc == 130 and "interrupted" in capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == ["mine.txt"]

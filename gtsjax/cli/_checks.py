@@ -45,3 +45,19 @@ def check_class_names(option: str, given, known, where: str) -> None:
     if unknown:
         raise InputError(option, f"no class {', '.join(map(repr, unknown))} in {where}; the classes are "
                                  f"{', '.join(known) or 'none'}")
+
+
+def check_length(option: str, value: float, low: float, high: float, what: str) -> float:
+    """A length in metres within ``(low, high]``; a value a thousand times too large is said to look
+    like millimetres, with the value in metres to give instead."""
+    if not (low < value <= high):
+        hint = (f" ({value:g} looks like millimetres: give metres, {value / 1000:g})"
+                if high < value <= 1000 * high else "")
+        raise InputError(option, f"{value:g} m is not a plausible {what}: give metres above {low:g} and at most "
+                                 f"{high:g}{hint}")
+    return value
+
+
+#: The longest ``run --smooth-lag``: the live window holds this many seconds of every track's states;
+#: a longer view of a recording is ``replay --smooth``'s (the whole of each track's life).
+MAX_SMOOTH_LAG_S = 60.0

@@ -8,6 +8,7 @@ from rich.console import Console
 
 from ..errors import InputError
 from ._app import CONFIRM_HELP, MAX_TRACKS_HELP, QUIET_HELP, app
+from ._checks import MAX_SMOOTH_LAG_S
 from ._common import (
     CSV_UNITS_HELP,
     OUT_BAG_HELP,
@@ -228,4 +229,9 @@ def _lag_seconds(text: str) -> float:
         seconds = math.nan
     if not math.isfinite(seconds) or seconds <= 0:
         raise InputError("--smooth-lag", f"{text!r}: the lag is a number of seconds above 0 (0.5 for half a second)")
+    if seconds > MAX_SMOOTH_LAG_S:
+        raise InputError("--smooth-lag", f"{text!r}: at most {MAX_SMOOTH_LAG_S:g} s (the window holds that long of "
+                                         "every track's states; "
+                                         + (f"{seconds / 1000:g} s if that was milliseconds; " if seconds <= 1000 * MAX_SMOOTH_LAG_S else "")
+                                         + "replay --smooth smooths a recording over each track's whole life)")
     return seconds

@@ -10,8 +10,15 @@ from rich.console import Console
 from rich.table import Table
 
 from ..errors import InputError
+from ..io.atomic import atomic_write
 from ._app import app
+from ._checks import check_length
 from ._common import check_out_dir, file_stem
+
+#: The longest band around a robot, metres: a Nao's is about 0.8, the largest RoboCup robots' some 3.
+MAX_PERIMETER_M = 5.0
+#: The tallest band, metres: a few centimetres around the laser's plane.
+MAX_HEIGHT_M = 0.5
 
 
 def _names(names: str | None, n: int) -> list[str]:
@@ -80,8 +87,8 @@ def tags_cmd(
     from ..tags.band import band_svg, bands_pdf
 
     console = Console(stderr=True, soft_wrap=True)
-    if not (perimeter > 0 and height > 0):
-        raise InputError("--perimeter/--height", "must be above 0")
+    check_length("--perimeter", perimeter, 0.0, MAX_PERIMETER_M, "band length around a robot")
+    check_length("--height", height, 0.0, MAX_HEIGHT_M, "band height")
     who = _names(names, robots)
     model, cells, cell_m, d = plan(robots, perimeter, max_range, scanner)
     check_out_dir(out_dir)
@@ -91,20 +98,20 @@ def tags_cmd(
     for col in ("robot", "code (cell 0 first)", "tape cells", "band"):
         table.add_column(col)
     files = []
-    for name, code, s in zip(who, d.codes, d.strings(), strict=True):
-        svg = out_dir / f"{file_stem(name, 'robot')}.svg"
-        band_svg(svg, name, code, perimeter, height)
-        files.append(svg)
-        table.add_row(name, s, str(int(code.sum())), str(svg))
     pdf = out_dir / "bands.pdf"
-    pages = bands_pdf(pdf, who, d.codes, perimeter, height)
-    spec = {
-        "scanner": model.name, "perimeter_m": perimeter, "height_m": height, "range_m": max_range,
-        "cells": cells, "cell_m": cell_m, "beams_per_cell_at_range": cell_m / (max_range * beam),
-        "distance": d.distance, "self_distance": d.self_distance,
-        "robots": [{"name": n, "code": s} for n, s in zip(who, d.strings(), strict=True)],
-    }
-    (out_dir / "tags.json").write_text(json.dumps(spec, indent=2) + "\n")
+    try:  # all of the bands and tags.json, or (stopped, or failing) none of them
+        for name, code, s in zip(who, d.codes, d.strings(), strict=True):
+            svg = out_dir / f"{file_stem(name, 'robot')}.svg"
+            files.append(svg)
+            band_svg(svg, name, code, perimeter, height)
+            table.add_row(name, s, str(int(code.sum())), str(svg))
+        files.append(pdf)
+        pages = bands_pdf(pdf, who, d.codes, perimeter, height)
+        _write_spec(out_dir / "tags.json", model, perimeter, height, max_range, cells, cell_m, beam, d, who)
+    except BaseException:
+        for f in files:
+            f.unlink(missing_ok=True)
+        raise
     print(table.title)
     for name, s in zip(who, d.strings(), strict=True):
         print(f"{name}\t{s}")
@@ -115,3 +122,16 @@ def tags_cmd(
     hint = advice(robots, perimeter, max_range, beam, d.distance)
     if hint:
         console.print(f"[yellow]warning:[/yellow] {hint}")
+
+
+def _write_spec(path: Path, model, perimeter: float, height: float, max_range: float, cells: int, cell_m: float,
+                beam: float, d, who: list[str]) -> None:
+    """tags.json: the band's geometry and each robot's code, as ``gtsjax enrol --tags`` reads it."""
+    spec = {
+        "scanner": model.name, "perimeter_m": perimeter, "height_m": height, "range_m": max_range,
+        "cells": cells, "cell_m": cell_m, "beams_per_cell_at_range": cell_m / (max_range * beam),
+        "distance": d.distance, "self_distance": d.self_distance,
+        "robots": [{"name": n, "code": s} for n, s in zip(who, d.strings(), strict=True)],
+    }
+    with atomic_write(path, "w", encoding="utf-8") as f:
+        f.write(json.dumps(spec, indent=2) + "\n")
