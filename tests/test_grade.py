@@ -307,6 +307,43 @@ def test_belief_in_millimetres_is_refused_with_the_hint(tmp_path, capsys):
     assert code == 2 and "millimetres" in err and "a.csv" in err
 
 
+@pytest.mark.parametrize("unit, factor", [("milliseconds", 1e3), ("nanoseconds", 1e9)])
+def test_belief_stamps_in_milliseconds_are_refused_with_the_factor(tmp_path, capsys, unit, factor):
+    """A robot's clock written in ms (or ns, as ROS stamps are) against a ground truth in seconds, both
+    from a run's start or both epoch times: one line with the factor, nothing written (graded, no row
+    met and the grade hinted at --frame fit)."""
+    for t0 in (0.0, 1.7e9):
+        t = t0 + np.arange(0.0, 60.0, 0.1)
+        gtd = tmp_path / "gtd.csv"
+        gtd.write_text("stamp,track_id,class,x,y,theta,var_x,var_y,var_theta\n"
+                       + "".join(f"{s:.3f},1,robot,1,1,0,1e-4,1e-4,1e-4\n" for s in t))
+        (tmp_path / "a.csv").write_text("stamp,x,y,theta\n" + "".join(f"{s * factor:.1f},1,1,0\n" for s in t))
+        r = cli(capsys, "grade", str(gtd), "--robot", f"a={tmp_path / 'a.csv'}", "--out-dir", str(tmp_path / "o"))
+        err = r.stderr.strip().splitlines()
+        assert r.returncode == 2 and len(err) == 1 and f"look like {unit}" in err[0] and "a.csv" in err[0], err
+        assert not (tmp_path / "o").exists()
+    (tmp_path / "a.csv").write_text("stamp,x,y,theta\n" + "".join(f"{s + 2.0:.3f},1,1,0\n" for s in t))
+    assert cli(capsys, "grade", str(gtd), "--robot", f"a={tmp_path / 'a.csv'}", "--out-dir", str(tmp_path / "o"),
+               "--no-figures").returncode == 0  # seconds, 2 s off: graded
+
+
+def test_ground_truth_in_millimetres_is_refused_with_the_factor(tmp_path, capsys):
+    """A ground-truth CSV in millimetres, with the site's bounds or without: one line, nothing written."""
+    gtd = tmp_path / "gtd.csv"
+    gtd.write_text("stamp,track_id,class,x,y,theta,var_x,var_y,var_theta\n"
+                   + "".join(f"{s:.1f},1,robot,{1500 + s},2100,0,1e-4,1e-4,1e-4\n" for s in range(60)))
+    (tmp_path / "a.csv").write_text("stamp,x,y,theta\n" + "".join(f"{s:.1f},1.5,2.1,0\n" for s in range(60)))
+    site = tmp_path / "site.json"
+    site.write_text(json.dumps({"landmarks": [{"class": "post", "x": 0.0, "y": 1.3}, {"class": "post", "x": 0.0,
+                                "y": 2.7}, {"class": "post", "x": 6.0, "y": 1.3}], "sensor_pose": [3.0, 4.0, -1.5708],
+                                "bounds": [0.0, 0.0, 6.0, 4.0]}))
+    for extra in ([], ["--site", str(site)]):
+        r = cli(capsys, "grade", str(gtd), "--robot", f"a={tmp_path / 'a.csv'}", "--out-dir", str(tmp_path / "o"), *extra)
+        err = r.stderr.strip().splitlines()
+        assert r.returncode == 2 and len(err) == 1 and "look like millimetres" in err[0] and "gtd.csv" in err[0], err
+        assert not (tmp_path / "o").exists()
+
+
 def test_errors_type_is_what_the_figure_reads():
     e = ape(np.arange(3.0), np.zeros((3, 3)), np.ones((3, 3)), np.full((3, 3), 0.01))
     assert isinstance(e, Errors) and np.allclose(e.band_pos, 2 * math.sqrt(0.02))

@@ -2,6 +2,8 @@
 unit and the range a plausible one lies in, refused in one line (:class:`~gtsjax.errors.InputError`,
 exit status 2) before any work, naming the option and what would be right."""
 
+import numpy as np
+
 from ..errors import InputError
 
 #: Seeds of simulated scenes: NumPy's generators take any integer from 0 up.
@@ -61,3 +63,54 @@ def check_length(option: str, value: float, low: float, high: float, what: str) 
 #: The longest ``run --smooth-lag``: the live window holds this many seconds of every track's states;
 #: a longer view of a recording is ``replay --smooth``'s (the whole of each track's life).
 MAX_SMOOTH_LAG_S = 60.0
+
+
+#: Units a clock or a length is commonly written in by mistake, as factors of seconds or metres.
+_TIME_UNITS = ((1e3, "milliseconds"), (1e6, "microseconds"), (1e9, "nanoseconds"))
+_LENGTH_UNITS = ((1e3, "millimetres"), (1e2, "centimetres"))
+
+
+def _share_within(values: np.ndarray, lo: float, hi: float) -> float:
+    return float(np.mean((values >= lo) & (values <= hi))) if values.size else 0.0
+
+
+def check_stamp_units(where: object, stamps: np.ndarray, ref: tuple[float, float], slack: float,
+                      what: str = "the ground truth's") -> None:
+    """Stamps that lie outside ``ref`` (the seconds another input spans, widened by ``slack``) but
+    inside it once read as milliseconds (or µs, ns) are refused with the factor: graded as seconds,
+    no row would meet, and the grade would blame the robot's frame."""
+    stamps = np.asarray(stamps, np.float64)
+    lo, hi = ref[0] - slack, ref[1] + slack
+    if _share_within(stamps, lo, hi) >= 0.1:
+        return
+    for factor, unit in _TIME_UNITS:
+        if _share_within(stamps / factor, lo, hi) >= 0.5:
+            raise InputError(where, f"its stamps ({stamps.min():.6g} … {stamps.max():.6g}) look like {unit}: "
+                                    f"{what} run from {ref[0]:.6g} to {ref[1]:.6g} s; give them in seconds "
+                                    f"(divided by {factor:g})")
+
+
+def check_length_units(where: object, xy: np.ndarray, bounds: "tuple[float, float, float, float] | None",
+                       margin: float = 5.0) -> None:
+    """Positions that lie outside the field (its ``bounds`` widened by ``margin`` metres; without
+    bounds, beyond a kilometre) but inside it once read as millimetres (or centimetres) are refused with
+    the factor."""
+    xy = np.asarray(xy, np.float64).reshape(-1, 2)
+    if not xy.size:
+        return
+    if bounds is None:
+        def inside(p):
+            return float(np.mean(np.all(np.abs(p) <= 1000.0, axis=1)))
+    else:
+        x0, y0, x1, y1 = bounds
+
+        def inside(p):
+            return float(np.mean((p[:, 0] >= x0 - margin) & (p[:, 0] <= x1 + margin) & (p[:, 1] >= y0 - margin)
+                                 & (p[:, 1] <= y1 + margin)))
+    if inside(xy) >= 0.1:
+        return
+    for factor, unit in _LENGTH_UNITS:
+        if inside(xy / factor) >= 0.5:
+            field = "the field" if bounds is None else f"the field ({bounds[0]:g}, {bounds[1]:g}) – ({bounds[2]:g}, {bounds[3]:g}) m"
+            raise InputError(where, f"its positions (x up to {np.abs(xy[:, 0]).max():.6g}) look like {unit}: they "
+                                    f"lie in {field} only divided by {factor:g}; give them in metres")

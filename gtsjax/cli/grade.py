@@ -6,11 +6,13 @@ import math
 import time
 from pathlib import Path
 
+import numpy as np
 import typer
 from rich.console import Console
 from rich.table import Table
 
 from ._app import app, fail
+from ._checks import check_length_units, check_stamp_units
 from ._common import VIEW_HELP, VIEW_SAVE_HELP, check_out_dir, check_out_file, file_stem, serve_view
 
 ROBOT_HELP = ("A robot's own poses, NAME=POSES: a TUM or CSV (stamp,x,y,theta) file, a ROS bag topic BAG:TOPIC "
@@ -98,6 +100,14 @@ def grade_cmd(
         raise fail(gtd, "has no track rows: nothing to grade against")
     specs = [RobotSpec(read_beliefs_source(src, name), frames.get(name, "field"), fixed.get(name))
              for name, src in robots.items()]
+    # Inputs in the wrong unit are refused before grading, with the factor (graded, a clock in ms or a
+    # CSV in mm read as a robot in a frame of its own); a belief's positions in mm are refused as it is read.
+    bounds = site_obj.bounds if site_obj is not None else None
+    check_length_units(gtd, np.array([[r.x, r.y] for r in rows]), bounds)
+    stamps = np.array([r.stamp for r in rows])
+    for name, spec in zip(robots, specs, strict=True):
+        check_stamp_units(f"--robot {name}={robots[name]}", spec.beliefs.stamps, (stamps.min(), stamps.max()),
+                          max_offset, what=f"the ground truth's ({gtd.name})")
     check_out_dir(out_dir)
     if view_save is not None:
         check_out_file(view_save, "--view-save")
