@@ -104,8 +104,18 @@ def test_bad_log_rejected_with_one_line(tmp_path, mutate, match):
 
 
 def test_not_an_npz(tmp_path):
+    """A file of another kind is named as ``gtsjax info`` names it (issue 54: "not a NumPy .npz archive
+    (ValueError)" for a PNG, a CSV, a BreezySLAM log); a damaged zip archive as what zipfile found."""
     p = tmp_path / "scan.npz"
     p.write_text("this is not a log\n")
+    one_line_error(p, "a text file, not a .npz scan log")
+    p.write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(64))
+    one_line_error(p, "a PNG image, not a .npz scan log")
+    p = tmp_path / "walk.dat"
+    p.write_text("1000 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0\n")
+    one_line_error(p, "a BreezySLAM log, not a .npz scan log: convert it first (gtsjax convert")
+    p = tmp_path / "cut.npz"
+    p.write_bytes(b"PK\x03\x04 a truncated zip")
     one_line_error(p, "not a NumPy .npz archive")
 
 

@@ -2,7 +2,6 @@
 ground-truth CSVs and summarise them;
 ``gtsjax sensors``: the sensor models gtsjax knows."""
 
-import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +17,7 @@ from ..io import load_site
 from ..io.gtd import HEADER as GTD_HEADER
 from ..io.gtd import read_gtd, tracks_of
 from ..io.importers import bag_topics, detect_format, format_name
+from ..io.kinds import file_kind
 from ..io.modelfile import is_model_file, read_header
 from ..sensors import MODELS
 from ._app import app
@@ -68,7 +68,9 @@ def info(
             for line in describe_gtd(path):
                 console.print(escape(line))
         else:
-            if (what := _not_a_log(path)) is not None:
+            if detect_format(path) == "npz" and (what := file_kind(path)) is not None:
+                if what == "a JSON file":
+                    what += " (a site file is read as one when its name ends in .json)"
                 raise InputError(path, f"{what}, not a scan log, site file or model file")
             is_bag = detect_format(path) in ("ros1", "ros2")
             if is_bag:
@@ -155,36 +157,6 @@ def describe_gtd(path: Path) -> list[str]:
     for tid, cls, arr in tracks:
         lines.append(f"  track {tid} ({cls}): {plural(len(arr), 'row')}, {arr[0, 0]:.3f} … {arr[-1, 0]:.3f} s")
     return lines
-
-
-def _not_a_log(path: Path) -> str | None:
-    """What a file is that would be read as a ``.npz`` log but is not a zip archive (one of gtsjax's
-    own outputs, an image, some text), so that ``info`` names it instead of failing to read a log;
-    ``None`` for anything else (the readers say what is wrong with it)."""
-    try:
-        if detect_format(path) != "npz" or not path.is_file() or zipfile.is_zipfile(path):
-            return None
-        with open(path, "rb") as f:
-            head = f.read(4096)
-    except OSError:
-        return None  # cannot be opened: the log reader says so, in one line
-    for magic, kind in ((b"\x89PNG", "a PNG image"), (b"%PDF", "a PDF document"), (b"\xff\xd8\xff", "a JPEG image")):
-        if head.startswith(magic):
-            return kind
-    if not head:
-        return "an empty file"
-    try:
-        text = head.decode("utf-8")
-    except UnicodeDecodeError as err:
-        if err.start < len(head) - 3:  # not just a character cut at the end of the 4 kB
-            return None  # binary, of no kind known here: the log reader's message stands
-        text = head[: err.start].decode("utf-8")
-    if "\x00" in text:
-        return None
-    first = next((line.strip() for line in text.splitlines() if line.strip()), "")
-    if first.startswith(("{", "[")):
-        return "a JSON file (a site file is read as one when its name ends in .json)"
-    return "a CSV file" if "," in first else "a text file"
 
 
 def describe_model(path: Path) -> list[str]:

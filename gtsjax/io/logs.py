@@ -20,6 +20,7 @@ import numpy as np
 from ..core.scan import Beams
 from ..errors import InputError, InputWarning
 from .atomic import atomic_write
+from .kinds import not_expected
 from .npz import check_npz
 
 REQUIRED = ("ranges", "stamps", "angle_min", "angle_increment")
@@ -134,6 +135,8 @@ def load_log(path: str | os.PathLike) -> ScanLog:
     except (zipfile.BadZipFile, ValueError, OSError, EOFError) as err:
         if isinstance(err, OSError) and err.errno is not None:  # no permission, a socket: the file, not its format
             raise InputError(path, f"cannot be read ({err.strerror})") from None
+        if (other := not_expected(path, "a .npz scan log")) is not None:  # a PNG, a CSV, a bag: named as info names it
+            raise InputError(path, other) from None
         what = type(err).__name__
         if isinstance(err, zipfile.BadZipFile):  # what zipfile found: "Bad CRC-32 for file 'ranges.npy'", ...
             what += ": " + " ".join(str(err).split())[:120]

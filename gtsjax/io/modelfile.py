@@ -46,6 +46,7 @@ from ..errors import InputError
 from ..gp import GP, Hyperparameters, SharedSparseGP, SparseGP
 from ..sensors import with_scanner
 from .atomic import atomic_write
+from .kinds import not_expected
 from .npz import check_npz
 
 FORMAT = "gtsjax-model"
@@ -348,7 +349,8 @@ def _open(path: Path):
     except (zipfile.BadZipFile, ValueError, OSError, EOFError) as err:
         if isinstance(err, OSError) and err.errno is not None:  # no permission, a socket: the file, not its format
             raise InputError(path, f"cannot be read ({err.strerror})") from None
-        raise InputError(path, "not a gtsjax model file (not an .npz archive)") from None
+        other = not_expected(path, "a gtsjax model file")
+        raise InputError(path, other or "not a gtsjax model file (not an .npz archive)") from None
     try:
         if _HEADER_KEY not in files:
             raise InputError(path, "not a gtsjax model file (no model header; is it a scan log?)")
