@@ -335,6 +335,36 @@ def test_run_ends_in_one_line_when_the_sensor_is_gone(field, tmp_path):
 # ------------------------------------------------------------------------------------------ emulate
 
 
+def test_emulate_renders_a_named_scenario_for_the_scanner_asked_for(tmp_path):
+    """``gtsjax emulate spl-eval --scanner UTM-30LX`` (docs/tags.md's line) serves the scenario rendered
+    for a UTM-30LX, 1081 beams with intensities: it failed, the scenario rendered for its URG-04LX."""
+    from gtsjax.sensors import UTM_30LX
+
+    proc = popen_cli("emulate", "spl-eval", "--scanner", "UTM-30LX", "--seed", "3")
+    try:
+        first = read_lines(proc, 1, timeout=120)
+        assert first, proc.stderr.read() if proc.poll() is not None else "no path printed"
+        assert first[0].startswith("UTM-30LX emulator on ")
+        path = re.search(r" on (\S+) \(pty", first[0])[1]
+        with Link(path, intensity=True) as link:
+            got, deadline = None, time.monotonic() + 60.0
+            while got is None and time.monotonic() < deadline:
+                got = link.get(timeout=0.5)
+            assert got is not None, link.stats
+        assert got.ranges_m.shape == (UTM_30LX.n_beams,) and got.intensities is not None
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            raise
+        finally:
+            proc.stdout.close()
+            proc.stderr.close()
+    assert proc.returncode == 0
+
+
 def _as_served(frame, served) -> bool:
     """A delivered frame is one the emulator served: every beam, or, for a frame salvaged from data lines
     that failed their sum, every beam it kept (the others no return)."""
@@ -758,7 +788,7 @@ EXIT_2 = {
         "unknown sensor model",
     ),
     "emulate, unknown scanner": (["emulate", "{d}/log.npz", "--scanner", "LMS-100"], "LMS-100", "unknown sensor model"),
-    "emulate, bad log": (["emulate", "{d}/bad_model.npz"], "bad_model.npz", "not a NumPy .npz archive"),
+    "emulate, bad log": (["emulate", "{d}/bad_model.npz"], "bad_model.npz", "a text file, not a .npz scan log"),
 }
 
 

@@ -621,7 +621,9 @@ def serve(
         else:
             from . import simulate  # the simulator, only when a scenario is named
 
-            source, _ = simulate(str(scenario_log), seed=seed)
+            # Rendered for the scanner asked for (``emulate spl-eval --scanner UTM-30LX``), else the scenario's.
+            scanner = None if model is None else getattr(model, "name", model)
+            source, _ = simulate(str(scenario_log), seed=seed, sensor=scanner)
     if model is None:
         name = source.sensor_model if isinstance(source, ScanLog) else None
         if name is None:
