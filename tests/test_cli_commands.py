@@ -80,6 +80,32 @@ def test_demo_tracks_the_walking_robot(tmp_path):
     assert float(m[1]) <= 2.0 and float(m[2]) <= 4.0 and int(m[3]) == len(rows)
 
 
+def test_demo_after_a_slow_start_tracks_the_walk_from_its_start(tmp_path, capsys, monkeypatch):
+    """A first start-up of over a minute (compiling on a slow machine): the emulator numbers frames by
+    the time since it started, so the demo's 60 s walk once began past its end and looped back within
+    the run (two tracks, a teleport). Its emulator started here 65 s in the past, as after such a
+    start-up: the walk still starts at the first frame asked for, one track, no jump between rows."""
+    from gtsjax.sim import emulator
+
+    start = emulator.SensorEmulator.start
+
+    def started_long_ago(self):
+        got = start(self)
+        self._t0 -= 65.0
+        return got
+
+    monkeypatch.setattr(emulator.SensorEmulator, "start", started_long_ago)
+    out = tmp_path / "demo-out"
+    assert main(["demo", "--seconds", "3", "--quiet", "--out-dir", str(out)]) == 0, capsys.readouterr().err
+    rows = read_gtd(out / "gtd.csv")
+    assert len(rows) >= 10 and len({r.track_id for r in rows}) == 1
+    xy = np.array([[r.x, r.y] for r in rows])
+    assert np.max(np.linalg.norm(np.diff(xy, axis=0), axis=1)) < 0.1  # 0.4 m/s at 10 Hz at most: no teleport
+    log, _ = simulate(DEMO_SCENARIO, seed=DEMO_SEED)
+    first = log.truth_poses[: 30, 0, :2]  # the walk's first 3 s
+    assert np.min(np.linalg.norm(first - xy[0], axis=1)) < 0.05
+
+
 def test_demo_without_a_confirmed_track_fails(tmp_path, capsys):
     """A demo too short for a track to be confirmed (0.3 s: 3 scans at 10 Hz, confirmation takes half a
     second of them) fails: one line on stderr and exit status 1, not a success with an empty CSV."""

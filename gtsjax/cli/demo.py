@@ -72,9 +72,17 @@ def demo_cmd(
     served_t, served_i = [], []
 
     def source(i):
+        # The emulator numbers frames by the time since it started, and the walk is 60 s long: a slow
+        # first start-up (compiling for over a minute) once began the tracking past its end, the walk
+        # looping back within 20 s (two tracks, a teleport). The walk starts at the first frame asked for.
+        if not served_i:
+            start.append(i)
+        j = i - start[0]
         served_t.append(time.time())
-        served_i.append(i)
-        return base(i)
+        served_i.append(j)
+        return base(j)
+
+    start: list[int] = []
 
     gtd = out_dir / "gtd.csv"
     from ..sensors import get_model
