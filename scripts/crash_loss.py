@@ -45,7 +45,7 @@ from gtsjax.sim.emulator import SensorEmulator, log_source
 
 def _run_args(port, site, raw, gtd) -> list[str]:
     return [sys.executable, "-m", "gtsjax", "run", "--port", port, "--site", str(site), "--model",
-            str(demo_model_path()), "--out", str(gtd), "--record", str(raw), "--json", "--quiet", "--duration", "600"]
+            str(demo_model_path()), "--out", str(gtd), "--record", str(raw), "--json", "--quiet", "--seconds", "600"]
 
 
 def one_kill(emu, served, site, out: Path, k: int, rng) -> dict:

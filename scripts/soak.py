@@ -204,11 +204,11 @@ def main(argv=None) -> int:
         with open(err, "w") as ferr:
             child = subprocess.Popen(_cli("run", "--port", emu.path, "--site", site_path, "--model", model_path,
                                           "--out", gtd, "--record", raw, "--summary", summary, "--quiet",
-                                          "--duration", seconds), stdout=subprocess.DEVNULL, stderr=ferr)
+                                          "--seconds", seconds), stdout=subprocess.DEVNULL, stderr=ferr)
         next_event = time.monotonic() + rng.exponential(args.events_every)
         deadline = time.monotonic() + seconds + 300.0
         hung = False
-        start_s = None  # when the run was connected and streaming (its --duration counts from about then)
+        start_s = None  # when the run was connected and streaming (its --seconds counts from about then)
         while child.poll() is None:
             now = time.monotonic()
             if start_s is None and "connected to" in err.read_text():

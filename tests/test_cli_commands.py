@@ -1,5 +1,5 @@
 """The commands end to end, as a user runs them (``python -m gtsjax`` importing this tree): ``demo``,
-``train`` on several logs, ``run`` with ``--json``, ``--udp``, ``--duration`` and ``--record`` killed with
+``train`` on several logs, ``run`` with ``--json``, ``--udp``, ``--seconds`` and ``--record`` killed with
 SIGKILL then ``recover``, ``emulate``'s fault options, ``evaluate LOG --site`` with its error map, and
 the exit status 2 of ``run``, ``train``, ``evaluate``, ``plot`` and ``emulate`` for a bad site or model.
 
@@ -204,7 +204,7 @@ def field(tmp_path):
 
 
 def test_run_json_udp_and_duration(field, tmp_path):
-    """``run --json --udp HOST:PORT --duration 3``: stops by itself, one JSON line per frame on stdout
+    """``run --json --udp HOST:PORT --seconds 3``: stops by itself, one JSON line per frame on stdout
     and the same one per UDP datagram, holding exactly the GTD CSV's rows; the frames' stamps span no
     more than the duration."""
     log, site = field
@@ -237,7 +237,7 @@ def test_run_json_udp_and_duration(field, tmp_path):
                 "--json",
                 "--udp",
                 f"127.0.0.1:{receiver.getsockname()[1]}",
-                "--duration",
+                "--seconds",
                 "3",
                 "--quiet",
                 "--summary",
@@ -291,7 +291,7 @@ def test_run_record_killed_with_sigkill_then_recovered(field, tmp_path):
             raw,
             "--json",
             "--quiet",
-            "--duration",
+            "--seconds",
             "600",
             stderr=err,
         )
@@ -907,7 +907,7 @@ def test_run_on_a_full_disk_stops_in_one_line_and_keeps_what_was_written(field, 
                 "--record",
                 str(raw),
                 "--quiet",
-                "--duration",
+                "--seconds",
                 "120",
             ],
             capture_output=True,

@@ -182,6 +182,14 @@ def test_one_vocabulary_with_the_old_spellings_kept_for_a_release(tmp_path, caps
     a, b = np.load(new), np.load(old)
     assert str(a["sensor_model"]) == str(b["sensor_model"]) == "UTM-30LX"
     np.testing.assert_array_equal(a["ranges"], b["ranges"])
+    # How long is --seconds on every command (demo, enrol, run); run's --duration still works, said once.
+    capsys.readouterr()
+    run = ["run", "--port", "/dev/null", "--site", str(tmp_path / "s.json"), "--model", "demo", "--out",
+           str(tmp_path / "o.csv")]
+    assert main([*run, "--duration", "-1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[0] == "gtsjax: warning: --duration: is now --seconds (the old name goes in a later release)", err
+    assert len(err) == 2 and "'--seconds'" in err[1], err
 
 
 def test_the_shipped_model_by_name_and_the_version(capsys):

@@ -433,7 +433,7 @@ def test_run_names_the_robot_by_its_tag_live(tagged, tmp_path, capsys):
     out = tmp_path / "live.csv"
     with SensorEmulator(UTM_30LX, log_source(load_log(tagged["dir"] / "turning.npz"))) as emu:
         code = main(["run", "--port", emu.path, "--site", str(site), "--model", str(tagged["model"]), "--out", str(out),
-                     "--duration", "9", "--json", "--quiet"])
+                     "--seconds", "9", "--json", "--quiet"])
     stdout, err = capsys.readouterr()
     assert code == 0, err
     assert out.read_text().splitlines()[0].endswith(",robot")

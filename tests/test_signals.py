@@ -78,7 +78,7 @@ def test_run_stops_cleanly_on_sigterm(tmp_path):
     raw, out = tmp_path / "raw.npz", tmp_path / "gtd.csv"
     with SensorEmulator(URG_04LX, log) as emu:
         proc = popen_cli("run", "--port", emu.path, "--site", tmp_path / "site.json", "--model", demo_model_path(),
-                         "--out", out, "--record", raw, "--json", "--quiet", "--duration", "600")
+                         "--out", out, "--record", raw, "--json", "--quiet", "--seconds", "600")
         lines = []
         deadline = time.monotonic() + PATIENCE_S
         while len(lines) < 15 and time.monotonic() < deadline and proc.poll() is None:
