@@ -197,7 +197,7 @@ def test_outputs_naming_an_input_are_refused_before_any_work(tmp_path, capsys):
         (["--log", files["log.npz"], "--out", files["log.npz"]], "is both --out and the input --log"),
         (["--log", files["log.npz"], "--out", tmp_path / "link.npz"], "is both --out and the input --log"),
         (["--log", files["log.npz"], "--out", files["model.npz"]], "is both --out and the input --model"),
-        (["--log", files["log.npz"], "--tags", files["tags.json"], "--out", files["tags.json"]], "the input --tags"),
+        (["--log", files["log.npz"], "--codes", files["tags.json"], "--out", files["tags.json"]], "the input --codes"),
         (["--port", "/dev/null", "--record", files["site.json"]], "is both --record and the input --site"),
         (["--port", "/dev/null", "--record", files["model.npz"]], "is both --record and the input --model"),
         (["--log", files["log.npz"], "--record", tmp_path / "r.npz"], "with --log there is nothing to record"),
@@ -227,7 +227,7 @@ def test_bad_inputs_are_one_line_and_exit_2(tmp_path, capsys):
          "no such file"),
         (["--site", str(site), "--model", str(demo_model_path()), "--log", str(log)], "reads no tags"),
         (["--site", str(site), "--model", str(demo_model_path())], "give --log LOG or --port PORT"),
-        (["--site", str(site), "--model", str(demo_model_path()), "--log", str(log), "--tags",
+        (["--site", str(site), "--model", str(demo_model_path()), "--log", str(log), "--codes",
           str(tmp_path / "nope.json")], "no such file"),
     ]
     for args, says in cases:

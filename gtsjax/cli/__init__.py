@@ -34,9 +34,11 @@ VIEW_MODES = ("native", "web")
 
 
 # One vocabulary: ``--scanner`` a scanner type, ``--model`` a model file, ``--laser`` a laser's name in a
-# site, ``--seconds`` how long (``demo``, ``enrol``, ``run``). The old spellings still work for a release,
+# site, ``--seconds`` how long (``demo``, ``enrol``, ``run``), ``--tags`` a flag (simulate robots wearing tags)
+# and ``--codes`` the file of designed codes (``enrol``). The old spellings still work for a release,
 # with a warning: (command, old) -> new.
 RENAMED = {("emulate", "--model"): "--scanner", ("simulate", "--sensor"): "--scanner", ("run", "--duration"): "--seconds",
+           ("enrol", "--tags"): "--codes",
            **{(c, "--sensor"): "--laser" for c in ("replay", "run", "evaluate", "train")}}
 # The shipped model by name: ``--model demo``, ``gtsjax info demo`` (unless a file of that name is here).
 SHIPPED = "demo"

@@ -36,14 +36,19 @@ def _root(version: bool = typer.Option(False, "--version", is_eager=True, callba
     Example, a live ground truth of a simulated robot: gtsjax demo"""
 
 
+#: Options whose path is a folder to write: shown as DIR, not FILE.
+FOLDER_OPTIONS = ("--out-dir", "--out-bag", "--beliefs")
+
+
 def _metavar(param) -> str:
     """A readable placeholder for an option or argument's value, in place of Typer's Python type
-    (``<list[Path]>``, ``<bool>`` on a flag): nothing for a flag, FILE, N, NUMBER or TEXT."""
+    (``<list[Path]>``, ``<bool>`` on a flag): nothing for a flag, FILE or DIR, N, NUMBER or TEXT."""
     if getattr(param, "is_flag", False):
         return ""
     d = param.type_descriptor
     bare = param.bare_type().removeprefix("list[").removesuffix("]")
-    name = "FILE" if "Path" in bare else {"int": "N", "float": "NUMBER"}.get(bare, "TEXT")
+    path = "DIR" if any(o in FOLDER_OPTIONS for o in getattr(param, "opts", ())) else "FILE"
+    name = path if "Path" in bare else {"int": "N", "float": "NUMBER"}.get(bare, "TEXT")
     return name + ("..." if d.is_list else "")
 
 
@@ -84,7 +89,7 @@ EXAMPLES = {
               "gtsjax grade gtd.csv --robot nao3=match.mcap:/nao3/pose --frame nao3=mirrored --site site.json"],
     "tags": ["gtsjax tags --robots 10 --perimeter 0.8 --range 9 --names nao1,nao2,nao3,nao4,nao5,nao6,nao7,nao8,nao9,"
              "nao10 --out-dir tags"],
-    "enrol": ["gtsjax enrol --site site.json --model utm.npz --robot nao3 --log nao3.npz --tags tags/tags.json",
+    "enrol": ["gtsjax enrol --site site.json --model utm.npz --robot nao3 --log nao3.npz --codes tags/tags.json",
               "gtsjax enrol --site site.json --model utm.npz --robot nao3 --port /dev/ttyACM0 --seconds 20"],
 }
 

@@ -65,7 +65,7 @@ def enrol_cmd(
     port: str | None = typer.Option(None, "--port", help="Record from this live sensor instead of a log."),
     seconds: float = typer.Option(20.0, "--seconds", min=1.0, help="With --port: how long to record."),
     record: Path | None = typer.Option(None, "--record", help="With --port: keep the recording here (.npz)."),
-    tags_json: Path | None = typer.Option(None, "--tags", help="tags.json from gtsjax tags: the designed codes "
+    tags_json: Path | None = typer.Option(None, "--codes", help="tags.json from gtsjax tags: the designed codes "
                                                                "(and the band's cells where the site has none)."),
     out: Path | None = typer.Option(None, "--out", help="Write the site here instead of in place (SITE.json.bak "
                                                         "then keeps the previous one)."),
@@ -84,7 +84,7 @@ def enrol_cmd(
     if record is not None and port is None:
         raise InputError("--record", "keeps what --port records; with --log there is nothing to record")
     # Before any work: nothing it writes may be one of its inputs, and every output can be written.
-    distinct_paths({"--site": site, "--model": model_path, "--log": log, "--tags": tags_json},
+    distinct_paths({"--site": site, "--model": model_path, "--log": log, "--codes": tags_json},
                    {"--out": out, "--record": record, "the backup of --site": None if out is not None else backup_of(site)})
     if out is not None:
         check_out_file(out, "--out")

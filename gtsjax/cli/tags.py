@@ -126,7 +126,7 @@ def tags_cmd(
 
 def _write_spec(path: Path, model, perimeter: float, height: float, max_range: float, cells: int, cell_m: float,
                 beam: float, d, who: list[str]) -> None:
-    """tags.json: the band's geometry and each robot's code, as ``gtsjax enrol --tags`` reads it."""
+    """tags.json: the band's geometry and each robot's code, as ``gtsjax enrol --codes`` reads it."""
     spec = {
         "scanner": model.name, "perimeter_m": perimeter, "height_m": height, "range_m": max_range,
         "cells": cells, "cell_m": cell_m, "beams_per_cell_at_range": cell_m / (max_range * beam),
