@@ -289,7 +289,11 @@ def test_an_empty_journal_does_not_block_the_next_recording(tmp_path):
                                   ["emulate", "spl-eval", "--stalls", "-1"],
                                   ["emulate", "spl-eval", "--disconnects", "nan"],
                                   ["train", "{d}/log.npz", "--site", "{d}/site.json", "--out", "{o}/m.npz",
-                                   "--max-pose", "-5"]])
+                                   "--max-pose", "-5"],
+                                  # 1–64 track slots on every command (train's range; replay took 1000 and
+                                  # failed at run time)
+                                  ["replay", "{d}/log.npz", "--site", "{d}/site.json", "--model", "demo", "--out",
+                                   "{o}/o.csv", "--max-tracks", "1000"]])
 def test_settings_out_of_range_are_refused_before_any_work(inputs, tmp_path, capsys, args):
     """Click's usage error, in one line (exit 2, the option named) before a scene is served or a log read."""
     capsys.readouterr()

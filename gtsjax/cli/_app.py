@@ -141,7 +141,7 @@ def fail(where: object, problem: str) -> "typer.Exit":
     return typer.Exit(2)
 
 
-MAX_TRACKS_HELP = ("Track slots (and robots given a pose per scan), in place of the model's (default 8): at least as "
+MAX_TRACKS_HELP = ("Track slots (and robots given a pose per scan), 1–64, in place of the model's (default 8): at least as "
                    "many as robots on the field, a few more for look-alikes.")
 CONFIRM_HELP = ("Scans of detections before a track is reported (default: the model's, half a second of its training "
                 "logs' scans). More keeps short-lived look-alikes of a robot out and delays every robot's first row.")

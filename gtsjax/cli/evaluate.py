@@ -10,6 +10,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from ..drivers.setup import MAX_TRACKS_LIMIT
 from ._app import CONFIRM_HELP, MAX_TRACKS_HELP, app, fail
 from ._checks import scenario_spec
 from ._common import check_out_dir
@@ -63,7 +64,7 @@ def evaluate_cmd(
     scenario: list[str] = typer.Option(None, "--scenario", help="Simulated scenario(s) instead of logs (NAME or NAME:SEED)."),
     out_dir: Path = typer.Option(Path("eval-out"), "--out-dir", help="Where to write results.md, results.json, PNGs."),
     confirm_scans: int | None = typer.Option(None, "--confirm-scans", min=1, help=CONFIRM_HELP),
-    max_tracks: int | None = typer.Option(None, "--max-tracks", min=1, help=MAX_TRACKS_HELP),
+    max_tracks: int | None = typer.Option(None, "--max-tracks", min=1, max=MAX_TRACKS_LIMIT, help=MAX_TRACKS_HELP),
     robots: int = typer.Option(10, "--robots", min=1, max=14, help="spl-match-* scenarios: robots on the field."),
     seconds: float = typer.Option(60.0, "--seconds", min=1.0, help="spl-match-* scenarios: how long."),
     penalties: int = typer.Option(0, "--penalties", min=0, help="spl-match-* scenarios: robots picked up so many "

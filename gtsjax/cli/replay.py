@@ -17,7 +17,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
 from ..drivers.replay import replay_log, replay_logs
-from ..drivers.setup import fit_to_model, load, load_for_lasers
+from ..drivers.setup import MAX_TRACKS_LIMIT, fit_to_model, load, load_for_lasers
 from ..errors import InputError
 from ..io import load_site
 from ..io.bag_out import check_bag_dir
@@ -70,7 +70,7 @@ def replay_cmd(
     crop_fov: bool = typer.Option(False, "--crop-fov",
                                   help="Crop a wider field of view to the model's, and its range window."),
     confirm_scans: int | None = typer.Option(None, "--confirm-scans", min=1, help=CONFIRM_HELP),
-    max_tracks: int | None = typer.Option(None, "--max-tracks", min=1, help=MAX_TRACKS_HELP),
+    max_tracks: int | None = typer.Option(None, "--max-tracks", min=1, max=MAX_TRACKS_LIMIT, help=MAX_TRACKS_HELP),
     step_by_step: bool = typer.Option(False, "--step-by-step",
                                       help="Run each scan's whole step in turn, as the live loop does, instead of perceiving "
                                            "groups of scans at once (faster). Either equals the live loop's rows to float32 "

@@ -6,6 +6,7 @@ from pathlib import Path
 import typer
 from rich.console import Console
 
+from ..drivers.setup import MAX_TRACKS_LIMIT
 from ..errors import InputError
 from ._app import CONFIRM_HELP, MAX_TRACKS_HELP, QUIET_HELP, app
 from ._checks import MAX_SMOOTH_LAG_S
@@ -45,7 +46,7 @@ def run_cmd(
                                    help="Stream intensities (ME) if the sensor has them (models trained with them need them)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help=QUIET_HELP),
     confirm_scans: int | None = typer.Option(None, "--confirm-scans", min=1, help=CONFIRM_HELP),
-    max_tracks: int | None = typer.Option(None, "--max-tracks", min=1, help=MAX_TRACKS_HELP),
+    max_tracks: int | None = typer.Option(None, "--max-tracks", min=1, max=MAX_TRACKS_LIMIT, help=MAX_TRACKS_HELP),
     out_bag: Path | None = typer.Option(None, "--out-bag", help=OUT_BAG_HELP),
     view: str | None = typer.Option(None, "--view", metavar="[web]", help=VIEW_HELP),
     view_save: Path | None = typer.Option(None, "--view-save", help=VIEW_SAVE_HELP),
