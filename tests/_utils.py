@@ -136,3 +136,20 @@ def first_scans(log, n: int):
     """The first ``n`` scans of a simulated log, its per-scan extras (the truth's ids and classes) cut
     with them: :meth:`ScanLog.slice` leaves extras alone, as it cannot know a key is per scan."""
     return dataclasses.replace(log.slice(0, n), extra={k: v[:n] for k, v in log.extra.items()})
+
+
+def stop_with_ctrl_c(proc: subprocess.Popen, timeout: float = 30) -> None:
+    """End a child started by :func:`popen_cli` as a user does, Ctrl-C (SIGINT), and wait for it; one
+    that does not end within ``timeout`` is killed (no emulator outlives a failed test) and the wait's
+    error raised. Its pipes are closed either way."""
+    import signal
+
+    proc.send_signal(signal.SIGINT)
+    try:
+        proc.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        raise
+    finally:
+        proc.stdout.close()
+        proc.stderr.close()

@@ -32,7 +32,7 @@ from gtsjax.io.serial import Link
 from gtsjax.sensors import URG_04LX
 from gtsjax.sim import simulate
 from gtsjax.sim.emulator import SensorEmulator, log_source
-from tests._utils import cli, cli_env, first_scans, popen_cli, read_lines, run_cli
+from tests._utils import cli, cli_env, first_scans, popen_cli, read_lines, run_cli, stop_with_ctrl_c
 
 DEMO_MODEL = demo_model_path()
 PATIENCE_S = 300.0  # a child that compiles the step on a loaded 2-core machine; never a measurement
@@ -379,15 +379,7 @@ def test_emulate_renders_a_named_scenario_for_the_scanner_asked_for(tmp_path):
             assert got is not None, link.stats
         assert got.ranges_m.shape == (UTM_30LX.n_beams,) and got.intensities is not None
     finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            raise
-        finally:
-            proc.stdout.close()
-            proc.stderr.close()
+        stop_with_ctrl_c(proc)
     assert proc.returncode == 0
 
 
@@ -452,15 +444,7 @@ def test_emulate_fault_options(tmp_path, options, fault):
         if fault == "checksum":
             assert max(f.frame.bad_lines for f in frames) == 1
     finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            proc.kill()  # no emulator outlives a failed test
-            raise
-        finally:
-            proc.stdout.close()
-            proc.stderr.close()
+        stop_with_ctrl_c(proc)
     assert proc.returncode == 0
 
 

@@ -20,7 +20,6 @@ import math
 import os
 import re
 import shutil
-import signal
 import subprocess
 
 import numpy as np
@@ -29,7 +28,7 @@ import pytest
 from gtsjax.io.logs import ScanLog, save_log
 from gtsjax.sensors import URG_04LX, UTM_30LX
 from gtsjax.sim.emulator import log_source
-from tests._utils import popen_cli, read_lines
+from tests._utils import popen_cli, read_lines, stop_with_ctrl_c
 from tests.conftest import SHARED, need
 
 SOURCE = SHARED / "clients" / "urg_library"
@@ -195,13 +194,5 @@ def test_urg_library_samples_against_the_emulator(samples, tmp_path, model):
         assert f"urg_step2deg({lo}): {lo * 360 / model.ares:.6f}" in text
         assert f"urg_step2deg({hi}): {hi * 360 / model.ares:.6f}" in text
     finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            raise
-        finally:
-            proc.stdout.close()
-            proc.stderr.close()
+        stop_with_ctrl_c(proc)
     assert proc.returncode == 0
