@@ -191,8 +191,10 @@ def xla_cost(fn, args: tuple, median_us: float) -> dict:
             "gflop_per_s_at_median": round(flops / (median_us * 1e3), 3)}
 
 
-def dispatch_floor(ctx, repeats: int) -> None:
-    """The host cost of calling any jitted function: a jitted no-op on a scalar."""
+def dispatch_floor(ctx, repeats: int, step_links: int = 140) -> None:
+    """The host cost of calling any jitted function: a jitted no-op on a scalar. ``step_links``: the
+    longer chain's length (the smoke run's is shorter: XLA compiles such a chain at some 50 ms a
+    kernel, 14 s for the full one's 280 on a busy 2-core machine)."""
     f = jax.jit(lambda x: x)
     x = jnp.asarray(1.0, jnp.float32)
     ctx.results.add("step.dispatch_floor", "us", ctx.time_calls(lambda i: f(x), repeats, warmup=20), section=SECTION,
@@ -201,7 +203,7 @@ def dispatch_floor(ctx, repeats: int) -> None:
     # kernels (64 floats each) of the issue's budget (150) and of about the step's count; the report
     # prices the step's count at the larger chain's cost per kernel.
     v = jnp.ones((64,), jnp.float32)
-    for tag, links in (("budget", 50), ("step", 140)):
+    for tag, links in (("budget", 50), ("step", step_links)):
         def chain(a, links=links):
             for i in range(links):
                 a = a * 0.5 + jnp.max(a) * 0.001 + i  # a reduction, then an elementwise kernel using it
@@ -294,7 +296,7 @@ def run(ctx) -> None:
     n_pool = 60 if q else 200
     repeats = 300 if q else 3000
     stage_repeats = 150 if q else 1000
-    dispatch_floor(ctx, repeats)
+    dispatch_floor(ctx, repeats, 70 if q else 140)
     log, site = _data.scenario("spl-crossing", 3, n_pool)
     model = _data.demo_model(site)
     bench_sensor(ctx, "urg-04lx", model, to_scans(log, model.n_beams), n_pool, repeats, stage_repeats)

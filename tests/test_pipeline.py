@@ -112,12 +112,12 @@ def test_step_traced_once_per_model_shape_and_replay_equals_stepping(tiny):
 
 
 def test_logs_of_different_lengths_share_one_compiled_chunk(tiny):
-    """A log shorter than the chunk is padded to the power of two that holds it (``chunk_for``), so
-    logs of 35 and 45 scans run one compiled chunk of 64 (each length had compiled its own); and the
+    """A log shorter than the chunk is padded to the chunk (``chunk_for``), so logs of 35 and 45 scans
+    run one compiled chunk, the one a long log runs (each length had compiled its own); and the
     shorter log's rows are the longer one's first rows, as stepping gives them."""
     from gtsjax.drivers.batch import chunk_for, run_chunk
 
-    assert [chunk_for(n, 256) for n in (1, 2, 3, 35, 45, 64, 65, 256, 600)] == [1, 2, 4, 64, 64, 64, 128, 256, 256]
+    assert [chunk_for(n, 256) for n in (1, 2, 3, 35, 45, 64, 65, 256, 600)] == [256] * 9
     assert chunk_for(45, 16) == 16
     log, site = simulate("spl-crossing", seed=22, n_scans=45)
     model = tiny["model"].with_site(site)
