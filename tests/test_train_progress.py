@@ -113,3 +113,50 @@ def test_planned_fits_follow_the_pose_kernels_and_caps():
         assert sum(f["weight"] > 0 for f in plan if f["gp"].startswith("robot.")) == {1: 1, 2: 2, 4: 4}[kernels]
     with_bg = planned_fits(classes, landmarks, mobiles, TrainConfig(max_per_class=50), background_logs=True)
     assert with_bg[2]["n"] == 12 * 50 + 50 + 4 * 50  # the classifier's caps with background logs
+
+
+def test_the_time_left_counts_compilation_apart_and_holds_within_twice_the_truth():
+    """The estimate fed the fits of a training as a slow machine makes them (synthetic seconds, no
+    clock): each fit costs its rows' work at one rate plus, at the first fit of each size, a
+    compilation worth many small fits. From the first fit on, the fitting left is estimated within 2×
+    of what it then takes."""
+    from gtsjax.train import fit_cost, fit_work
+
+    cfg = TrainConfig(max_per_class=600, max_pose_examples=3000, max_pose_fit=1000, max_landmark_examples=300)
+    plan = planned_fits(("background", "post", "robot"), ("post",), ("robot",), cfg)
+    rate, compile_s = 4e-8, 12.0  # seconds per unit of work; seconds to compile a new size
+
+    def cost(f, seen):
+        new = (f["stage"], f["n"], f["n_fit"]) not in seen
+        seen.add((f["stage"], f["n"], f["n_fit"]))
+        return rate * f["work"] + (compile_s if new else 0.0), (compile_s if new else 0.0)
+
+    seen: set = set()
+    truth = [cost(f, seen) if f["weight"] > 0 else (0.0, 0.0) for f in plan]
+    assert len({(f["stage"], f["n"]) for f in plan}) >= 3  # sizes enough for compilation to matter
+    shown = train_cli.FitProgress(Console(file=io.StringIO(), width=160), bar=False, lines=True)
+    shown.stage("labelling", plan)
+    for k, (f, (seconds, compiling)) in enumerate(zip(plan, truth, strict=True)):
+        shown.fitted({"gp": f["gp"], "n": f["n"], "lml": 0.0, "seconds": seconds, "compile_seconds": compiling})
+        left = sum(s for s, _ in truth[k + 1:])
+        if left > 0:
+            est = shown.seconds_left(after_fit=True)
+            assert left / 2 <= est <= 2 * left, (k, f["gp"], est, left)
+    assert fit_work(100, 100, 1) < fit_cost(100, 100, 1)
+
+
+def test_each_stage_ends_in_a_line_and_the_tracking_check_is_announced():
+    """With lines on, every stage says when it ends and how long it took, and the tracking check,
+    minutes of a large training with no fit to show, says what it runs when it begins."""
+    out = io.StringIO()
+    shown = train_cli.FitProgress(Console(file=out, width=160), bar=False, lines=True)
+    plan = [{"gp": "class.robot", "stage": "classifier", "n": 100, "n_fit": 100, "weight": 1.0, "work": 0.5}]
+    for name in STAGES:
+        shown.stage(name, plan if name in ("labelling", "classifier") else [])
+        if name == "classifier":
+            shown.fitted({"gp": "class.robot", "n": 100, "lml": 1.0, "seconds": 2.0, "compile_seconds": 1.0})
+    shown.finish()
+    shown.finish()  # once
+    lines = out.getvalue().splitlines()
+    assert [ln.split(":")[0].strip() for ln in lines if "done in" in ln] == list(STAGES)
+    assert any(ln.strip().startswith("tracking check: the trained step") for ln in lines)

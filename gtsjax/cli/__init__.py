@@ -1,6 +1,7 @@
 """Command line: ``gtsjax COMMAND ...``. One module per command; parsing, progress, tables and exit
 codes live here and nowhere else."""
 
+import os
 import signal
 import sys
 import threading
@@ -23,7 +24,7 @@ from . import tags as _tags  # noqa: E402,F401
 from . import train as _train  # noqa: E402,F401
 from ._app import app as app  # the Typer application, for those who extend it
 from ._app import command, set_quiet
-from ._common import forget_made_folders, remove_made_folders
+from ._common import ABANDONED, forget_made_folders, remove_made_folders
 
 # Options that take several values in a row (``--background A B C``), as argparse's ``nargs="+"``: Click's
 # options take one value each, so the values after the first are given their own option.
@@ -212,6 +213,13 @@ def main(argv: list[str] | None = None) -> int:
         if sys.exc_info()[0] is not None or code != 0:
             remove_made_folders()  # a failed command leaves no empty output folder of its own behind
         forget_made_folders()
+    if ABANDONED:
+        # A command stopped while a thread of its own computed (``interruptible``): that thread cannot
+        # be stopped, and the interpreter's ordinary exit after it aborts in XLA's C++ code (SIGABRT and
+        # "terminate called" instead of the stop's own status). Nothing is left to write.
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
     return code
 
 

@@ -4,6 +4,7 @@ output checks. Command modules import these, never one another; their models com
 
 import os
 import tempfile
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +14,38 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 from ..errors import InputError
 from ..io.importers import detect_format, import_log
 from ._app import quiet
+
+#: Threads of :func:`interruptible` left running when the command was stopped: the process ends
+#: without waiting for them (:func:`gtsjax.cli.main`).
+ABANDONED: list[threading.Thread] = []
+
+
+def interruptible(work):
+    """``work()`` run in a thread of its own while this one waits for it, so that Ctrl-C (and SIGTERM,
+    SIGHUP: :func:`gtsjax.cli.main`) stops the command within a fraction of a second: Python delivers a
+    signal to the main thread only between its own steps, and a GP fit's optimiser or the tracking
+    check runs for minutes inside one compiled call. A thread so stopped is left to the end of the
+    process (:data:`ABANDONED`), which ``main`` then ends at once: nothing the work makes is written
+    (training writes its model only after ``work`` returns)."""
+    box: dict = {}
+
+    def run():
+        try:
+            box["value"] = work()
+        except BaseException as err:  # noqa: BLE001  (handed to the waiting thread, raised there)
+            box["error"] = err
+
+    worker = threading.Thread(target=run, name="gtsjax-work", daemon=True)
+    worker.start()
+    try:
+        while worker.is_alive():
+            worker.join(0.1)
+    except BaseException:
+        ABANDONED.append(worker)
+        raise
+    if "error" in box:
+        raise box["error"]
+    return box["value"]
 
 INPUT_HELP = ("Scan log: .npz, a ROS 1 bag (.bag), a ROS 2 bag (its directory), a CARMEN log (.log, .log.gz) "
               "or a BreezySLAM URG-04LX text log (.dat).")

@@ -27,7 +27,7 @@ from ..io.site import one_sensor
 from ..train import TrainConfig, fit_background, train
 from ._app import app
 from ._checks import check_class_names
-from ._common import check_out_file, distinct_paths, load_input
+from ._common import check_out_file, distinct_paths, interruptible, load_input
 
 
 @app.command("train")
@@ -140,8 +140,10 @@ def train_cmd(
     console.print(f"training on {sum(log.n_scans for log in loaded)} scans from {len(loaded)} log(s)"
                   + (f" and {sum(b.n_scans for b in bg)} background scans from {len(bg)} log(s)" if bg else ""))
     with FitProgress(console, bar=not quiet and console.is_terminal, lines=not quiet) as shown:
-        model, rep = train(loaded, sites, cfg, progress=shown.fitted, stages=shown.stage, names=[str(p) for p in logs],
-                           background=bg, background_names=[str(p) for p in background])
+        model, rep = interruptible(lambda: train(loaded, sites, cfg, progress=shown.fitted, stages=shown.stage,
+                                                 names=[str(p) for p in logs], background=bg,
+                                                 background_names=[str(p) for p in background]))
+        shown.finish()
     save_model(model, out, summary=rep)
     _summary(Console(), rep, out)
     if model.outline is not None:
@@ -169,10 +171,17 @@ class FitProgress:
     """``train``'s progress on stderr, fed by :func:`~gtsjax.train.train`'s ``stages`` and ``progress``
     callbacks: with ``bar``, a bar of the GP fits with the stage, "fit k of N" and the fit's name and
     size, the time elapsed and about how long the fits left will take; with ``lines``, a line per fit as
-    it ends (printed above the bar). The estimate weighs each fit by its size
-    (:func:`~gtsjax.train.fit_cost`) at the seconds per unit of weight the fits done so far took, and
-    counts the running fit's time against it; fits of one size differ several-fold in their optimiser's
-    steps, so it is "about". ``done`` and ``total`` are k and N."""
+    it ends and a line per stage as it ends (printed above the bar), the tracking check announced as
+    it begins (it runs the trained step, some minutes of a large training with nothing else to show).
+
+    The estimate of the time left (:meth:`seconds_left`) prices each fit left at two measured rates:
+    its rows' work (:func:`~gtsjax.train.fit_work`) at the seconds per unit of work the fits done took
+    once their compilation is taken out (each fit's ``compile_seconds``), plus, for a fit of a size
+    not fitted yet, the compilation a new size took on average (a size fitted already reuses its
+    program). Pricing the first fits' whole time by their size instead, as this did, counted their
+    compilation, most of a small fit, as work, and promised 12–49 minutes for a 12-minute training.
+    Fits of one size still differ several-fold in their optimiser's steps, so it is "about".
+    ``done`` and ``total`` are k and N."""
 
     def __init__(self, console: Console, *, bar: bool = True, lines: bool = True):
         self.console, self.lines = console, lines
@@ -180,7 +189,9 @@ class FitProgress:
         self.done = 0
         self.plan: list[dict] = []
         self.stage_name = ""
-        self.done_weight = self.done_seconds = 0.0
+        self.stage_began = time.monotonic()
+        self.done_weight = 0.0
+        self.history: list[tuple[float, float, float, tuple]] = []  # per fit done: work, seconds, compiling, size
         self.started: float | None = None  # when the running fit began; None between fits
         self.bar = Progress(TextColumn("{task.description}", markup=False), BarColumn(bar_width=20), TimeElapsedColumn(),
                             _Left(self), console=console, transient=True, disable=not bar)
@@ -198,22 +209,37 @@ class FitProgress:
         if self.total is None:
             self.total = len(fits)
             self.bar.update(self.task, total=sum(f["weight"] for f in fits) or 1.0, completed=0.0)
+        self.finish()
         self.stage_name, self.plan = name, list(fits)
+        self.stage_began = time.monotonic()
+        if self.lines and name == "tracking check":
+            self._say("  tracking check: the trained step over the held-out seconds and simulated stays and walks "
+                      "(the step compiles first)")
         self._next()
+
+    def finish(self) -> None:
+        """The running stage ended: its line (with ``lines``), once."""
+        if self.lines and self.stage_name:
+            self._say(f"  {self.stage_name}: done in {time.monotonic() - self.stage_began:.1f} s")
+        self.stage_name = ""
 
     def fitted(self, info: dict) -> None:
         """A GP fit ended (its summary, a line of the report's ``fits``)."""
         self.done += 1
         entry = self.plan.pop(0) if self.plan else {"weight": 0.0}
         self.done_weight += entry["weight"]
-        self.done_seconds += info["seconds"]
+        if entry["weight"] > 0:  # the second output of a shared kernel was fitted with the first
+            self.history.append((float(entry.get("work", entry["weight"])), float(info["seconds"]),
+                                 float(info.get("compile_seconds", 0.0)), _size(entry)))
         if self.lines:
             left = self.seconds_left(after_fit=True)
-            self.console.print(f"  fitted GP {info['gp']:<22} n={info['n']:<5} LML={info['lml']:10.1f}  "
-                               f"{info['seconds']:6.1f} s  (fit {self.done} of {self.total}"
-                               + (f"; about {_clock(left)} of fitting left)" if left else ")"),
-                               markup=False, highlight=False, soft_wrap=True)
+            self._say(f"  fitted GP {info['gp']:<22} n={info['n']:<5} LML={info['lml']:10.1f}  "
+                      f"{info['seconds']:6.1f} s  (fit {self.done} of {self.total}"
+                      + (f"; about {_clock(left)} of fitting left)" if left else ")"))
         self._next()
+
+    def _say(self, line: str) -> None:
+        self.console.print(line, markup=False, highlight=False, soft_wrap=True)
 
     def _next(self) -> None:
         fitting = bool(self.plan) and self.plan[0]["stage"] == self.stage_name
@@ -226,16 +252,41 @@ class FitProgress:
             what = f"{self.stage_name} ({self.done} of {self.total} GP fits done)"
         self.bar.update(self.task, description=what, completed=self.done_weight)
 
+    def fits_seconds(self, fits: list[dict]) -> list[float] | None:
+        """About how long each of ``fits`` (entries of the plan, in order) will take, from the fits done
+        (None before the first ends): its work at the measured rate, plus, for the first fit of a size
+        not fitted yet, the compilation a new size took."""
+        if not self.history:
+            return None
+        work = sum(h[0] for h in self.history)
+        rate = sum(max(h[1] - h[2], 0.0) for h in self.history) / work if work > 0 else 0.0
+        compiled = [h[2] for h in self.history if h[2] >= 0.5] or [max(h[2] for h in self.history)]
+        compiling = sum(compiled) / len(compiled)
+        seen = {h[3] for h in self.history}
+        out = []
+        for f in fits:
+            new = _size(f) not in seen
+            seen.add(_size(f))
+            out.append(rate * float(f.get("work", f["weight"])) + (compiling if new else 0.0))
+        return out
+
     def seconds_left(self, after_fit: bool = False) -> float | None:
         """About how long the fits left will take (None before the first ends, or with none left)."""
-        if not self.plan or self.done_weight <= 0:
+        ahead = [f for f in self.plan if f["weight"] > 0]
+        each = self.fits_seconds(ahead) if ahead else None
+        if not each:
             return None
-        rate = self.done_seconds / self.done_weight
-        rest = rate * sum(f["weight"] for f in self.plan)
+        rest = sum(each)
         if self.started is None or after_fit:
             return rest
         running = time.monotonic() - self.started
-        return max(rest - running, rate * sum(f["weight"] for f in self.plan[1:]))
+        return max(rest - running, rest - each[0])
+
+
+def _size(fit: dict) -> tuple:
+    """What makes a GP fit's compiled programs: its stage (the pose regressors' fits share kernels
+    across outputs), its rows and the rows its hyperparameters are fitted on."""
+    return fit["stage"], int(fit["n"]), int(fit["n_fit"])
 
 
 class _Left(ProgressColumn):

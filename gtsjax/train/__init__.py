@@ -81,20 +81,27 @@ def fit_cost(n: int, n_fit: int, restarts: int, outputs: int = 1) -> float:
     on 1 500: they took 1.5 times as long on 2 otherwise idle cores, 4 times with other programs
     running); and a fixed part for what does not grow with n (a new shape's compilation, the host's
     work), as much as a fit of about 600 rows."""
+    return fit_work(n, n_fit, restarts, outputs) + 2e8
+
+
+def fit_work(n: int, n_fit: int, restarts: int, outputs: int = 1) -> float:
+    """The part of :func:`fit_cost` that grows with the fit's rows (its factorisations), without the
+    fixed part: what ``train``'s estimate of the time left prices at the rate measured on the fits
+    done, their compilation counted apart."""
     n_fit = min(n_fit, n)
     if restarts > 1 and n_fit > _GP_SCREEN_POINTS:
         steps = 2.0 * n_fit**3 + restarts * _GP_SCREEN_POINTS**3
     else:
         steps = restarts * float(n_fit) ** 3
-    return outputs * (steps + 0.02 * float(n) ** 3) + 2e8
+    return outputs * (steps + 0.02 * float(n) ** 3)
 
 
 def planned_fits(classes: Sequence[str], landmarks: Sequence[str], mobiles: Sequence[str], cfg: TrainConfig, *,
                  background_logs: bool = False, available: dict[str, int] | None = None) -> list[dict]:
     """The GP fits :func:`train` makes, in the order it makes them: one entry per line of its report's
     ``fits`` (``gp``, the ``stage`` that fits it, ``n`` examples, ``n_fit`` of them its hyperparameters
-    are fitted on, ``weight``: :func:`fit_cost`, carried by the first output of a fit of several with one
-    shared kernel, the others 0). ``n`` is each fit's cap on its class's training examples
+    are fitted on, ``weight``: :func:`fit_cost`, and ``work``: :func:`fit_work`, both carried by the
+    first output of a fit of several with one shared kernel, the others 0). ``n`` is each fit's cap on its class's training examples
     (``available``, per class, where known: then as many as the fit will take; ``background_logs``: the
     classifier's caps with background logs)."""
     available = available or {}
@@ -103,8 +110,9 @@ def planned_fits(classes: Sequence[str], landmarks: Sequence[str], mobiles: Sequ
     def add(stage, labels, n, n_fit):
         n_fit = min(n, n_fit)
         w = fit_cost(n, n_fit, cfg.restarts, len(labels))
-        out.extend({"gp": g, "stage": stage, "n": int(n), "n_fit": int(n_fit), "weight": w if j == 0 else 0.0}
-                   for j, g in enumerate(labels))
+        work = fit_work(n, n_fit, cfg.restarts, len(labels))
+        out.extend({"gp": g, "stage": stage, "n": int(n), "n_fit": int(n_fit), "weight": w if j == 0 else 0.0,
+                    "work": work if j == 0 else 0.0} for j, g in enumerate(labels))
 
     def capped(name, cap):
         return min(available.get(name, cap), cap)

@@ -7,8 +7,10 @@ runs (:meth:`~gtsjax.gp.GP.sparse`), with a line of the training report per fit.
 order training fits them, so that a seed fixes the model.
 """
 
+import contextlib
+import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 import jax
 import jax.numpy as jnp
@@ -24,6 +26,32 @@ def sample(rng: np.random.Generator, idx: np.ndarray, cap: int) -> np.ndarray:
     return idx if idx.size <= cap else np.sort(rng.choice(idx, cap, replace=False))
 
 
+# JAX's monitoring events for the work of making a program (tracing, lowering, XLA's compilation), as
+# :mod:`jax.monitoring` names them: what a fit spends before its optimiser's first step.
+_COMPILE_EVENTS = ("/jax/core/compile/jaxpr_trace_duration", "/jax/core/compile/jaxpr_to_mlir_module_duration",
+                   "/jax/core/compile/backend_compile_duration")
+
+
+@contextlib.contextmanager
+def compile_seconds() -> Iterator[list[float]]:
+    """Seconds this thread spends tracing and compiling JAX programs inside the block (a one-element
+    list, final once the block ends). A fit of a new size compiles its optimiser first, seconds that do
+    not grow with the fit's rows: training's estimate of the time left counts them apart
+    (``compile_seconds`` in each fit's summary)."""
+    box = [0.0]
+    me = threading.get_ident()
+
+    def heard(event: str, duration: float, **_) -> None:
+        if event in _COMPILE_EVENTS and threading.get_ident() == me:
+            box[0] += duration
+
+    jax.monitoring.register_event_duration_secs_listener(heard)
+    try:
+        yield box
+    finally:
+        jax.monitoring.unregister_event_duration_listener(heard)
+
+
 def fit_gp(x, y, key, cfg: TrainConfig, progress: Callable[[dict], None] | None, label: str, n_inducing: int,
            max_fit: int | None = None) -> tuple[SparseGP, dict]:
     """One GP on inputs ``x`` [n, d] and targets ``y`` [n], with ``cfg``'s restarts and noise floor;
@@ -35,11 +63,12 @@ def fit_gp(x, y, key, cfg: TrainConfig, progress: Callable[[dict], None] | None,
     t0 = time.perf_counter()
     cap = {} if max_fit is None else {"max_points": x.shape[0], "max_fit_points": max_fit}
     try:
-        gp = fit(x, y, key=key, restarts=cfg.restarts, jitter=cfg.noise_floor, **cap)
-        sparse = gp.sparse(n_inducing, cfg.n_inducing_var).astype(jnp.float32)
+        with compile_seconds() as compiling:
+            gp = fit(x, y, key=key, restarts=cfg.restarts, jitter=cfg.noise_floor, **cap)
+            sparse = gp.sparse(n_inducing, cfg.n_inducing_var).astype(jnp.float32)
     except GPArgumentError as err:  # the GP library is core code; to the user it is a bad setting
         raise InputError(err.where, err.problem) from None
-    info = _summary(label, gp, x.shape[0], max_fit, round(time.perf_counter() - t0, 2))
+    info = _summary(label, gp, x.shape[0], max_fit, round(time.perf_counter() - t0, 2), compiling[0])
     if progress is not None:
         progress(info)
     return sparse, info
@@ -55,15 +84,17 @@ def fit_shared_gp(x, ys: dict[str, np.ndarray], key, cfg: TrainConfig, progress:
     t0 = time.perf_counter()
     cap = {} if max_fit is None else {"max_points": x.shape[0], "max_fit_points": max_fit}
     try:
-        gps = fit_shared(x, np.stack(list(ys.values()), 1), key=key, restarts=cfg.restarts, jitter=cfg.noise_floor,
-                         **cap)
-        shared = SharedSparseGP.build(gps, n_inducing, cfg.n_inducing_var).astype(jnp.float32)
+        with compile_seconds() as compiling:
+            gps = fit_shared(x, np.stack(list(ys.values()), 1), key=key, restarts=cfg.restarts,
+                             jitter=cfg.noise_floor, **cap)
+            shared = SharedSparseGP.build(gps, n_inducing, cfg.n_inducing_var).astype(jnp.float32)
     except GPArgumentError as err:
         raise InputError(err.where, err.problem) from None
     seconds = round(time.perf_counter() - t0, 2)
     infos = []
     for j, (name, gp) in enumerate(zip(ys, gps, strict=True)):
-        info = _summary(f"{label}.{name}", gp, x.shape[0], max_fit, seconds if j == 0 else 0.0)
+        info = _summary(f"{label}.{name}", gp, x.shape[0], max_fit, seconds if j == 0 else 0.0,
+                        compiling[0] if j == 0 else 0.0)
         if j:
             info["kernel_shared_with"] = f"{label}.{next(iter(ys))}"
         infos.append(info)
@@ -72,10 +103,12 @@ def fit_shared_gp(x, ys: dict[str, np.ndarray], key, cfg: TrainConfig, progress:
     return shared, infos
 
 
-def _summary(label: str, gp, n: int, max_fit: int | None, seconds: float) -> dict:
-    """A fit's line of the training report."""
+def _summary(label: str, gp, n: int, max_fit: int | None, seconds: float, compiling: float = 0.0) -> dict:
+    """A fit's line of the training report (``compile_seconds``: of its ``seconds``, those spent
+    tracing and compiling, :func:`compile_seconds`)."""
     p = gp.params
     return {"gp": label, "n": int(n), "n_fit": int(min(n, max_fit or n)), "seconds": seconds,
+            "compile_seconds": round(min(float(compiling), seconds), 2),
             "lml": float(gp.log_marginal_likelihood()), "signal_var": float(p.signal_var),
             "noise_var": float(p.noise_var), "lengthscale_median": float(np.median(np.asarray(p.lengthscale)))}
 
