@@ -79,6 +79,28 @@ def test_replay_smooth_keeps_the_rows_and_comes_closer_to_the_truth(tiny, tmp_pa
                for f, s in zip(fwd, sm, strict=True))
 
 
+def test_replay_smooth_stopped_before_its_rows_leaves_no_csv(tiny, tmp_path, capsys, monkeypatch):
+    """Ctrl-C while ``replay --smooth`` smooths (after the forward pass, before any row is written):
+    exit 130 and no CSV, where a header with no rows was left; the forward replay's CSV of the same
+    log is made as before."""
+    import gtsjax.drivers.smoothing as smoothing
+
+    d = tmp_path
+    assert cli(capsys, "simulate", "spl-trajectory", "--seed", 1008, "--scans", 40, "--out", d / "w.npz", "--site",
+               d / "s.json").returncode == 0
+
+    def stopped(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(smoothing, "smooth_output", stopped)
+    r = cli(capsys, "replay", d / "w.npz", "--site", d / "s.json", "--model", tiny["path"], "--out", d / "s.csv",
+            "--smooth")
+    assert r.returncode == 130 and r.stderr.strip().splitlines()[-1] == "gtsjax: interrupted", r.stderr
+    assert not (d / "s.csv").exists()
+    r = cli(capsys, "replay", d / "w.npz", "--site", d / "s.json", "--model", tiny["path"], "--out", d / "f.csv")
+    assert r.returncode == 0 and len(read_gtd(d / "f.csv")) > 0, r.stderr
+
+
 def test_replay_smooth_with_two_lasers(match_model, tmp_path, capsys):  # noqa: F811
     """Two lasers' detections smoothed together (a model of the match's field, trained as
     docs/several-lasers.md trains one, small): the same rows, positions closer to the truth."""

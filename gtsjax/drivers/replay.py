@@ -55,8 +55,12 @@ def replay_log(log, model, out: Path, *, chunk: int = 256, sensor_out: Path | No
     poses and tracks (:mod:`gtsjax.io.bag_out`); ``view``: a :class:`~gtsjax.viewer.View` shown each
     scan (closed at the end); ``csv_units``: the CSV's optional header with units and the ``cov_xy``
     column (:mod:`gtsjax.io.gtd`); ``smooth``: the rows' poses smoothed over each track's whole life
-    (:mod:`gtsjax.drivers.smoothing`), written once the forward pass is done."""
-    sink = Sink(model, out, bag=bag_for(log, out_bag), view=view, sensor_out=sensor_out, csv_units=csv_units)
+    (:mod:`gtsjax.drivers.smoothing`), written once the forward pass is done: its outputs are opened
+    only then, so that a replay stopped before leaves none (not a CSV of a header and no rows)."""
+    def opened() -> Sink:
+        return Sink(model, out, bag=bag_for(log, out_bag), view=view, sensor_out=sensor_out, csv_units=csv_units)
+
+    sink = None if smooth else opened()
 
     def run(state, start, stop):
         part = log.slice(start, stop)
@@ -70,14 +74,16 @@ def replay_log(log, model, out: Path, *, chunk: int = 256, sensor_out: Path | No
 
     try:
         _, outs = for_chunks(run, init_state(model), log.n_scans, chunk * BLOCK_CHUNKS)
-        if smooth and log.n_scans:
+        if smooth:
             from .smoothing import smooth_output
 
-            out, filtered = concat(outs)
-            sink.add(log.stamps, smooth_output(out, filtered, log.stamps, model.tracker),
-                     frame=one_laser_frames(log) if sink.wants_output else None)
+            rows = smooth_output(*concat(outs), log.stamps, model.tracker) if log.n_scans else None
+            sink = opened()
+            if rows is not None:
+                sink.add(log.stamps, rows, frame=one_laser_frames(log) if sink.wants_output else None)
     finally:
-        sink.close()
+        if sink is not None:
+            sink.close()
     return totals(sink)
 
 
