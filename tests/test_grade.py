@@ -479,3 +479,25 @@ def test_grade_on_a_real_log_odometry_against_corrected_poses(shared_file, tmp_p
     assert abs(robot["clock"]["offset_s"]) < 0.1
     assert 0.03 < robot["position_m"]["rmse"] < 0.2 and robot["lost_share"] < 0.02
     assert len(robot["jumps"]) < 30
+
+
+def test_a_robot_never_seen_shows_no_clock_offset():
+    """A robot none of whose beliefs met a ground-truth row has no clock offset to show (the search's
+    start is not an estimate); one seen shows its offset and its standard error."""
+    from types import SimpleNamespace as NS
+
+    from gtsjax.grade.report import COLUMNS, table_rows
+
+    nan = float("nan")
+    stats = {"rmse": nan, "median": nan, "p95": nan, "max": nan}
+    summary = {"position_m": stats, "heading_rad": stats, "within_gt_2sigma_share": nan, "lost_share": nan,
+               "rpe": {"1s": {"trans": {"rmse": nan}}, "5s": {"trans": {"rmse": nan}}}, "recovery_s": {"median": nan}}
+
+    def grade(seen, se):
+        return NS(name="nao", frame_kind="given", clock=NS(offset=4.9, se=se, fixed=False), spans=[], jumps=[],
+                  summary={**summary, "seen_share": seen})
+
+    never, seen = table_rows([grade(0.0, nan), grade(0.8, 0.004)])
+    clock = COLUMNS.index("clock offset [s]")
+    assert never[clock] == "– (never seen)" and never[COLUMNS.index("unseen")] == "100 %"
+    assert seen[clock] == "+4.900 ± 4 ms"

@@ -57,6 +57,8 @@ def table_rows(grades) -> list[list[str]]:
         p, h = s["position_m"], s["heading_rad"]
         clock = f"{g.clock.offset:+.3f}" + ("" if g.clock.fixed else f" ± {_num(g.clock.se, 1000, '{:.0f}')} ms"
                                              if math.isfinite(g.clock.se) else "")
+        if not g.clock.fixed and not s["seen_share"] > 0:  # no row to estimate it from: the search's start
+            clock = "– (never seen)"
         rec = s["recovery_s"]
         out.append([
             g.name, _frame_text(g), clock, ", ".join(str(t) for t in dict.fromkeys(tid for tid, _, _ in g.spans)) or "–",
