@@ -4,7 +4,7 @@
 
 ``match.npz`` is the two-laser model docs/several-lasers.md trains (``simulate spl-match-2 --seed 1``,
 ``train --log north=… --log south=…``). For the held-out seed the script simulates the match with the
-robots' beliefs (``simulate spl-match-2 --beliefs``: biased, noisy, kidnapped, each on its own clock,
+robots' beliefs (``simulate spl-match-2 --out-beliefs``: biased, noisy, kidnapped, each on its own clock,
 one in the mirrored frame), replays both lasers into a GTD CSV, grades it (the mirrored robot with
 ``--frame fit``), and compares each figure with the simulation's: identity (each graded row's
 nearest true robot), clock offset, APE against the error put in at the same instants (at the true
@@ -94,7 +94,7 @@ def main() -> None:
     d = a.out_dir.resolve()
     d.mkdir(parents=True, exist_ok=True)
     gtsjax("simulate", "spl-match-2", "--seed", a.seed, "--seconds", a.seconds, "--robots", a.robots,
-           "--out", d / "held.npz", "--site", d / "site.json", "--beliefs", d / "beliefs")
+           "--out", d / "held.npz", "--site", d / "site.json", "--out-beliefs", d / "beliefs")
     gtsjax("replay", "--log", f"north={d / 'held-north.npz'}", "--log", f"south={d / 'held-south.npz'}", "--site",
            d / "site.json", "--model", a.model.resolve(), "--out", d / "gtd.csv", "--max-tracks", 14, "--quiet")
     st, tp = truth_of(d, "held")

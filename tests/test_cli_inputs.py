@@ -190,6 +190,17 @@ def test_one_vocabulary_with_the_old_spellings_kept_for_a_release(tmp_path, caps
     err = capsys.readouterr().err.strip().splitlines()
     assert err[0] == "gtsjax: warning: --duration: is now --seconds (the old name goes in a later release)", err
     assert len(err) == 2 and "'--seconds'" in err[1], err
+    # A folder simulate writes is --out-beliefs (--beliefs is run's UDP listener); the old name still
+    # writes the beliefs, said once.
+    capsys.readouterr()
+    sim = ["simulate", "spl-trajectory", "--scans", "20", "--site", str(tmp_path / "t.json"), "--out",
+           str(tmp_path / "t.npz")]
+    assert main([*sim, "--out-beliefs", str(tmp_path / "b-new")]) == 0
+    capsys.readouterr()
+    assert main([*sim, "--beliefs", str(tmp_path / "b-old")]) == 0
+    assert "gtsjax: warning: --beliefs: is now --out-beliefs" in capsys.readouterr().err
+    assert sorted(p.name for p in (tmp_path / "b-new").iterdir()) == sorted(p.name for p in (tmp_path / "b-old").iterdir())
+    assert (tmp_path / "b-new" / "put-in.json").is_file()
 
 
 def test_the_shipped_model_by_name_and_the_version(capsys):

@@ -388,14 +388,14 @@ def test_grade_view_save_holds_both_poses_per_row(graded, tmp_path, capsys):
 
 
 def test_simulate_replay_grade_from_the_command_line(tiny, tmp_path, capsys):
-    """The commands as a user runs them: ``simulate spl-trajectory --beliefs``, ``replay`` with a small
+    """The commands as a user runs them: ``simulate spl-trajectory --out-beliefs``, ``replay`` with a small
     model, ``grade``: the one robot found on the tracks, its clock and error what was put in."""
     from gtsjax.io import load_log
     from gtsjax.sim.beliefs import read_put_in
 
     d = tmp_path
     assert cli(capsys, "simulate", "spl-trajectory", "--seed", 1003, "--scans", 400, "--out", d / "w.npz", "--site",
-               d / "s.json", "--beliefs", d / "b").returncode == 0
+               d / "s.json", "--out-beliefs", d / "b").returncode == 0
     assert cli(capsys, "replay", d / "w.npz", "--site", d / "s.json", "--model", tiny["path"], "--out",
                d / "gtd.csv").returncode == 0
     r = cli(capsys, "grade", d / "gtd.csv", "--robot", f"nao={d / 'b' / 'robot1.csv'}", "--site", d / "s.json",

@@ -39,7 +39,7 @@ VIEW_MODES = ("native", "web")
 # and ``--codes`` the file of designed codes (``enrol``). The old spellings still work for a release,
 # with a warning: (command, old) -> new.
 RENAMED = {("emulate", "--model"): "--scanner", ("simulate", "--sensor"): "--scanner", ("run", "--duration"): "--seconds",
-           ("enrol", "--tags"): "--codes",
+           ("enrol", "--tags"): "--codes", ("simulate", "--beliefs"): "--out-beliefs",
            **{(c, "--sensor"): "--laser" for c in ("replay", "run", "evaluate", "train")}}
 # The shipped model by name: ``--model demo``, ``gtsjax info demo`` (unless a file of that name is here).
 SHIPPED = "demo"

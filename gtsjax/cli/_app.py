@@ -37,7 +37,7 @@ def _root(version: bool = typer.Option(False, "--version", is_eager=True, callba
 
 
 #: Options whose path is a folder to write: shown as DIR, not FILE.
-FOLDER_OPTIONS = ("--out-dir", "--out-bag", "--beliefs")
+FOLDER_OPTIONS = ("--out-dir", "--out-bag", "--out-beliefs")
 
 
 def _metavar(param) -> str:

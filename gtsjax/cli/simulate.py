@@ -29,7 +29,7 @@ def simulate_cmd(
     tags: bool | None = typer.Option(None, "--tags/--no-tags", help="Robots wearing reflective tags, one code "
                                      "each, recorded in the site's 'tags' (default: where a scanner reports "
                                      "intensity, the UTM-30LX; --no-tags renders them bare, as before)."),
-    beliefs: Path | None = typer.Option(None, "--beliefs", help="Also write each robot's simulated self-localisation "
+    beliefs: Path | None = typer.Option(None, "--out-beliefs", help="Also write each robot's simulated self-localisation "
                                         "to this folder (NAME.csv, and put-in.json: what was put in), for gtsjax grade."),
     list_: bool = typer.Option(False, "--list", help="List the scenarios and exit."),
 ):
@@ -56,7 +56,7 @@ def simulate_cmd(
     for path, option in ((out, "--out"), (site, "--site")):
         check_out_file(path, option)
     if beliefs is not None:
-        check_out_dir(beliefs, "--beliefs")
+        check_out_dir(beliefs, "--out-beliefs")
     t0 = time.perf_counter()
     if is_match(scenario):
         logs, site_obj = simulate_match(scenario, seed=seed, n_robots=robots, seconds=seconds, referee=referee,
@@ -106,7 +106,7 @@ def _write_beliefs(folder: Path | None, logs: list, site_obj, seed: int) -> None
     order = np.argsort(stamps, kind="stable")
     robots = [m for m, c in enumerate(logs[0].truth_classes) if c == "robot"]
     if not robots:
-        raise fail("--beliefs", "the scenario has no robot to simulate beliefs for")
+        raise fail("--out-beliefs", "the scenario has no robot to simulate beliefs for")
     x0, y0, x1, y1 = site_obj.bounds if site_obj.bounds is not None else (0.0, 0.0, 0.0, 0.0)
     sims = simulate_beliefs(stamps[order], truth[order][:, robots], ((x0 + x1) / 2, (y0 + y1) / 2), seed=seed)
     write_beliefs(sims, folder)
