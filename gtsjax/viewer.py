@@ -201,6 +201,7 @@ class View(Recording):
                                                          grpc_port=grpc_port, host=host)
         self._trails: dict[str, collections.deque] = {}
         self._lasers: list[str] = []  # the named lasers, in the order first seen (their scans' colours)
+        self._landmark_names = [model.classes[int(c)] for c in np.asarray(model.site.landmark_class)]
         self._static()
 
     def _layout(self):
@@ -222,9 +223,10 @@ class View(Recording):
             rr.log("field/bounds", rr.LineStrips2D([[(x0, y0), (x1, y0), (x1, y1), (x0, y1), (x0, y0)]],
                                                    colors=[(200, 200, 200)], radii=0.01), static=True, recording=self.rec)
         xy = np.asarray(site.landmark_xy, np.float64)
-        names = [self.model.classes[int(c)] for c in np.asarray(site.landmark_class)]
-        rr.log("field/landmarks", rr.Points2D(xy, radii=0.06, colors=[(110, 110, 110)], labels=names),
-               static=True, recording=self.rec)
+        # Named on hover only: a post seen in a scan is labelled where the scan saw it, name and residual
+        # in one label (two labels at one place were drawn over each other).
+        rr.log("field/landmarks", rr.Points2D(xy, radii=0.06, colors=[(110, 110, 110)], labels=self._landmark_names,
+                                              show_labels=False), static=True, recording=self.rec)
 
     def scan(self, stamp: float, ranges, angle_min: float, angle_increment: float, out, rows, *,
              latency_ms: float | None = None, dropped: int | None = None, laser: str | None = None) -> None:
@@ -254,8 +256,10 @@ class View(Recording):
         res = np.asarray(out.landmark_residual, np.float64)
         lm = np.asarray(self.model.site.landmark_xy, np.float64)
         err_cm = np.linalg.norm(res[seen], axis=1) * 100 if seen.any() else np.zeros(0)
+        names = [n for n, s in zip(self._landmark_names, seen, strict=True) if s]
         rr.log(f"{base}/landmarks_seen", rr.Points2D(lm[seen] + res[seen], radii=0.04, colors=[SEEN_COLOUR],
-                                                     labels=[f"{e:.1f} cm" for e in err_cm]), recording=rec)
+                                                     labels=[f"{n} {e:.1f} cm" for n, e in zip(names, err_cm, strict=True)]),
+               recording=rec)
         # Every candidate of the scan: the objects by class, the rest faint, labelled with what became of them.
         reason = np.asarray(out.cand_reason)
         shown = reason > 0
