@@ -81,7 +81,11 @@ def fit_cost(n: int, n_fit: int, restarts: int, outputs: int = 1) -> float:
     on 1 500: they took 1.5 times as long on 2 otherwise idle cores, 4 times with other programs
     running); and a fixed part for what does not grow with n (a new shape's compilation, the host's
     work), as much as a fit of about 600 rows."""
-    return fit_work(n, n_fit, restarts, outputs) + 2e8
+    return fit_work(n, n_fit, restarts, outputs) + FIT_FIXED_COST
+
+
+#: :func:`fit_cost`'s fixed part: as much as a fit of about 600 rows.
+FIT_FIXED_COST = 2e8
 
 
 def fit_work(n: int, n_fit: int, restarts: int, outputs: int = 1) -> float:
@@ -109,8 +113,8 @@ def planned_fits(classes: Sequence[str], landmarks: Sequence[str], mobiles: Sequ
 
     def add(stage, labels, n, n_fit):
         n_fit = min(n, n_fit)
-        w = fit_cost(n, n_fit, cfg.restarts, len(labels))
         work = fit_work(n, n_fit, cfg.restarts, len(labels))
+        w = work + FIT_FIXED_COST  # fit_cost, its growing part computed once
         out.extend({"gp": g, "stage": stage, "n": int(n), "n_fit": int(n_fit), "weight": w if j == 0 else 0.0,
                     "work": work if j == 0 else 0.0} for j, g in enumerate(labels))
 
