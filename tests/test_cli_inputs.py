@@ -238,6 +238,10 @@ MORE_BAD = {
                                                                 "--out-dir", "{o}/ev"], "no seed after the colon"),
     "simulate with seed -1": (None, ["simulate", "spl-eval", "--seed", "-1", "--out", "{o}/x.npz", "--site",
                                      "{o}/x.json"], "'--seed'"),
+    # The beliefs' folder given as the log to write: it was made a folder, then writing the log failed.
+    "simulate --out-beliefs the log it writes": (None, ["simulate", "spl-eval", "--scans", "5", "--out", "{o}/x.npz",
+                                                         "--site", "{o}/x.json", "--out-beliefs", "{o}/x.npz"],
+                                                "both --out and --out-beliefs"),
     # A class the labels do not have (once ignored in silence), before any fitting.
     "train --max-speed for a class the labels lack": (None, ["train", "{d}/log.npz", "--site", "{d}/site.json", "--out",
                                                              "{o}/m.npz", "--max-speed", "tractor=1"],

@@ -52,7 +52,7 @@ def simulate_cmd(
         return
     if scenario is None or out is None or site is None:
         raise fail("simulate", "needs SCENARIO, --out LOG.npz and --site SITE.json (or --list)")
-    distinct_paths({}, {"--out": out, "--site": site})
+    distinct_paths({}, {"--out": out, "--site": site, "--out-beliefs": beliefs})
     for path, option in ((out, "--out"), (site, "--site")):
         check_out_file(path, option)
     if beliefs is not None:
