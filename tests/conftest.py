@@ -8,7 +8,22 @@ from pathlib import Path
 
 import pytest
 
-from tests._child import install_checks
+# XLA told to compile fast rather than run at its fastest, in this process and every ``gtsjax`` child
+# (they inherit the environment), set before JAX starts its backend: CI's time was more than half
+# compiling, at some 50 ms per XLA kernel, and a test runs a program a few times where a user runs it
+# for hours. XLA:CPU's older loop emitter instead of its MLIR fusion emitters, and LLVM at its first
+# optimisation level, compile the live step twice as fast (10 → 5 s here) and run it at 1.5 ms instead
+# of 0.9; what each program computes is the same. (LLVM's optimisation off compiles faster still, 3 s,
+# but runs the step at 3 ms: the tests that train and check, or stream a laser in real time, lost more
+# than the compiles gained.) Every user's command, and ``python -m benchmarks`` run by hand, compile
+# with XLA's defaults (the benchmarks' smoke run in ``tests/test_benchmarks.py`` inherits these flags: it
+# checks that the command runs, its figures are not measurements); ``benchmarks/kernels.py`` counts
+# kernels under XLA's defaults whatever this says. ``GTSJAX_TEST_XLA_FLAGS=default`` runs the tests with XLA's defaults too.
+TEST_XLA_FLAGS = "--xla_backend_optimization_level=1 --xla_cpu_use_fusion_emitters=false"
+if os.environ.get("GTSJAX_TEST_XLA_FLAGS", "").strip().lower() != "default":
+    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {TEST_XLA_FLAGS}".strip()
+
+from tests._child import install_checks  # noqa: E402
 
 # The core's and the GP library's annotations (shapes, dtypes) checked at run time in every test: when a
 # function is traced, or called eagerly; installed before anything imports gtsjax. With JAX's settings
