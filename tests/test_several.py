@@ -677,3 +677,41 @@ def test_run_command_with_two_lasers_shows_the_one_laser_view(match, tmp_path, c
     assert re.search(r"(north|south) in O: x=", err), err
     assert re.search(r"^north: dropped \d+", err, re.M) and re.search(r"^south: dropped \d+", err, re.M), err
     assert len(read_gtd(tmp_path / "gtd.csv")) > 0
+
+
+def test_a_laser_whose_model_reads_no_tags_joins_one_that_does():
+    """A URG-04LX's model reads no tags (no intensities), a UTM-30LX's beside it does: the shared track
+    table tells apart the identities the UTM-30LX's model reads, whichever model is given first, and the
+    URG-04LX's perception gets tag log-likelihoods of zero (no evidence either way) so that every laser's
+    perception has the structure of one program's input (``evaluate`` of docs/several-lasers.md's mixed
+    models once failed on it with a pytree error)."""
+    import equinox as eqx
+    import jax
+    import jax.numpy as jnp
+
+    from gtsjax.core.e_tags import TagReader
+    from gtsjax.core.multi import identities, pad_perception
+    from gtsjax.core.pipeline import perceive
+    from gtsjax.io.logs import to_scans
+    from gtsjax.sim import simulate
+
+    log, site = simulate("spl-crossing", seed=3, n_scans=2)
+    model = load_model(demo_model_path()).with_site(site)
+    f32 = lambda v: jnp.asarray(v, jnp.float32)  # noqa: E731
+    n_cls = len(model.classes)
+    reader = TagReader(jnp.ones((10, 52), jnp.float32), jnp.zeros((n_cls, 64), jnp.float32), jnp.zeros(n_cls, bool),
+                       f32(1.0), f32(2.0), f32(0.3), f32(0.0), f32(0.3), jnp.asarray(13, jnp.int32), f32(6.0),
+                       f32(40.0), f32(4.0), f32(0.2))
+    reads = eqx.tree_at(lambda m: m.tags, model, reader, is_leaf=lambda x: x is None)
+    assert reads.n_identities == 10 and model.n_identities == 0
+    assert identities((model, reads)) == identities((reads, model)) == 10
+    assert identities((model, model)) == 0
+    p = jax.jit(lambda sc: perceive(model, sc))(jax.tree.map(lambda a: a[0], to_scans(log, model.n_beams)))
+    assert p.tag_ll is None
+    k = p.ok.shape[0]
+    padded = pad_perception(p, k + 4, 10)
+    assert padded.tag_ll.shape == (k + 4, 10) and not np.any(np.asarray(padded.tag_ll))
+    assert padded.ok.shape == (k + 4,) and not np.any(np.asarray(padded.ok)[k:])
+    np.testing.assert_array_equal(np.asarray(padded.pose_s)[:k], np.asarray(p.pose_s))
+    assert pad_perception(p, k, 0).tag_ll is None  # no laser reads tags: nothing added
+    assert jnp.asarray(padded.tag_ll).dtype == jnp.float32

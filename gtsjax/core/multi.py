@@ -75,7 +75,7 @@ def init_several(model: "Model | tuple[Model, ...]", sensor_poses: Float[Array, 
         raise ValueError(f"{len(kinds)} kinds for {poses.shape[0]} lasers")
     return SeveralState(
         transforms=jax.vmap(Transform.from_sensor_pose)(poses),
-        tracker=TrackerState.empty(models[0].max_tracks, ids=models[0].n_identities),
+        tracker=TrackerState.empty(models[0].max_tracks, ids=identities(models)),
         n_scans=jnp.zeros(poses.shape[0], jnp.int32),
         reach=jnp.asarray([laser_reach(models[i]) for i in kinds], jnp.float32),
     )
@@ -136,13 +136,25 @@ def update_several(model: Model, state: SeveralState, p, scan: Scan, k: Int[Arra
     return SeveralState(_put_row(state.transforms, k, tf), tracker, n, state.reach), out
 
 
+def identities(models: "tuple[Model, ...]") -> int:
+    """The robot identities the shared track table tells apart: the most any of the models reads. A
+    laser whose model reads no tags (a scanner without intensities) adds no evidence of identity: its
+    detections' tag log-likelihoods are zeros (:func:`pad_perception`), whichever model is given first."""
+    return max(m.n_identities for m in models)
+
+
 def widest(models: "tuple[Model, ...]") -> tuple[int, int]:
     """The candidate slots and beams a perception and a scan are padded to for :func:`update_mixed`."""
     return max(m.frontend.max_candidates for m in models), max(m.n_beams for m in models)
 
 
-def pad_perception(p: Perception, n_cands: int) -> Perception:
-    """``p`` with its candidate axis padded to ``n_cands`` (slots neither kept nor objects)."""
+def pad_perception(p: Perception, n_cands: int, n_ids: int = 0) -> Perception:
+    """``p`` with its candidate axis padded to ``n_cands`` (slots neither kept nor objects), and, from a
+    model that reads no tags where another laser's does (``n_ids`` identities, :func:`identities`), tag
+    log-likelihoods of zero: every laser's perception then has one structure, as one program needs."""
+    if n_ids and p.tag_ll is None:
+        p = eqx.tree_at(lambda q: q.tag_ll, p, jnp.zeros(p.ok.shape + (n_ids,), jnp.float32),
+                        is_leaf=lambda x: x is None)
     return jax.tree.map(lambda a: a if a.ndim == p.ok.ndim - 1 else _pad_axis(a, p.ok.ndim - 1, n_cands), p)
 
 

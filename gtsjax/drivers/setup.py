@@ -96,7 +96,8 @@ def load_for_lasers(
 
 def check_models(models: "tuple[Model, ...]", where: object = "--model") -> None:
     """Models of different scanners that are to share one track table must know the same classes
-    (in the same order), have as many track slots and carry the same site's landmarks."""
+    (in the same order), have as many track slots and carry the same site's landmarks (and, where both
+    read tags, the same robots' tags: a model that reads none may join one that does)."""
     first = models[0]
     for m in models[1:]:
         if m.classes != first.classes:
@@ -114,6 +115,9 @@ def check_models(models: "tuple[Model, ...]", where: object = "--model") -> None
             )
         if m.site is not None and first.site is not None and m.site.landmark_xy.shape != first.site.landmark_xy.shape:
             raise InputError(where, "the models carry different sites")
+        if m.n_identities and first.n_identities and m.n_identities != first.n_identities:
+            raise InputError(where, f"the {m.sensor_model} model reads the tags of {m.n_identities} robots, the "
+                                    f"{first.sensor_model} model of {first.n_identities}: give both one site")
 
 
 def check_sensor(model: Model, sensor: SensorModel, where: str, *, intensity: bool = True) -> None:

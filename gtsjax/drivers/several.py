@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..core.model import Model
-from ..core.multi import SeveralState, init_several, pad_perception, widest
+from ..core.multi import SeveralState, identities, init_several, pad_perception, widest
 from ..core.pipeline import Output, Perception
 from ..core.scan import Scan
 from ..errors import InputError
@@ -122,13 +122,15 @@ def perceive_lasers(models: "tuple[Model, ...]", kinds, merged: Merged, chunk: i
     :func:`~gtsjax.drivers.batch.perceive_chunk`), then laid out in the merged order on the device,
     scans and perception padded to the widest model's (:func:`~gtsjax.core.multi.widest`)."""
     n_cands, n_beams = widest(models)
+    n_ids = identities(models)
     chunk = chunk_for(merged.log.n_scans, chunk)
     percepts, scans = [], []
     for k, name in enumerate(merged.names):
         m, log = models[kinds[k]], merged.sources[name]
         own = to_scans(log, m.n_beams)
         _, parts = for_chunks(lambda _, a, b, m=m, own=own: (None, host_rows(
-            pad_perception(perceive_chunk(m, pad_chunk(own, a, b, chunk)), n_cands), b - a)), None, log.n_scans, chunk)
+            pad_perception(perceive_chunk(m, pad_chunk(own, a, b, chunk)), n_cands, n_ids), b - a)), None, log.n_scans,
+                                   chunk)
         percepts.append(concat(parts))
         scans.append(to_scans(log, n_beams))
     # The merged order: laser k's i-th scan is row offset[k] + i of the lasers' scans laid end to end.
