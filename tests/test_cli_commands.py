@@ -51,7 +51,8 @@ def wrap(a):
 
 
 def test_demo_tracks_the_walking_robot(tmp_path):
-    """``gtsjax demo`` for 6 s: exit 0, the three files, and rows on the simulated robot's path (found
+    """``gtsjax demo`` (README.md's first command, installed by ``.ci/run`` as that command installs it)
+    for 6 s: exit 0, the three files, and rows on the simulated robot's path (found
     here by hand from the scenario, whatever the timing) with the path's heading there, and the RMSE it
     reports within about twice the README's figures for the demo (1.0–1.1 cm, 1.6–2.1° over 20 s).
     Measured here, three runs: 0.3–0.5 cm median and 1.5–1.7 cm most off the path, the path's heading
