@@ -47,7 +47,8 @@ def _positive(x) -> bool:
 def smoke_env() -> dict:
     """The environment of the smoke run: the tests' XLA flags (``tests/conftest.py``) with LLVM's
     optimisation off. The smoke run compiles some twenty whole-step programs and runs each only briefly:
-    in two full CI runs here it took 283–300 s so against 397 s at the tests' ``-O1``."""
+    in full CI runs here it took 283, 300 and 380 s so against 397 s at the tests' ``-O1`` (runs on one
+    machine differ by more than that: a difference of a minute at most)."""
     flags = os.environ.get("XLA_FLAGS", "").replace("--xla_backend_optimization_level=1",
                                                      "--xla_backend_optimization_level=0")
     return {**os.environ, "XLA_FLAGS": flags}
