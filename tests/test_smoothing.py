@@ -101,6 +101,48 @@ def test_replay_smooth_stopped_before_its_rows_leaves_no_csv(tiny, tmp_path, cap
     assert r.returncode == 0 and len(read_gtd(d / "f.csv")) > 0, r.stderr
 
 
+def test_smooth_memory_estimate_covers_what_the_forward_pass_keeps(tiny):
+    """The estimate ``replay --smooth`` is refused by is at least what the forward pass keeps a scan
+    for the smoother (its outputs and filtered states, summed array by array: a second count), and
+    within the multiple the smoother's own arrays add."""
+    import jax
+
+    from gtsjax.drivers.batch import process_log
+    from gtsjax.drivers.smoothing import SMOOTH_BYTES_PER_STATE_BYTE, memory_needed
+    from gtsjax.io.logs import to_scans
+
+    model = tiny["model"].with_site(tiny["site"])
+    n = 24
+    scans = to_scans(tiny["train_log"].slice(0, n), model.n_beams)
+    # replay --smooth's program (its chunk, vectorised, with filtered states): compiled once for the module
+    _, kept = process_log(model, scans, chunk=256, vectorise=True, filtered=True)
+    kept_bytes = sum(a.nbytes for a in jax.tree.leaves(kept))
+    need = memory_needed(model, n)
+    assert kept_bytes <= need <= SMOOTH_BYTES_PER_STATE_BYTE * kept_bytes, (kept_bytes, need)
+    assert memory_needed(model, 10 * n) == 10 * need
+
+
+def test_replay_smooth_refused_where_its_states_would_not_fit(tiny, tmp_path, capsys, monkeypatch):
+    """Where the machine has less memory available than smoothing the log needs: refused in one line
+    before any work, naming --smooth, what it needs and what to do; nothing written."""
+    import gtsjax.cli._checks as checks
+    from gtsjax.drivers.smoothing import memory_needed
+
+    d = tmp_path
+    assert cli(capsys, "simulate", "spl-trajectory", "--seed", 1009, "--scans", 40, "--out", d / "w.npz", "--site",
+               d / "s.json").returncode == 0
+    need = memory_needed(tiny["model"].with_site(tiny["site"]), 40)
+    monkeypatch.setattr(checks, "available_memory", lambda: need // 2)
+    r = cli(capsys, "replay", d / "w.npz", "--site", d / "s.json", "--model", tiny["path"], "--out", d / "s.csv",
+            "--smooth")
+    assert r.returncode == 2, r.stderr
+    (line,) = r.stderr.strip().splitlines()
+    assert "--smooth" in line and "40 scans" in line and "without --smooth" in line, line
+    assert not (d / "s.csv").exists()
+    monkeypatch.setattr(checks, "available_memory", lambda: None)  # unknown: never refused
+    checks.check_memory("--smooth", 1e15, "smoothing", "no fix")
+
+
 def test_replay_smooth_with_two_lasers(match_model, tmp_path, capsys):  # noqa: F811
     """Two lasers' detections smoothed together (a model of the match's field, trained as
     docs/several-lasers.md trains one, small): the same rows, positions closer to the truth."""

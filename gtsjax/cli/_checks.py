@@ -2,6 +2,8 @@
 unit and the range a plausible one lies in, refused in one line (:class:`~gtsjax.errors.InputError`,
 exit status 2) before any work, naming the option and what would be right."""
 
+import os
+
 import numpy as np
 
 from ..errors import InputError
@@ -63,6 +65,37 @@ def check_length(option: str, value: float, low: float, high: float, what: str) 
 #: The longest ``run --smooth-lag``: the live window holds this many seconds of every track's states;
 #: a longer view of a recording is ``replay --smooth``'s (the whole of each track's life).
 MAX_SMOOTH_LAG_S = 60.0
+
+
+def available_memory() -> int | None:
+    """Bytes of memory this machine can give a new allocation without swapping (Linux's
+    ``MemAvailable``; elsewhere the free physical pages); None where neither can be read."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (AttributeError, OSError, ValueError):
+        return None
+
+
+def _gb(n: float) -> str:
+    return f"{n / 1e9:.1f} GB" if n >= 1e8 else f"{n / 1e6:.0f} MB"
+
+
+def check_memory(option: object, need: float, what: str, fix: str) -> None:
+    """Refuses, before any work, a run whose ``need`` (bytes, an estimate of what it will hold at once)
+    exceeds the memory the machine has available now: it would swap the machine to a standstill or be
+    killed after minutes of work, its outputs unwritten. ``what`` says what takes the memory, ``fix``
+    what to do instead."""
+    have = available_memory()
+    if have is not None and need > have:
+        raise InputError(option, f"{what} needs about {_gb(need)} of memory, and this machine has {_gb(have)} "
+                                 f"available: {fix}")
 
 
 #: Units a clock or a length is commonly written in by mistake, as factors of seconds or metres.

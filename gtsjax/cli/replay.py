@@ -24,6 +24,7 @@ from ..io.bag_out import check_bag_dir
 from ..io.importers import detect_format, format_name
 from ..io.site import one_sensor
 from ._app import CONFIRM_HELP, MAX_TRACKS_HELP, app, quiet
+from ._checks import check_memory
 from ._common import (
     CSV_UNITS_HELP,
     INPUT_HELP,
@@ -118,6 +119,8 @@ def replay_cmd(
              max_tracks=max_tracks)
     outs, sensor_outs = _outputs(logs, out, sensor_out)
     scan_logs = [_load_fitted(log, topic, m, crop_fov, console) for log in logs]
+    if smooth:
+        _check_smooth_memory(m, scan_logs[0].n_scans, f"{logs[0]}'s")
     shown = open_view(m, view, view_save, console)
     t0 = time.perf_counter()
     total = sum(lg.n_scans for lg in scan_logs)
@@ -155,6 +158,16 @@ def replay_cmd(
     if view_save is not None:
         console.print(f"view recorded to {view_save}")
     serve_view(shown, console)
+
+
+def _check_smooth_memory(model, n_scans: int, whose: str) -> None:
+    """``--smooth`` holds the forward pass's states for the whole log before it smooths: refused before
+    any work where they would not fit in the memory the machine has."""
+    from ..drivers.smoothing import memory_needed
+
+    check_memory("--smooth", memory_needed(model, n_scans), f"smoothing {whose} {n_scans} scans",
+                 "replay without --smooth (the forward pass's rows, a scan at a time), or on a machine with "
+                 "more memory")
 
 
 def _summary_doc(totals: dict) -> dict:
@@ -245,6 +258,8 @@ def _replay_lasers(specs: list[str], site_path: Path, model_paths: list[Path], o
     models, kinds = models_for_lasers(loaded, site_obj, list(paths))
     logs = {name: _load_fitted(path, topic, models[kinds[i]], crop_fov, console)
             for i, (name, path) in enumerate(paths.items())}
+    if smooth:
+        _check_smooth_memory(models[0], sum(lg.n_scans for lg in logs.values()), "the lasers'")
     shown = open_view(models[0], view, view_save, console)
     t0 = time.perf_counter()
     total = sum(lg.n_scans for lg in logs.values())
