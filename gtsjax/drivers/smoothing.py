@@ -21,10 +21,12 @@ scans before the switch, was tried first: it changed the two-laser match's headi
 """
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 
 from ..core.geometry import wrap
+from ..core.pipeline import init_state
 from ..core.smooth import smooth_tracks
 from ..core.smooth_sides import SIDE_RAD, smooth_sides
 
@@ -43,12 +45,8 @@ SMOOTH_BYTES_PER_STATE_BYTE = 8
 def memory_needed(model, n_scans: int) -> int:
     """Bytes smoothing ``n_scans`` scans holds at once (about: :data:`SMOOTH_BYTES_PER_STATE_BYTE`),
     from the size of ``model``'s track table (site attached); nothing computed."""
-    import jax
-
-    from ..core.pipeline import init_state
-
     table = jax.eval_shape(init_state, model).tracker
-    per_scan = sum(int(np.prod(a.shape)) * a.dtype.itemsize for a in jax.tree.leaves(table))
+    per_scan = sum(a.size * a.dtype.itemsize for a in jax.tree.leaves(table))
     return SMOOTH_BYTES_PER_STATE_BYTE * per_scan * int(n_scans)
 
 
