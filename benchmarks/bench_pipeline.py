@@ -215,24 +215,25 @@ def dispatch_floor(ctx, repeats: int, step_links: int = 140) -> None:
                         kernels=n)
 
 
-def bench_batch(ctx, model, n_scans: int, runs: int) -> None:
+def bench_batch(ctx, model, n_scans: int, runs: int, chunk: int = 256) -> None:
     """``process_log`` throughput (step by step, and vectorised: perception vmapped over groups of
     scans), and the front end alone in batch."""
     res = ctx.results
     log, _ = _data.scenario("spl-trajectory", 4, n_scans)
     scans = to_scans(log, model.n_beams)
     for vec, key in ((False, "exact"), (True, "vmap")):
-        samples = ctx.time_calls(lambda i, vec=vec: process_log(model, scans, chunk=256, vectorise=vec), runs, warmup=1)
+        samples = ctx.time_calls(lambda i, vec=vec: process_log(model, scans, chunk=chunk, vectorise=vec), runs,
+                                 warmup=1)
         res.add_rate(f"batch.urg-04lx.{key}", log.n_scans, samples, section=SECTION,
-                     label=f"batch replay, URG-04LX, chunk 256, {'step by step' if not vec else 'vectorised (default)'}",
-                     chunk=256, vectorise=vec)
+                     label=f"batch replay, URG-04LX, chunk {chunk}, {'step by step' if not vec else 'vectorised (default)'}",
+                     chunk=chunk, vectorise=vec)
     # Four logs side by side (replay A B C D): the same log four times, one tracker each.
     n_logs = 4
-    part = jax.tree.map(lambda a: a[: max(256, n_scans // n_logs)], scans)
-    samples = ctx.time_calls(lambda i: process_logs(model, [part] * n_logs, chunk=256), runs, warmup=1)
+    part = jax.tree.map(lambda a: a[: max(chunk, n_scans // n_logs)], scans)
+    samples = ctx.time_calls(lambda i: process_logs(model, [part] * n_logs, chunk=chunk), runs, warmup=1)
     res.add_rate("batch.urg-04lx.logs4", n_logs * int(part.ranges.shape[0]), samples, section=SECTION,
-                 label=f"batch replay, URG-04LX, {n_logs} logs side by side (replay A B C D), chunk 256, vectorised",
-                 chunk=256, logs=n_logs)
+                 label=f"batch replay, URG-04LX, {n_logs} logs side by side (replay A B C D), chunk {chunk}, vectorised",
+                 chunk=chunk, logs=n_logs)
     batch = jax.jit(front_end_batch)
     samples = ctx.time_calls(lambda i: batch(model.frontend, scans), runs, warmup=1)
     res.add_rate("batch.urg-04lx.frontend", log.n_scans, samples, section=SECTION,
@@ -310,8 +311,8 @@ def run(ctx) -> None:
     # The smoke run times the UTM-30LX stages only end to end (the stage code is the URG-04LX's).
     bench_sensor(ctx, "utm-30lx", umodel, to_scans(ulog, umodel.n_beams), n_pool, repeats, stage_repeats,
                  stages=not q)
-    # The smoke run replays one chunk's worth once (a compile and a run: a check that it runs, not a rate).
-    bench_batch(ctx, model, 256 if q else 3000, 1 if q else 5)
+    # The smoke run replays a short chunk's worth once (a compile and a run: a check that it runs, not a rate).
+    bench_batch(ctx, model, 64 if q else 3000, 1 if q else 5, 64 if q else 256)
     bench_several(ctx, n_pool, repeats, 1 if q else 5, 3.0 if q else 30.0)
     scan0 = jax.tree.map(lambda a: a[0], to_scans(log, model.n_beams))
     kernels = count_kernels(compiled_text(lambda s, x: step(model, s, x), init_state(model), scan0)).total

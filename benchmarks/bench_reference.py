@@ -66,7 +66,7 @@ def _profile(ref: ReferencePipeline, arrays, n: int) -> dict:
 
 def run(ctx) -> None:
     res = ctx.results
-    n = 120 if ctx.quick else 300
+    n = 60 if ctx.quick else 300
     log, site = _data.scenario("spl-trajectory", 7, n)
     model = _data.demo_model(site)
     scans = to_scans(log, model.n_beams)
@@ -104,4 +104,4 @@ def run(ctx) -> None:
     res.ratio("reference_over_gtsjax.p99", "reference.urg-04lx.numpy_sklearn_filterpy",
               "reference.urg-04lx.gtsjax_step", stat="p99",
               meaning="how many times faster gtsjax's step is per scan (p99)")
-    res.profiles["reference"] = _profile(ref, arrays, min(n, 60 if ctx.quick else 150))
+    res.profiles["reference"] = _profile(ref, arrays, min(n, 30 if ctx.quick else 150))

@@ -181,7 +181,7 @@ def run(ctx) -> None:
     series["N"] = ns
 
     # chunk size
-    tlog, _ = _data.scenario("spl-trajectory", 4, 512 if q else 2048)
+    tlog, _ = _data.scenario("spl-trajectory", 4, 256 if q else 2048)
     tscans = to_scans(tlog, model.n_beams)
     chunks = (256,) if q else (16, 64, 256, 1024)
     rates = []

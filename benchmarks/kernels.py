@@ -175,11 +175,15 @@ COUNTED_UNDER = {"xla_cpu_use_fusion_emitters": True}
 
 def compiled_text(fn, *args) -> str:
     """The optimised HLO text of ``jax.jit(fn)`` for ``args``, compiled under :data:`COUNTED_UNDER`
-    where the backend is a CPU."""
+    where the backend is a CPU, and traced with the size buckets a user's step has
+    (:func:`gtsjax.core.buckets.enabled` without ``GTSJAX_SIZE_BUCKETS``, which the tests turn off)."""
     import jax
 
+    from gtsjax.core import buckets
+
     options = COUNTED_UNDER if jax.default_backend() == "cpu" else None
-    return jax.jit(fn, compiler_options=options).lower(*args).compile().as_text()
+    with buckets.forced(jax.default_backend() == "cpu"):
+        return jax.jit(fn, compiler_options=options).lower(*args).compile().as_text()
 
 
 def main() -> None:

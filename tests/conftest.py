@@ -23,6 +23,14 @@ TEST_XLA_FLAGS = "--xla_backend_optimization_level=1 --xla_cpu_use_fusion_emitte
 if os.environ.get("GTSJAX_TEST_XLA_FLAGS", "").strip().lower() != "default":
     os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {TEST_XLA_FLAGS}".strip()
 
+# The stages' size buckets off (``gtsjax.core.buckets``), in this process and every child, for the same
+# reason: each bucket is a copy of its stage in the program, and the step without them traces and
+# compiles in half the time (the demo model's batch chunk 5 s against 10 here) and runs 1.5–2× slower,
+# which a test's few hundred scans do not feel. What a step computes is the same to float32 round-off:
+# ``tests/test_buckets.py`` runs the bucketed step, live and in batch, against this one, and
+# ``benchmarks/kernels.py`` counts the kernels of the bucketed step users run.
+os.environ.setdefault("GTSJAX_SIZE_BUCKETS", "off")
+
 from tests._child import install_checks  # noqa: E402
 
 # The core's and the GP library's annotations (shapes, dtypes) checked at run time in every test: when a
@@ -87,29 +95,65 @@ def shared_file():
     return shared_path
 
 
-@pytest.fixture(scope="session")
-def tiny(tmp_path_factory):
-    """A small model trained on a subsample of the SPL training grid and a log with legs, shared by the
-    test modules: trained once per run, by the first worker that asks; a second worker waits for it
-    and reads what the first left (``tiny.pkl``: the objects the training returned, pickled, so the
-    model file's round trip is still tested against the trained model, not against itself)."""
+def _once_per_run(tmp_path_factory, name: str, make) -> "tuple[Path, dict]":
+    """``make(folder)``'s result, made once per run by the first worker that asks, in a folder every
+    worker sees; a second worker waits for it and reads what the first left (``NAME.pkl``: the
+    objects ``make`` returned, pickled, so that a model file's round trip is still tested against the
+    trained model, not against itself)."""
     import fcntl
     import pickle
 
     shared = tmp_path_factory.getbasetemp()
     if os.environ.get("PYTEST_XDIST_WORKER"):  # each worker's base is a folder of the run's own
         shared = shared.parent
-    d = shared / "tiny"
+    d = shared / name
     d.mkdir(exist_ok=True)
-    with open(shared / "tiny.lock", "w") as lock:
+    with open(shared / f"{name}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes (or its process ends)
-        done = d / "tiny.pkl"
+        done = d / f"{name}.pkl"
         if not done.exists():
-            part = d / "tiny.pkl.part"
-            part.write_bytes(pickle.dumps(_train_tiny(d)))
+            part = d / f"{name}.pkl.part"
+            part.write_bytes(pickle.dumps(make(d)))
             part.replace(done)
-        made = pickle.loads(done.read_bytes())
+        return d, pickle.loads(done.read_bytes())
+
+
+@pytest.fixture(scope="session")
+def tiny(tmp_path_factory):
+    """A small model trained on a subsample of the SPL training grid and a log with legs, shared by the
+    test modules (:func:`_once_per_run`)."""
+    d, made = _once_per_run(tmp_path_factory, "tiny", _train_tiny)
     return {"dir": d, "path": d / "model.npz", **made}
+
+
+@pytest.fixture(scope="session")
+def utm_small(tmp_path_factory) -> Path:
+    """A small model for the UTM-30LX (a scanner with intensities), trained on its scans of the SPL
+    training grid and a log with legs with the intensities taken out: a model that does not read them
+    (``uses_intensity`` False), as ``run --no-intensity`` needs, and the same classes as the shipped
+    URG-04LX model, as lasers of two scanners on one field need. Its file; made once per run
+    (:func:`_once_per_run`)."""
+    d, _ = _once_per_run(tmp_path_factory, "utm_small", _train_utm_small)
+    return d / "utm.npz"
+
+
+def _train_utm_small(d: Path) -> dict:
+    import dataclasses
+
+    from gtsjax.io.modelfile import save_model
+    from gtsjax.sim import simulate
+    from gtsjax.train import TrainConfig, train
+
+    config = dataclasses.replace(TrainConfig(), max_per_class=60, max_pose_examples=80, n_inducing=32, restarts=1,
+                                 check_pipeline=False)  # a model to run; training's tracking check is tested apart
+    train_log, site = simulate("spl-train", seed=11, n_scans=500, sensor="UTM-30LX")
+    legs, _ = simulate("spl-legs", seed=12, n_scans=150, sensor="UTM-30LX")
+    assert train_log.intensities is not None and legs.intensities is not None
+    logs = [dataclasses.replace(lg, intensities=None) for lg in (train_log, legs)]
+    model, report = train(logs, site, config)
+    assert model.sensor_model == "UTM-30LX" and not model.uses_intensity
+    save_model(model, d / "utm.npz", summary=report)
+    return {}
 
 
 def _train_tiny(d: Path) -> dict:

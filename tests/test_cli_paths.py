@@ -104,6 +104,22 @@ def test_a_robot_outside_the_sites_bounds_is_not_reported(field, tmp_path):
     assert len(laser) == log.n_scans and np.all(laser["n_landmarks"] >= 3)
 
 
+def test_evaluate_seconds_cuts_a_scenario_to_its_start(tmp_path):
+    """``evaluate --seconds S`` on a scenario that is not a match scores its first S seconds: the scans
+    the whole scenario has at stamps up to S after its first (the scenario rendered whole, counted
+    here); without it, the whole scenario."""
+    log, _ = simulate("spl-trajectory", seed=2002)
+    first = int(np.sum(log.stamps - log.stamps[0] <= 2.5 + 1e-9))
+    assert 1 < first < log.n_scans
+    for extra, want in ((["--seconds", "2.5"], first), ([], log.n_scans)):
+        out = tmp_path / f"ev{len(extra)}"
+        code = main(["evaluate", "--model", str(demo_model_path()), "--scenario", "spl-trajectory:2002", *extra,
+                     "--out-dir", str(out), "--quiet"])
+        assert code == 0
+        res = json.loads((out / "results.json").read_text())["spl-trajectory:2002"]
+        assert res["scans"] == want, (extra, res["scans"])
+
+
 def test_evaluate_without_outline_scores_the_gps_headings(field, tmp_path, capsys):
     """``evaluate LOG --site --without-outline``: says so, and scores other headings than with the
     outline (stage e′ left out: the pose GP's own), the positions the same within a millimetre (the
@@ -204,34 +220,13 @@ def _mm(log):
     return np.where(valid, np.rint(np.where(valid, log.ranges, 0.0) * 1000.0), 0).astype(np.int64)
 
 
-@pytest.fixture(scope="module")
-def utm_plain(tmp_path_factory):
-    """A small model for the UTM-30LX (a scanner with intensities) trained on its scans with the
-    intensities taken out, so that it does not read them (``uses_intensity`` False), as
-    ``run --no-intensity`` needs; as test_several's ``mixed`` fixture trains its UTM-30LX model."""
-    from gtsjax.io.modelfile import save_model
-    from gtsjax.train import TrainConfig, train
-
-    d = tmp_path_factory.mktemp("utm")
-    config = dataclasses.replace(TrainConfig(), max_per_class=60, max_pose_examples=80, n_inducing=32, restarts=1,
-                                 check_pipeline=False)  # a model to run; training's tracking check is tested apart
-    train_log, site = simulate("spl-train", seed=11, n_scans=500, sensor="UTM-30LX")
-    legs, _ = simulate("spl-legs", seed=12, n_scans=150, sensor="UTM-30LX")
-    assert train_log.intensities is not None and legs.intensities is not None
-    logs = [dataclasses.replace(lg, intensities=None) for lg in (train_log, legs)]
-    model, report = train(logs, site, config)
-    assert model.sensor_model == "UTM-30LX" and not model.uses_intensity
-    save_model(model, d / "utm.npz", summary=report)
-    return d / "utm.npz"
-
-
 def _stream_commands(commands):
     """The streaming requests among the command lines an emulated sensor received (SCIP 2.0: MD, ME, and
     the one-scan GD, GE)."""
     return [c for c in commands if c[:2] in ("MD", "ME", "GD", "GE")]
 
 
-def test_run_no_intensity_streams_ranges_only_from_a_scanner_with_intensities(utm_plain, tmp_path):
+def test_run_no_intensity_streams_ranges_only_from_a_scanner_with_intensities(utm_small, tmp_path):
     """``run --no-intensity`` against an emulated UTM-30LX (a scanner that has intensities) over a real
     pseudo-terminal: the sensor is asked for ``MD`` over its whole range (SCIP 2.0: steps 0000–1080,
     cluster 01, interval 0, scans 00 = until QT), never ``ME``; the recording holds the served ranges to
@@ -247,7 +242,7 @@ def test_run_no_intensity_streams_ranges_only_from_a_scanner_with_intensities(ut
     assert part.intensities is not None  # what the emulator has to give
     save_site(site, tmp_path / "site.json")
     served = {row.tobytes(): k for k, row in enumerate(_mm(part))}
-    common = ["run", "--site", str(tmp_path / "site.json"), "--model", str(utm_plain), "--quiet"]
+    common = ["run", "--site", str(tmp_path / "site.json"), "--model", str(utm_small), "--quiet"]
     with SensorEmulator(UTM_30LX, part) as emu:
         code = main(
             [

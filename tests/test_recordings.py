@@ -144,7 +144,7 @@ def test_evaluate_says_when_headings_are_judged_modulo_a_half_turn(trained, tmp_
     log, site = check_scene(case["site"], "static", seed=case.get("seeds", (1, 2))[1], rate_hz=case["rate_hz"],
                             outline=case["outline"], clutter=case["clutter"])
     save_model(model, tmp_path / "m.npz")
-    save_log(log, tmp_path / "check.npz")
+    save_log(log.slice(0, 40), tmp_path / "check.npz")  # what is said is the model's: a few seconds of the scene
     save_site(site, tmp_path / "site.json")
     res = cli(capsys, "evaluate", "--model", tmp_path / "m.npz", tmp_path / "check.npz", "--site", tmp_path / "site.json",
               "--out-dir", tmp_path / "out")

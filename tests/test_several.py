@@ -5,6 +5,7 @@ unevenly are merged in time order; a laser's transform is its own."""
 
 import dataclasses
 import re
+import shutil
 import time
 
 import numpy as np
@@ -448,22 +449,14 @@ def test_live_calibration_watch_warns_once_per_spell_against_a_loop():
 
 
 @pytest.fixture(scope="module")
-def mixed(tmp_path_factory):
+def mixed(tmp_path_factory, utm_small):
     """A URG-04LX (north) and a UTM-30LX (south) on the full-size field, two robots, 6 s, the lasers
-    at their true poses: the shipped model for the URG-04LX, a small model trained here on simulated
-    UTM-30LX scans of the 6 × 4 m field for the other (the same classes)."""
+    at their true poses: the shipped model for the URG-04LX, a small model trained on simulated
+    UTM-30LX scans of the 6 × 4 m field for the other (the same classes: ``utm_small``)."""
     from gtsjax.io import save_site
-    from gtsjax.io.modelfile import save_model
-    from gtsjax.sim import simulate
-    from gtsjax.train import TrainConfig, train
 
     d = tmp_path_factory.mktemp("mixed")
-    config = dataclasses.replace(TrainConfig(), max_per_class=60, max_pose_examples=80, n_inducing=32, restarts=1,
-                                 check_pipeline=False)  # a model to run; training's tracking check is tested apart
-    train_log, train_site = simulate("spl-train", seed=11, n_scans=500, sensor="UTM-30LX")
-    legs, _ = simulate("spl-legs", seed=12, n_scans=150, sensor="UTM-30LX")
-    utm, report = train([train_log, legs], train_site, config)
-    save_model(utm, d / "utm.npz", summary=report)
+    shutil.copy(utm_small, d / "utm.npz")
     logs, site = simulate_match("spl-match-2-mixed", seed=11, n_robots=2, seconds=6.0, referee=False)
     truth = {n: tuple(map(float, log.extra["truth_sensor_pose"][0])) for n, log in logs.items()}
     site = dataclasses.replace(site, sensors=tuple(dataclasses.replace(s, pose=truth[s.name]) for s in site.sensors))

@@ -66,7 +66,9 @@ def evaluate_cmd(
     confirm_scans: int | None = typer.Option(None, "--confirm-scans", min=1, help=CONFIRM_HELP),
     max_tracks: int | None = typer.Option(None, "--max-tracks", min=1, max=MAX_TRACKS_LIMIT, help=MAX_TRACKS_HELP),
     robots: int = typer.Option(10, "--robots", min=1, max=14, help="spl-match-* scenarios: robots on the field."),
-    seconds: float = typer.Option(60.0, "--seconds", min=1.0, help="spl-match-* scenarios: how long."),
+    seconds: float | None = typer.Option(None, "--seconds", min=1.0,
+                                         help="How long: an spl-match-* scenario's length (default 60 s); any "
+                                              "other scenario cut to its first SECONDS (default: all of it)."),
     penalties: int = typer.Option(0, "--penalties", min=0, help="spl-match-* scenarios: robots picked up so many "
                                   "times in all and put down again (as gtsjax simulate --penalties)."),
     without_outline: bool = typer.Option(False, "--without-outline",
@@ -97,7 +99,7 @@ def evaluate_cmd(
         if is_match(name):
             matches.append((spec, name, seed))
             continue
-        jobs.append((spec, lambda name=name, seed=seed: (*simulate(name, seed=seed), False)))
+        jobs.append((spec, lambda name=name, seed=seed: (*simulate(name, seed=seed, seconds=seconds), False)))
     if logs:
         site_obj = one_sensor(load_site(site), sensor, site)
         for p in logs:  # every log is read and checked before the first is evaluated: a bad one fails fast
@@ -115,7 +117,8 @@ def evaluate_cmd(
     check_out_dir(out_dir)  # after the inputs are checked (a bad one leaves nothing behind), before any replay
     results = {}
     for spec, name, seed in matches:
-        results.update(_evaluate_match(bases, spec, name, seed, robots, seconds, smooth, penalties))
+        results.update(_evaluate_match(bases, spec, name, seed, robots, 60.0 if seconds is None else seconds, smooth,
+                                       penalties))
     for label, get in jobs:
         log, site_obj, fitted = get()
         if not log.labelled:

@@ -6,11 +6,50 @@ compiles once, but a typical scan fills few of them: one robot in eight pose slo
 candidates in 32. Each size is a branch of one ``lax.switch``, compiled once with the rest; at run
 time only the branch for the rows present runs. The rows must be packed first (the ones in use
 before the others); the result's rows past ``b`` are zeros.
+
+Each size is a copy of its stage's code in the compiled program: with the pose regression's four
+sizes and the classifier's six, the step's program is about twice the size it is without them, and
+takes twice as long to trace and compile (the demo model's batch chunk: 10 s against 5 on 2 cores),
+for a step about 1.5× faster where a scan holds few objects. ``GTSJAX_SIZE_BUCKETS=off`` trades
+back, for programs that run briefly (a short replay; the tests, ``tests/conftest.py``); ``on`` or
+``auto`` (the default: on a CPU only, :func:`enabled`).
 """
+
+import contextlib
+import os
 
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
+
+#: The environment variable that turns the size buckets on or off (:func:`enabled`).
+ENV = "GTSJAX_SIZE_BUCKETS"
+_forced: "list[bool]" = []
+
+
+def enabled() -> bool:
+    """Whether the stages bucket their rows by default (``perceive``'s ``bucket=None``), read when a
+    step is traced: :data:`ENV` ``on`` or ``off``; unset or ``auto``, on a CPU only (on a GPU each
+    branch choice waits for its index on the host). Inside :func:`forced`, what it says."""
+    if _forced:
+        return _forced[-1]
+    value = os.environ.get(ENV, "").strip().lower()
+    if value in ("", "auto"):
+        return jax.default_backend() == "cpu"
+    if value in ("on", "off"):
+        return value == "on"
+    raise ValueError(f"{ENV}={os.environ[ENV]!r}: say on, off or auto")
+
+
+@contextlib.contextmanager
+def forced(on: bool):
+    """Steps traced inside bucket (or not) whatever :data:`ENV` says: what a kernel count or a
+    comparison of the two forms needs. Programs already traced keep the form they were traced in."""
+    _forced.append(bool(on))
+    try:
+        yield
+    finally:
+        _forced.pop()
 
 
 def sizes(cap: int) -> tuple[int, ...]:

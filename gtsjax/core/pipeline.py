@@ -12,11 +12,11 @@ batch replay as a loop over chunks or as ``scan(update) ∘ vmap(perceive)``.
 """
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from ..precision import exact_products
+from . import buckets
 from .c_filters import envelope_pass, partial_view, shape_quantities
 from .d_classify import classify, gp_inputs
 from .e_pose import regress, to_sensor_frame, vague_headings
@@ -131,12 +131,13 @@ def landmark_cap(model: Model) -> int:
 @exact_products
 def perceive(model: Model, scan: Scan, *, bucket: bool | None = None, axis_name=None) -> Perception:
     """Stages a–e′ (segmentation … pose regression, outline refinement) of one scan; no state. ``bucket``: see
-    :func:`~gtsjax.core.e_pose.regress`; by default on a CPU only: on a GPU each branch choice waits
-    for its index on the host (an H100's step took 2.23 ms with it, 1.61 ms without). Where
+    :func:`~gtsjax.core.e_pose.regress`; by default :func:`~gtsjax.core.buckets.enabled` (on a CPU only:
+    on a GPU each branch choice waits for its index on the host, an H100's step took 2.23 ms with it,
+    1.61 ms without; ``GTSJAX_SIZE_BUCKETS`` says otherwise). Where
     ``perceive`` is ``vmap``ped, pass the mapped axis's ``axis_name`` with ``bucket`` (one bucket for
     the batch), or turn ``bucket`` off."""
     if bucket is None:
-        bucket = jax.default_backend() == "cpu"
+        bucket = buckets.enabled()
     fe = front_end(model.frontend, scan)
     f = fe.features
     x = gp_inputs(f.vector, f.origin, f.height, model.gp_columns)

@@ -759,14 +759,27 @@ def render_plan(plan: Plan, *, seed: int = 0, model: SensorModel | None = None, 
     return log, site
 
 
+def first_seconds(plan: Plan, seconds: float, model: SensorModel | None = None) -> Plan:
+    """The plan's scans up to ``seconds`` after its first (at least one), at the period of ``model`` (the
+    layout's scanner unless given): the start of the scenario as it would be rendered whole, where
+    ``n_scans`` spreads a static grid's scans over all its poses."""
+    period = (plan.layout.sensor if model is None else model).period
+    n = max(1, min(plan.sensor_poses.shape[0], int(math.floor(seconds / period + 1e-9)) + 1))
+    return Plan(plan.layout, plan.sensor_poses[:n], plan.robots[:n], [leg[:n] for leg in plan.legs],
+                None if plan.tilt is None else plan.tilt[:n], plan.outline)
+
+
 def simulate(name: str, *, seed: int = 0, n_scans: int | None = None, sensor: str | None = None,
              effects: Effects = Effects(), tilt_deg: tuple[float, float] = (0.0, 0.0),
-             tags: bool | None = None) -> tuple[ScanLog, Site]:
+             tags: bool | None = None, seconds: float | None = None) -> tuple[ScanLog, Site]:
     """Render scenario ``name`` into a labelled log and its site file (with a rough sensor-pose guess);
-    ``tags``: robots wearing reflective tags (``None``: where the scanner reports intensity)."""
+    ``tags``: robots wearing reflective tags (``None``: where the scanner reports intensity);
+    ``seconds``: only its first seconds (:func:`first_seconds`)."""
+    model = None if sensor is None else get_model(sensor)
     plan = plan_scenario(name, seed=seed, n_scans=n_scans)
-    return render_plan(plan, seed=seed, model=None if sensor is None else get_model(sensor), effects=effects,
-                       tilt_deg=tilt_deg, tags=tags)
+    if seconds is not None:
+        plan = first_seconds(plan, seconds, model)
+    return render_plan(plan, seed=seed, model=model, effects=effects, tilt_deg=tilt_deg, tags=tags)
 
 
 def recording(site: str, style: str, *, seed: int = 0, rate_hz: float | None = None, clutter: bool = False,
