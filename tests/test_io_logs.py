@@ -208,3 +208,24 @@ def test_to_scans_refuses_too_many_beams(tmp_path):
     log = load_log(write(tmp_path, good_log(n=700, labelled=False)))
     with pytest.raises(InputError, match="700 beams"):
         to_scans(log, n_beams=682)
+
+
+def test_a_slice_cuts_every_row_per_scan_and_keeps_the_rest(tmp_path):
+    """``ScanLog.slice`` keeps the scans asked for, and with them each per-scan key (the simulator's
+    sensor truth), row for row as indexing the saved file's arrays gives them; per-object and
+    per-log keys (which robot each object is, where the log came from) stay whole."""
+    from gtsjax.sim import simulate
+
+    log, _ = simulate("spl-eval", seed=3, n_scans=30)
+    log.extra["truth_names"] = np.asarray(["a"], np.str_)
+    log.extra["source"] = np.asarray("made here", np.str_)
+    save_log(log, tmp_path / "whole.npz")
+    part = log.slice(5, 17)
+    part.validate("part")  # raises on rows that do not match
+    with np.load(tmp_path / "whole.npz", allow_pickle=False) as whole:
+        for key in ("ranges", "stamps", "truth_poses", "truth_sensor_pose"):
+            got = part.extra[key] if key in part.extra else getattr(part, key)
+            np.testing.assert_array_equal(got, whole[key][5:17], err_msg=key)
+        assert str(part.extra["source"]) == str(whole["source"]) and list(part.extra["truth_names"]) == ["a"]
+    save_log(part, tmp_path / "part.npz")
+    assert load_log(tmp_path / "part.npz").n_scans == 12

@@ -29,6 +29,11 @@ DEFAULT_RANGE_MIN = 0.02
 DEFAULT_RANGE_MAX = 30.0
 
 
+#: Optional keys of a scan log (``ScanLog.extra``) that hold one row per scan: the simulator's truth of
+#: the sensor's pose. A slice of the log cuts them with the scans; other keys are kept whole.
+PER_SCAN_EXTRAS = ("truth_sensor_pose",)
+
+
 @dataclasses.dataclass
 class ScanLog:
     """A scan log in memory (NumPy arrays, host side). Shapes: ``T`` scans, ``N`` beams, ``M`` labelled objects."""
@@ -70,7 +75,8 @@ class ScanLog:
         return self.beams.valid(self.ranges)
 
     def slice(self, start: int, stop: int) -> "ScanLog":
-        """Scans ``start:stop`` as a log of their own."""
+        """Scans ``start:stop`` as a log of their own (with the optional keys that hold a row per scan,
+        :data:`PER_SCAN_EXTRAS`, cut alike)."""
         s = np.s_[start:stop]
         return dataclasses.replace(
             self,
@@ -78,6 +84,7 @@ class ScanLog:
             stamps=self.stamps[s],
             intensities=None if self.intensities is None else self.intensities[s],
             truth_poses=None if self.truth_poses is None else self.truth_poses[s],
+            extra={k: v[s] if k in PER_SCAN_EXTRAS else v for k, v in self.extra.items()},
         )
 
     def to_dict(self) -> dict[str, np.ndarray]:
