@@ -208,12 +208,26 @@ def chunk_for(n: int, chunk: int) -> int:
 
 def pad_chunk(tree, start: int, stop: int, size: int):
     """Rows ``start:stop`` of every leaf (scans, or any pytree stacked along its first axis; ``None``
-    leaves none) padded to ``size`` by repeating the last row (so shapes never change)."""
+    leaves none) padded to ``size`` by repeating the last row (so shapes never change). NumPy leaves
+    are cut on the host (:func:`on_host`), device arrays on the device."""
     part = jax.tree.map(lambda a: a[start:stop], tree)
     pad = size - (stop - start)
     if pad == 0:
         return part
-    return jax.tree.map(lambda a: jnp.concatenate([a, jnp.repeat(a[-1:], pad, axis=0)]), part)
+
+    def padded(a):
+        xp = np if isinstance(a, np.ndarray) else jnp
+        return xp.concatenate([a, xp.repeat(a[-1:], pad, axis=0)])
+
+    return jax.tree.map(padded, part)
+
+
+def on_host(tree):
+    """Every leaf of ``tree`` (scans read from a log: host data) as a NumPy array, for the chunk loop:
+    a device array's every slice and pad is a small program compiled for its shape and bounds (some
+    tens of them at each replay's start, each a few milliseconds), NumPy's none. The chunk goes to the
+    device as the compiled chunk's argument, as it would anyway."""
+    return jax.tree.map(np.asarray, tree)
 
 
 def host_rows(tree, n: int):
@@ -247,6 +261,7 @@ def run_chunks(models: "tuple[Model, ...]", state, scans: Scan, *, lanes: "Lanes
     state and the stacked outputs, NumPy on the host; ``callback(n_done)`` after each chunk."""
     n = scans.dt.shape[0]
     chunk = chunk_for(n, chunk)
+    scans, lanes = on_host((scans, lanes))
 
     def run(state, start, stop):
         sc, ln, pc = pad_chunk((scans, lanes, percepts), start, stop, chunk)
@@ -288,14 +303,14 @@ def process_logs(model: Model, scans: "list[Scan | None]", *, chunk: int = 256,
     if not present:
         return states, [None] * n_logs
     filler = jax.tree.map(lambda a: a[:1], present[0])  # any scan: shapes only, n_real 0
-    stacks = [filler if sc is None else sc for sc in scans]
+    stacks = on_host([filler if sc is None else sc for sc in scans])
     lengths = [0 if sc is None else int(sc.ranges.shape[0]) for sc in scans]
 
     def run(state, start, stop):
         real = [max(0, min(chunk, n - start)) for n in lengths]
         firsts = [min(start, int(sc.ranges.shape[0]) - 1) for sc in stacks]  # an ended log: its last scan
         parts = [pad_chunk(sc, a, a + max(r, 1), chunk) for sc, a, r in zip(stacks, firsts, real, strict=True)]
-        stacked = jax.tree.map(lambda *a: jnp.stack(a), *parts)
+        stacked = jax.tree.map(lambda *a: np.stack(a), *parts)
         state, out = run_chunk((model,), state, stacked, None, jnp.asarray(real, jnp.int32), vectorise=vectorise,
                                sub=sub)
         host = jax.tree.map(np.asarray, out)

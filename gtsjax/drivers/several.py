@@ -27,7 +27,7 @@ from ..core.scan import Scan
 from ..errors import InputError
 from ..io.logs import ScanLog, scan_dt, to_scans
 from ..io.site import Site
-from .batch import Lanes, chunk_for, concat, for_chunks, host_rows, pad_chunk, perceive_chunk, run_chunks
+from .batch import Lanes, chunk_for, concat, for_chunks, host_rows, on_host, pad_chunk, perceive_chunk, run_chunks
 from .setup import check_models
 from .sink import Sink
 
@@ -127,7 +127,7 @@ def perceive_lasers(models: "tuple[Model, ...]", kinds, merged: Merged, chunk: i
     percepts, scans = [], []
     for k, name in enumerate(merged.names):
         m, log = models[kinds[k]], merged.sources[name]
-        own = to_scans(log, m.n_beams)
+        own = on_host(to_scans(log, m.n_beams))
         _, parts = for_chunks(lambda _, a, b, m=m, own=own: (None, host_rows(
             pad_perception(perceive_chunk(m, pad_chunk(own, a, b, chunk)), n_cands, n_ids), b - a)), None, log.n_scans,
                                    chunk)
