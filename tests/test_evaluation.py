@@ -90,3 +90,50 @@ def test_evaluate_command_writes_both_tables(tmp_path):
     assert res["false_tracks_per_scan"] <= 0.005 and res["id_switches"] == 0, res
     assert res["bump_recovered_after_s"] is not None and res["bump_recovered_after_s"] <= 0.2, res  # two scans
     assert res["det_recall"] >= 0.97 and res["det_position_rmse_m"] <= 0.02, res
+
+
+def test_error_bars_and_bias_against_a_row_by_row_count():
+    """``error_bar_figures`` against the obvious computation, row by row (each row's covariance inverted
+    by NumPy, χ² quantiles from SciPy, the error turned into the robot's frame by its rotation matrix),
+    on errors drawn from each row's own Gaussian around a known bias: about 95 % inside, NEES about 2
+    and 1, and the bias recovered."""
+    from scipy.stats import chi2
+
+    from gtsjax.drivers.evaluation import error_bar_figures
+
+    rng = np.random.default_rng(5)
+    n = 4000
+    th = rng.uniform(-np.pi, np.pi, n)
+    sx, sy = rng.uniform(0.005, 0.03, n), rng.uniform(0.005, 0.03, n)
+    rho = rng.uniform(-0.8, 0.8, n)
+    vth = rng.uniform(0.01, 0.05, n) ** 2
+    bias_robot = np.array([-0.008, 0.0012])  # behind and to the left, as issue 55 measured
+    rows = []
+    for k in range(n):
+        cov = np.array([[sx[k] ** 2, rho[k] * sx[k] * sy[k]], [rho[k] * sx[k] * sy[k], sy[k] ** 2]])
+        c, s = np.cos(th[k]), np.sin(th[k])
+        d = np.array([[c, -s], [s, c]]) @ bias_robot + rng.multivariate_normal(np.zeros(2), cov)
+        e_th = 0.002 + rng.normal(0, np.sqrt(vth[k]))
+        rows.append((d[0], d[1], e_th, cov[0, 0], cov[1, 1], cov[0, 1], vth[k], th[k]))
+    e = np.array(rows)
+    got = error_bar_figures(e)
+    nees_p, nees_t, ahead, left = [], [], [], []
+    for dx, dy, eth, vx, vy, cxy, vt, t in e:
+        d = np.array([dx, dy])
+        nees_p.append(d @ np.linalg.solve(np.array([[vx, cxy], [cxy, vy]]), d))
+        nees_t.append(eth**2 / vt)
+        c, s = np.cos(t), np.sin(t)
+        a, b = np.array([[c, s], [-s, c]]) @ d
+        ahead.append(a)
+        left.append(b)
+    np.testing.assert_allclose(got["position_within_95"], np.mean(np.array(nees_p) <= chi2.ppf(0.95, 2)))
+    np.testing.assert_allclose(got["heading_within_95"], np.mean(np.array(nees_t) <= chi2.ppf(0.95, 1)))
+    np.testing.assert_allclose(got["position_nees"], np.mean(nees_p), rtol=1e-9)
+    np.testing.assert_allclose(got["heading_nees"], np.mean(nees_t), rtol=1e-9)
+    np.testing.assert_allclose([got["bias_ahead_m"], got["bias_left_m"]], [np.mean(ahead), np.mean(left)], atol=1e-12)
+    np.testing.assert_allclose(got["heading_bias_deg"], np.degrees(np.mean(e[:, 2])))
+    # and the figures mean what they say: the bias put in is found, the ellipses hold their share
+    np.testing.assert_allclose([got["bias_ahead_m"], got["bias_left_m"]], bias_robot, atol=8e-4)
+    assert abs(got["heading_within_95"] - 0.95) < 0.015
+    assert 0.80 < got["position_within_95"] < 0.95  # the bias, outside the ellipses' model, pushes errors out
+    assert all(np.isnan(v) for v in error_bar_figures(np.zeros((0, 8))).values())  # no rows: NaN, not a share

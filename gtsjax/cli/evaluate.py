@@ -27,12 +27,19 @@ DET_COLUMNS = [("det_recall", "detected", "{:.1%}"), ("det_position_rmse_m", "po
                ("det_heading_median_deg", "heading median [°]", "{:.1f}"),
                ("det_misread_fraction", "heading off > 30°", "{:.1%}"),
                ("occluded_share", "views hidden by robots", "{:.1%}")]
+# How well the rows' own variances hold their errors, and the errors' mean in the robot's frame (issue 55).
+BAR_COLUMNS = [("position_within_95", "pos in its 95 % ellipse", "{:.1%}"),
+               ("heading_within_95", "heading in its 95 % interval", "{:.1%}"),
+               ("position_nees", "pos NEES (2 if calibrated)", "{:.2f}"),
+               ("heading_nees", "heading NEES (1 if calibrated)", "{:.2f}"),
+               ("bias_ahead_m", "bias ahead [mm]", "{:+.1f}"), ("bias_left_m", "bias left [mm]", "{:+.1f}"),
+               ("heading_bias_deg", "heading bias [°]", "{:+.2f}")]
 
 
 def _fmt(key, fmt, v):
     if v is None or (isinstance(v, float) and not np.isfinite(v)):
         return "–"
-    return fmt.format(100 * v if key.endswith("position_rmse_m") else v)
+    return fmt.format(100 * v if key.endswith("position_rmse_m") else 1000 * v if key.startswith("bias_") else v)
 
 
 def _table(title, columns, results):
@@ -142,6 +149,7 @@ def evaluate_cmd(
     what = " and ".join(map(str, models)) + (" without its outlines" if without_outline else "")
     console.print(_table(f"ground truth (confirmed tracks) of {what}", COLUMNS, results))
     console.print(_table("per scan, before tracking (the paper's per-sample errors)", DET_COLUMNS, results))
+    console.print(_table("error bars and bias of the confirmed tracks' rows", BAR_COLUMNS, results))
     from ..drivers.evaluation import heading_turns
 
     half = [c for c, n in zip(base.classes, heading_turns(base), strict=True) if n == 2]
@@ -152,6 +160,7 @@ def evaluate_cmd(
     (out_dir / "results.json").write_text(json.dumps(results, indent=1) + "\n")
     md = (["Ground truth (confirmed tracks):", ""] + _markdown(COLUMNS, results)
           + ["", "Per scan, before tracking (the paper's per-sample errors):", ""] + _markdown(DET_COLUMNS, results)
+          + ["", "Error bars and bias of the confirmed tracks' rows:", ""] + _markdown(BAR_COLUMNS, results)
           + (["", note[0].upper() + note[1:] + "."] if note else []))
     (out_dir / "results.md").write_text("\n".join(md) + "\n")
     Console(stderr=True).print(f"wrote {out_dir / 'results.md'} and {out_dir / 'results.json'}")

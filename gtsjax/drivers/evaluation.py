@@ -90,6 +90,8 @@ def evaluate_outputs(model: Model, log: ScanLog, out, *, match_radius: float = 0
         "det_misread_fraction": float(np.mean(np.abs(d_th) > np.radians(30))) if d_th.size else float("nan"),
     }
     res.update(_appearance_figures(np.asarray(tally.e_appear, float)))
+    if hasattr(out, "track_var") and hasattr(out, "track_cov_xy"):
+        res.update(error_bar_figures(np.asarray(tally.e_full, np.float64).reshape(-1, 8)))
     names = log.extra.get("truth_names")
     if getattr(out, "track_robot", None) is not None and names is not None and getattr(model, "tag_names", ()):
         res.update(identity_figures(log, out, model.tag_names, names, classes, present, match_radius))
@@ -102,6 +104,36 @@ def evaluate_outputs(model: Model, log: ScanLog, out, *, match_radius: float = 0
         res["diagnosis"] = tally_outputs(model, out)
     res["_errors"] = (np.asarray(tally.scan_of_err), np.asarray(tally.obj_of_err), e_pos, e_th)
     return res
+
+
+#: The 0.95 quantiles of χ² with 2 and 1 degrees of freedom: a calibrated row's position error lies
+#: inside its 95 % ellipse, and its heading error inside its ±1.96 σ, 95 % of the time.
+CHI2_95 = {2: 5.991464547107979, 1: 3.841458820694124}
+
+
+def error_bar_figures(e: np.ndarray) -> dict:
+    """How well the rows' own variances describe their errors, and the errors' mean in the robot's own
+    frame (issue 55), from the settled errors ``e`` [n, 8] (``_TrackTally.e_full``): the share of
+    position errors inside the row's 95 % ellipse (from var_x, var_y, cov_xy) and of heading errors
+    inside its 95 % interval (from var_theta), 0.95 for a calibrated ground truth; the mean normalised
+    squared errors (NEES: 2 and 1 for a calibrated one); and the bias, the mean error ahead of and to
+    the left of the robot (in its true heading's frame) and of the heading, which no filter removes."""
+    keys = ("position_within_95", "heading_within_95", "position_nees", "heading_nees", "bias_ahead_m",
+            "bias_left_m", "heading_bias_deg")
+    if e.shape[0] == 0:
+        return {k: float("nan") for k in keys}
+    dx, dy, eth, vx, vy, cxy, vth, th = e.T
+    det = vx * vy - cxy**2
+    with np.errstate(divide="ignore", invalid="ignore"):  # a row without a variance is outside any ellipse
+        nees_pos = np.where(det > 0, (vy * dx**2 - 2 * cxy * dx * dy + vx * dy**2) / det, np.nan)
+        nees_th = np.where(vth > 0, eth**2 / vth, np.nan)
+    ahead, left = np.cos(th) * dx + np.sin(th) * dy, -np.sin(th) * dx + np.cos(th) * dy
+    mean = lambda a: float(np.nanmean(a)) if np.isfinite(a).any() else float("nan")  # noqa: E731
+    return {"position_within_95": float(np.mean(nees_pos <= CHI2_95[2])),
+            "heading_within_95": float(np.mean(nees_th <= CHI2_95[1])),
+            "position_nees": mean(nees_pos), "heading_nees": mean(nees_th),
+            "bias_ahead_m": float(np.mean(ahead)), "bias_left_m": float(np.mean(left)),
+            "heading_bias_deg": float(np.degrees(np.mean(eth)))}
 
 
 def _presence(model: Model, log: ScanLog) -> tuple[np.ndarray, np.ndarray]:
@@ -134,6 +166,9 @@ class _TrackTally:
     e_th: list = dataclasses.field(default_factory=list)
     obj_of_err: list = dataclasses.field(default_factory=list)
     scan_of_err: list = dataclasses.field(default_factory=list)
+    # per settled error: dx, dy (row − truth, field frame), the heading error, the row's var_x, var_y,
+    # cov_xy and var_theta, and the true heading (for the robot's own frame)
+    e_full: list = dataclasses.field(default_factory=list)
 
 
 def _match_classes(out, t: int, truth_t: np.ndarray, present_t: np.ndarray, classes, radius) -> np.ndarray:
@@ -159,6 +194,7 @@ def _score_tracks(log: ScanLog, out, classes, present, since, radius, settle_s, 
     crossed = (since >= appear_s) & np.vstack([np.zeros((1, present.shape[1]), bool), since[:-1] < appear_s])
     tally = _TrackTally(matched=np.zeros_like(present))
     ids = {}
+    bars = hasattr(out, "track_var") and hasattr(out, "track_cov_xy")  # the rows' variances (not a test's stand-in)
     for t in range(log.n_scans):
         tr_ok = np.asarray(out.track_mask[t])
         m = _match_classes(out, t, truth[t], present[t], classes, radius)
@@ -178,6 +214,10 @@ def _score_tracks(log: ScanLog, out, classes, present, since, radius, settle_s, 
                 p = np.asarray(out.track_pose[t, m[i]], np.float64)
                 tally.e_pos.append(np.linalg.norm(p[:2] - truth[t, i, :2]))
                 tally.e_th.append(heading_error(p[2] - truth[t, i, 2], turns[classes[i]]))
+                if bars:
+                    var = np.asarray(out.track_var[t, m[i]], np.float64)
+                    tally.e_full.append((*(p[:2] - truth[t, i, :2]), tally.e_th[-1], var[0], var[1],
+                                         float(out.track_cov_xy[t, m[i]]), var[2], truth[t, i, 2]))
                 tally.obj_of_err.append(i)
                 tally.scan_of_err.append(t)
     return tally
