@@ -458,5 +458,6 @@ def test_evaluate_a_match_scenario_scores_each_laser_and_both(match_model, tmp_p
         assert res["position_rmse_m"] < 0.06 and res["false_tracks_per_scan"] <= 0.02, (combo, res)
         assert res["recall"] >= (0.9 if lasers == 2 else 0.3), (combo, res)
         assert 0.0 <= res["occluded_share"] <= 1.0
-        assert md.count(f"| spl-match-2:2000 {combo} |") == 2, md  # a row in each of the two tables
+        assert md.count(f"| spl-match-2:2000 {combo} |") == 3, md  # a row in each of the three tables
+        assert 0.0 <= res["position_within_95"] <= 1.0 and 0.0 <= res["heading_within_95"] <= 1.0, res
     assert results["spl-match-2:2000 north+south"]["heading_median_deg"] < 5.0
