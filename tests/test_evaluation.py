@@ -137,3 +137,39 @@ def test_error_bars_and_bias_against_a_row_by_row_count():
     assert abs(got["heading_within_95"] - 0.95) < 0.015
     assert 0.80 < got["position_within_95"] < 0.95  # the bias, outside the ellipses' model, pushes errors out
     assert all(np.isnan(v) for v in error_bar_figures(np.zeros((0, 8))).values())  # no rows: NaN, not a share
+
+
+def test_view_figures_split_each_views_bias_from_its_noise():
+    """``view_figures`` against a count by hand: rows drawn at six still views (poses), each view with a
+    heading bias and a position bias of its own (in the robot's frame) plus noise of known size, and
+    rows of a moving robot (one row per pose) that make no view: the six views found, and each
+    figure equal to the mean over views of the per-view means and spreads computed directly."""
+    from gtsjax.drivers.evaluation import view_figures
+
+    rng = np.random.default_rng(8)
+    rows, want_hb, want_hn, want_pb, want_pn = [], [], [], [], []
+    for v in range(6):
+        x, y, th = rng.uniform(0, 6), rng.uniform(0, 4), rng.uniform(-3, 3)
+        hb, pb = np.radians(rng.uniform(-4, 4)), rng.uniform(-0.01, 0.01, 2)
+        n = 20 + 5 * v
+        eth = hb + rng.normal(0, np.radians(0.8), n)
+        robot = pb + rng.normal(0, 0.004, (n, 2))  # ahead, left
+        c, s = np.cos(th), np.sin(th)
+        field = robot @ np.array([[c, s], [-s, c]])  # back to the field frame: R(θ) applied to each row
+        for k in range(n):
+            rows.append((field[k, 0], field[k, 1], eth[k], 1e-4, 1e-4, 0.0, 1e-3, th, x, y))
+        want_hb.append(np.mean(eth))
+        want_hn.append(np.mean((eth - np.mean(eth)) ** 2))
+        mean = robot.mean(axis=0)
+        want_pb.append(np.hypot(*mean))
+        want_pn.append(np.mean(np.sum((robot - mean) ** 2, axis=1)))
+    for _ in range(50):  # a robot on the move: every pose once
+        rows.append((0.01, 0.0, 0.02, 1e-4, 1e-4, 0.0, 1e-3, rng.uniform(-3, 3), rng.uniform(0, 6), rng.uniform(0, 4)))
+    got = view_figures(np.asarray(rows)[rng.permutation(len(rows))])
+    assert got["views"] == 6
+    np.testing.assert_allclose(got["view_heading_bias_rms_deg"], np.degrees(np.sqrt(np.mean(np.square(want_hb)))))
+    np.testing.assert_allclose(got["view_heading_bias_max_deg"], np.degrees(np.max(np.abs(want_hb))))
+    np.testing.assert_allclose(got["view_heading_noise_rms_deg"], np.degrees(np.sqrt(np.mean(want_hn))))
+    np.testing.assert_allclose(got["view_position_bias_rms_m"], np.sqrt(np.mean(np.square(want_pb))))
+    np.testing.assert_allclose(got["view_position_noise_rms_m"], np.sqrt(np.mean(want_pn)))
+    assert view_figures(np.asarray(rows[-50:]))["views"] == 0  # moving all the time: no view

@@ -33,7 +33,9 @@ BAR_COLUMNS = [("position_within_95", "pos in its 95 % ellipse", "{:.1%}"),
                ("position_nees", "pos NEES (2 if calibrated)", "{:.2f}"),
                ("heading_nees", "heading NEES (1 if calibrated)", "{:.2f}"),
                ("bias_ahead_m", "bias ahead [mm]", "{:+.1f}"), ("bias_left_m", "bias left [mm]", "{:+.1f}"),
-               ("heading_bias_deg", "heading bias [°]", "{:+.2f}")]
+               ("heading_bias_deg", "heading bias [°]", "{:+.2f}"),
+               ("view_heading_bias_rms_deg", "still: heading bias of a view, RMS [°]", "{:.1f}"),
+               ("view_heading_noise_rms_deg", "still: heading noise in a view, RMS [°]", "{:.1f}")]
 
 
 def _fmt(key, fmt, v):

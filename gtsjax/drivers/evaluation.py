@@ -91,7 +91,9 @@ def evaluate_outputs(model: Model, log: ScanLog, out, *, match_radius: float = 0
     }
     res.update(_appearance_figures(np.asarray(tally.e_appear, float)))
     if hasattr(out, "track_var") and hasattr(out, "track_cov_xy"):
-        res.update(error_bar_figures(np.asarray(tally.e_full, np.float64).reshape(-1, 8)))
+        e_full = np.asarray(tally.e_full, np.float64).reshape(-1, 10)
+        res.update(error_bar_figures(e_full[:, :8]))
+        res.update(view_figures(e_full))
     names = log.extra.get("truth_names")
     if getattr(out, "track_robot", None) is not None and names is not None and getattr(model, "tag_names", ()):
         res.update(identity_figures(log, out, model.tag_names, names, classes, present, match_radius))
@@ -136,6 +138,43 @@ def error_bar_figures(e: np.ndarray) -> dict:
             "heading_bias_deg": float(np.degrees(np.mean(eth)))}
 
 
+def view_figures(e: np.ndarray, min_rows: int = 5) -> dict:
+    """Each error split into the bias of its view and noise (issue 55), where the robot stood still: the
+    settled errors ``e`` [n, 10] (``_TrackTally.e_full``) grouped by the true pose (to the millimetre
+    and the hundredth of a radian), groups of at least ``min_rows`` rows, each a view of the robot
+    from one place. Per view, the bias is the mean error (the heading's; the position's in the robot's
+    frame) and the noise the rows' spread about it; over views, the RMS of each, and the largest
+    heading bias. A bias no more scans of the same view remove; noise they average. NaN without two
+    such views (a robot that moves all the time)."""
+    keys = ("views", "view_heading_bias_rms_deg", "view_heading_bias_max_deg", "view_heading_noise_rms_deg",
+            "view_position_bias_rms_m", "view_position_noise_rms_m")
+    nan = {k: float("nan") for k in keys} | {"views": 0}
+    if e.shape[0] == 0:
+        return nan
+    dx, dy, eth, th = e[:, 0], e[:, 1], e[:, 2], e[:, 7]
+    ahead, left = np.cos(th) * dx + np.sin(th) * dy, -np.sin(th) * dx + np.cos(th) * dy
+    place = np.column_stack([np.round(e[:, 8], 3), np.round(e[:, 9], 3), np.round(th, 2)])
+    _, group, count = np.unique(place, axis=0, return_inverse=True, return_counts=True)
+    group = group.ravel()
+    big = np.flatnonzero(count >= min_rows)
+    if big.size < 2:
+        return nan
+    hb, hn, pb, pn = [], [], [], []
+    for g in big:
+        sel = group == g
+        hb.append(np.mean(eth[sel]))
+        hn.append(np.mean((eth[sel] - hb[-1]) ** 2))
+        mean = np.array([np.mean(ahead[sel]), np.mean(left[sel])])
+        pb.append(np.linalg.norm(mean))
+        pn.append(np.mean((ahead[sel] - mean[0]) ** 2 + (left[sel] - mean[1]) ** 2))
+    hb, hn, pb, pn = map(np.asarray, (hb, hn, pb, pn))
+    return {"views": int(big.size), "view_heading_bias_rms_deg": float(np.degrees(np.sqrt(np.mean(hb**2)))),
+            "view_heading_bias_max_deg": float(np.degrees(np.max(np.abs(hb)))),
+            "view_heading_noise_rms_deg": float(np.degrees(np.sqrt(np.mean(hn)))),
+            "view_position_bias_rms_m": float(np.sqrt(np.mean(pb**2))),
+            "view_position_noise_rms_m": float(np.sqrt(np.mean(pn)))}
+
+
 def _presence(model: Model, log: ScanLog) -> tuple[np.ndarray, np.ndarray]:
     """Per scan and object: present (labelled, inside the site's bounds) and the seconds since it
     appeared; a step of its own since both matching and the settled statistics are counted on them."""
@@ -167,7 +206,7 @@ class _TrackTally:
     obj_of_err: list = dataclasses.field(default_factory=list)
     scan_of_err: list = dataclasses.field(default_factory=list)
     # per settled error: dx, dy (row − truth, field frame), the heading error, the row's var_x, var_y,
-    # cov_xy and var_theta, and the true heading (for the robot's own frame)
+    # cov_xy and var_theta, and the true pose's heading, x and y (the robot's own frame, the view)
     e_full: list = dataclasses.field(default_factory=list)
 
 
@@ -217,7 +256,8 @@ def _score_tracks(log: ScanLog, out, classes, present, since, radius, settle_s, 
                 if bars:
                     var = np.asarray(out.track_var[t, m[i]], np.float64)
                     tally.e_full.append((*(p[:2] - truth[t, i, :2]), tally.e_th[-1], var[0], var[1],
-                                         float(out.track_cov_xy[t, m[i]]), var[2], truth[t, i, 2]))
+                                         float(out.track_cov_xy[t, m[i]]), var[2], truth[t, i, 2],
+                                         truth[t, i, 0], truth[t, i, 1]))
                 tally.obj_of_err.append(i)
                 tally.scan_of_err.append(t)
     return tally
