@@ -31,11 +31,12 @@ UTM_TRAIN_SCANS_QUICK = 200
 
 
 @functools.cache
-def scenario(name: str, seed: int, n_scans: int | None = None):
-    """``(log, site)`` of a simulated scenario (memoised: rendering takes seconds)."""
+def scenario(name: str, seed: int, n_scans: int | None = None, seconds: float | None = None):
+    """``(log, site)`` of a simulated scenario (memoised: rendering takes seconds): ``n_scans`` spread
+    over the whole of it (a static grid's poses all kept, each seen briefly), or its first ``seconds``."""
     from gtsjax.sim import simulate
 
-    return simulate(name, seed=seed, n_scans=n_scans)
+    return simulate(name, seed=seed, n_scans=n_scans, seconds=seconds)
 
 
 def demo_model(site):
