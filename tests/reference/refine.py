@@ -76,15 +76,15 @@ def lookup(ol: Outline, k: int, m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     g = ol.field.shape[1]
     u = (m - ol.lo[k]) / ol.cell[k]  # grid coordinates
     uc = np.clip(u, 0.0, g - 1.0)
-    v = np.stack([map_coordinates(ol.field[k, :, :, ch], uc.T, order=1, mode="nearest") for ch in range(3)], -1)
-    d = v[:, 0].copy()
-    grad = v[:, 1:].copy()
-    for i in range(len(m)):
-        out = (u[i] - uc[i]) * ol.cell[k]
-        beyond = math.hypot(out[0], out[1])
-        if beyond > 0:
-            d[i] += beyond
-            grad[i] = out / beyond
+    # the three channels at once: the grid's (row, column, channel) at each point and whole channel
+    # indices, where bilinear in the first two and exact in the third
+    at = np.concatenate([np.repeat(uc.T, 3, axis=1), np.tile(np.arange(3.0), len(m))[None]])
+    v = map_coordinates(ol.field[k], at, order=1, mode="nearest").reshape(-1, 3)
+    out = (u - uc) * ol.cell[k]  # from the grid's edge out to the point (zero on the grid)
+    beyond = np.hypot(out[:, 0], out[:, 1])
+    off = beyond > 0
+    d = v[:, 0] + beyond
+    grad = np.where(off[:, None], out / np.where(off, beyond, 1.0)[:, None], v[:, 1:])
     return d, grad
 
 
@@ -119,17 +119,13 @@ def normal_equations(ol: Outline, k: int, pose, pts: np.ndarray, free: np.ndarra
     H, b, cost = np.zeros((3, 3)), np.zeros(3), 0.0
     c = ol.robust
     if len(pts):
-        r, J = residuals(ol, k, pose, pts)
-        rf, Jf = residuals(ol, k, pose, free)
-        for i in range(len(pts)):
-            w = 1.0 / (1.0 + (r[i] / c) ** 2)
-            H += w * np.outer(J[i], J[i])
-            b += w * J[i] * r[i]
-            cost += c * c * math.log1p((r[i] / c) ** 2)
-            if rf[i] < 0:
-                H += np.outer(Jf[i], Jf[i])
-                b += Jf[i] * rf[i]
-                cost += rf[i] ** 2
+        r, J = residuals(ol, k, pose, np.concatenate([pts, free]))  # the points, then their free-space points
+        r, rf, J, Jf = r[: len(pts)], r[len(pts):], J[: len(pts)], J[len(pts):]
+        w = 1.0 / (1.0 + (r / c) ** 2)
+        inside = (rf < 0).astype(np.float64)  # free-space points inside the outline count, weight 1
+        H = (J * w[:, None]).T @ J + (Jf * inside[:, None]).T @ Jf
+        b = J.T @ (w * r) + Jf.T @ (inside * rf)
+        cost = float(np.sum(c * c * np.log1p((r / c) ** 2)) + np.sum(inside * rf**2))
     return H, b, cost
 
 
