@@ -23,7 +23,7 @@ import dataclasses
 
 import numpy as np
 
-from ..core.geometry import wrap
+from ..core.geometry import relative, wrap
 from ..core.model import Model
 from ..io.logs import ScanLog, fit_to_model, to_scans
 from .batch import process_log
@@ -66,7 +66,9 @@ def evaluate_outputs(model: Model, log: ScanLog, out, *, match_radius: float = 0
     T = log.n_scans
     classes = [model.classes.index(str(c)) for c in log.truth_classes]
     present, since = _presence(model, log)
-    tally = _score_tracks(log, out, classes, present, since, match_radius, settle_s, appear_s, heading_turns(model))
+    bars = hasattr(out, "track_var") and hasattr(out, "track_cov_xy")  # the rows' variances (not a test's stand-in)
+    tally = _score_tracks(log, out, classes, present, since, match_radius, settle_s, appear_s, heading_turns(model),
+                          bars)
     e_pos, e_th = np.asarray(tally.e_pos), np.asarray(tally.e_th)
     settled = present & (since >= settle_s)
     d_pos, d_th, d_found = _detection_errors(log, out, classes, present, match_radius, heading_turns(model))
@@ -90,7 +92,7 @@ def evaluate_outputs(model: Model, log: ScanLog, out, *, match_radius: float = 0
         "det_misread_fraction": float(np.mean(np.abs(d_th) > np.radians(30))) if d_th.size else float("nan"),
     }
     res.update(_appearance_figures(np.asarray(tally.e_appear, float)))
-    if hasattr(out, "track_var") and hasattr(out, "track_cov_xy"):
+    if bars:
         e_full = np.asarray(tally.e_full, np.float64).reshape(-1, 10)
         res.update(error_bar_figures(e_full[:, :8]))
         res.update(view_figures(e_full))
@@ -124,18 +126,25 @@ def error_bar_figures(e: np.ndarray) -> dict:
             "bias_left_m", "heading_bias_deg")
     if e.shape[0] == 0:
         return {k: float("nan") for k in keys}
-    dx, dy, eth, vx, vy, cxy, vth, th = e.T
+    dx, dy, eth, vx, vy, cxy, vth, _ = e.T
     det = vx * vy - cxy**2
     with np.errstate(divide="ignore", invalid="ignore"):  # a row without a variance is outside any ellipse
         nees_pos = np.where(det > 0, (vy * dx**2 - 2 * cxy * dx * dy + vx * dy**2) / det, np.nan)
         nees_th = np.where(vth > 0, eth**2 / vth, np.nan)
-    ahead, left = np.cos(th) * dx + np.sin(th) * dy, -np.sin(th) * dx + np.cos(th) * dy
+    ahead, left = _ahead_left(e)
     mean = lambda a: float(np.nanmean(a)) if np.isfinite(a).any() else float("nan")  # noqa: E731
     return {"position_within_95": float(np.mean(nees_pos <= CHI2_95[2])),
             "heading_within_95": float(np.mean(nees_th <= CHI2_95[1])),
             "position_nees": mean(nees_pos), "heading_nees": mean(nees_th),
             "bias_ahead_m": float(np.mean(ahead)), "bias_left_m": float(np.mean(left)),
             "heading_bias_deg": float(np.degrees(np.mean(eth)))}
+
+
+def _ahead_left(e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each error's position part (``e[:, :2]``, field frame) seen from the robot's true heading
+    (``e[:, 7]``): how far ahead of it and to its left the row put it."""
+    heading = np.column_stack([np.zeros((e.shape[0], 2)), e[:, 7]])
+    return tuple(relative(heading, e[:, :2]).T)
 
 
 def view_figures(e: np.ndarray, min_rows: int = 5) -> dict:
@@ -151,9 +160,9 @@ def view_figures(e: np.ndarray, min_rows: int = 5) -> dict:
     nan = {k: float("nan") for k in keys} | {"views": 0}
     if e.shape[0] == 0:
         return nan
-    dx, dy, eth, th = e[:, 0], e[:, 1], e[:, 2], e[:, 7]
-    ahead, left = np.cos(th) * dx + np.sin(th) * dy, -np.sin(th) * dx + np.cos(th) * dy
-    place = np.column_stack([np.round(e[:, 8], 3), np.round(e[:, 9], 3), np.round(th, 2)])
+    eth = e[:, 2]
+    ahead, left = _ahead_left(e)
+    place = np.column_stack([np.round(e[:, 8], 3), np.round(e[:, 9], 3), np.round(e[:, 7], 2)])
     _, group, count = np.unique(place, axis=0, return_inverse=True, return_counts=True)
     group = group.ravel()
     big = np.flatnonzero(count >= min_rows)
@@ -224,7 +233,8 @@ def _match_classes(out, t: int, truth_t: np.ndarray, present_t: np.ndarray, clas
     return m
 
 
-def _score_tracks(log: ScanLog, out, classes, present, since, radius, settle_s, appear_s, turns) -> _TrackTally:
+def _score_tracks(log: ScanLog, out, classes, present, since, radius, settle_s, appear_s, turns,
+                  bars: bool = False) -> _TrackTally:
     """Scan by scan, the confirmed tracks against the labelled objects: a pass of its own since the
     id switches and the appearances' headings depend on the scans before. Headings modulo
     ``2π/turns[class]`` (:func:`heading_error`)."""
@@ -233,7 +243,6 @@ def _score_tracks(log: ScanLog, out, classes, present, since, radius, settle_s, 
     crossed = (since >= appear_s) & np.vstack([np.zeros((1, present.shape[1]), bool), since[:-1] < appear_s])
     tally = _TrackTally(matched=np.zeros_like(present))
     ids = {}
-    bars = hasattr(out, "track_var") and hasattr(out, "track_cov_xy")  # the rows' variances (not a test's stand-in)
     for t in range(log.n_scans):
         tr_ok = np.asarray(out.track_mask[t])
         m = _match_classes(out, t, truth[t], present[t], classes, radius)

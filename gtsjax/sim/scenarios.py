@@ -701,10 +701,14 @@ def plan_scenario(name: str, *, seed: int = 0, n_scans: int | None = None) -> Pl
         if n_scans < 1:
             raise InputError(name, f"scan count must be >= 1, got {n_scans}")
         # Static grids: keep every pose represented; motions were generated at the right length.
-        idx = np.linspace(0, t - 1, n_scans).round().astype(int)
-        plan = Plan(plan.layout, plan.sensor_poses[idx], plan.robots[idx], [leg[idx] for leg in plan.legs],
-                    None if plan.tilt is None else plan.tilt[idx], plan.outline)
+        plan = _take(plan, np.linspace(0, t - 1, n_scans).round().astype(int))
     return plan
+
+
+def _take(plan: Plan, idx) -> Plan:
+    """The plan's scans ``idx`` (an index array or a slice), all else kept."""
+    return dataclasses.replace(plan, sensor_poses=plan.sensor_poses[idx], robots=plan.robots[idx],
+                               legs=[leg[idx] for leg in plan.legs], tilt=None if plan.tilt is None else plan.tilt[idx])
 
 
 def plan_tags(plan: Plan, model: SensorModel) -> RobotTags:
@@ -765,8 +769,7 @@ def first_seconds(plan: Plan, seconds: float, model: SensorModel | None = None) 
     ``n_scans`` spreads a static grid's scans over all its poses."""
     period = (plan.layout.sensor if model is None else model).period
     n = max(1, min(plan.sensor_poses.shape[0], int(math.floor(seconds / period + 1e-9)) + 1))
-    return Plan(plan.layout, plan.sensor_poses[:n], plan.robots[:n], [leg[:n] for leg in plan.legs],
-                None if plan.tilt is None else plan.tilt[:n], plan.outline)
+    return _take(plan, np.s_[:n])
 
 
 def simulate(name: str, *, seed: int = 0, n_scans: int | None = None, sensor: str | None = None,
