@@ -107,8 +107,8 @@ def test_a_robot_outside_the_sites_bounds_is_not_reported(field, tmp_path):
 def test_evaluate_seconds_cuts_a_scenario_to_its_start(tmp_path):
     """``evaluate --seconds S`` on a scenario that is not a match scores its first S seconds: the scans
     the whole scenario has at stamps up to S after its first (the scenario rendered whole, counted
-    here); without it, the whole scenario."""
-    log, _ = simulate("spl-trajectory", seed=2002)
+    here); without it, the whole scenario. A labelled log is cut alike."""
+    log, site = simulate("spl-trajectory", seed=2002)
     first = int(np.sum(log.stamps - log.stamps[0] <= 2.5 + 1e-9))
     assert 1 < first < log.n_scans
     for extra, want in ((["--seconds", "2.5"], first), ([], log.n_scans)):
@@ -118,6 +118,22 @@ def test_evaluate_seconds_cuts_a_scenario_to_its_start(tmp_path):
         assert code == 0
         res = json.loads((out / "results.json").read_text())["spl-trajectory:2002"]
         assert res["scans"] == want, (extra, res["scans"])
+    save_log(log, tmp_path / "walk.npz")  # a labelled log: cut alike
+    save_site(site, tmp_path / "site.json")
+    assert main(["evaluate", "--model", str(demo_model_path()), str(tmp_path / "walk.npz"), "--site",
+                 str(tmp_path / "site.json"), "--seconds", "2.5", "--out-dir", str(tmp_path / "evlog"), "--quiet"]) == 0
+    assert json.loads((tmp_path / "evlog" / "results.json").read_text())[str(tmp_path / "walk.npz")]["scans"] == first
+
+
+@pytest.mark.parametrize("value, said", [("30000", "30000 looks like milliseconds: give seconds, 30"),
+                                         ("1e9", "at most 3600")])
+def test_evaluate_seconds_refuses_an_implausible_length_before_any_work(tmp_path, capsys, value, said):
+    out = tmp_path / "ev"
+    code = main(["evaluate", "--model", str(demo_model_path()), "--scenario", "spl-match-2:2000", "--seconds", value,
+                 "--out-dir", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and err[0].startswith("gtsjax: --seconds: ") and said in err[0], err
+    assert not out.exists()
 
 
 def test_evaluate_without_outline_scores_the_gps_headings(field, tmp_path, capsys):

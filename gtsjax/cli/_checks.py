@@ -51,15 +51,27 @@ def check_class_names(option: str, given, known, where: str) -> None:
                                  f"{', '.join(known) or 'none'}")
 
 
-def check_length(option: str, value: float, low: float, high: float, what: str) -> float:
-    """A length in metres within ``(low, high]``; a value a thousand times too large is said to look
-    like millimetres, with the value in metres to give instead."""
+#: Per unit symbol: its name, and the name of the unit a thousand times smaller that a value given by
+#: mistake is likely in.
+_THOUSANDTHS = {"m": ("metres", "millimetres"), "s": ("seconds", "milliseconds")}
+
+
+def check_length(option: str, value: float, low: float, high: float, what: str, unit: str = "m") -> float:
+    """A length in metres (or a time in seconds: ``unit="s"``) within ``(low, high]``; a value a
+    thousand times too large is said to look like millimetres (milliseconds), with the value to give
+    instead."""
     if not (low < value <= high):
-        hint = (f" ({value:g} looks like millimetres: give metres, {value / 1000:g})"
+        name, small = _THOUSANDTHS[unit]
+        hint = (f" ({value:g} looks like {small}: give {name}, {value / 1000:g})"
                 if high < value <= 1000 * high else "")
-        raise InputError(option, f"{value:g} m is not a plausible {what}: give metres above {low:g} and at most "
+        raise InputError(option, f"{value:g} {unit} is not a plausible {what}: give {name} above {low:g} and at most "
                                  f"{high:g}{hint}")
     return value
+
+
+#: The longest scenario ``evaluate`` simulates (``--seconds``): an hour of a match, some 72 000 scans of
+#: two lasers at 10 Hz, many minutes of rendering and replay.
+MAX_SCENARIO_S = 3600.0
 
 
 #: The longest ``run --smooth-lag``: the live window holds this many seconds of every track's states;

@@ -12,7 +12,7 @@ from rich.table import Table
 
 from ..drivers.setup import MAX_TRACKS_LIMIT
 from ._app import CONFIRM_HELP, MAX_TRACKS_HELP, app, fail
-from ._checks import scenario_spec
+from ._checks import MAX_SCENARIO_S, check_length, scenario_spec
 from ._common import check_out_dir
 
 # The ground truth as written (confirmed tracks), and the paper's per-sample figures (each scan's
@@ -77,7 +77,7 @@ def evaluate_cmd(
     robots: int = typer.Option(10, "--robots", min=1, max=14, help="spl-match-* scenarios: robots on the field."),
     seconds: float | None = typer.Option(None, "--seconds", min=1.0,
                                          help="How long: an spl-match-* scenario's length (default 60 s); any "
-                                              "other scenario cut to its first SECONDS (default: all of it)."),
+                                              "other scenario, and each log, cut to its first SECONDS (default: all of it)."),
     penalties: int = typer.Option(0, "--penalties", min=0, help="spl-match-* scenarios: robots picked up so many "
                                   "times in all and put down again (as gtsjax simulate --penalties)."),
     without_outline: bool = typer.Option(False, "--without-outline",
@@ -97,6 +97,8 @@ def evaluate_cmd(
 
     if not (scenario or logs):
         raise fail("evaluate", "give labelled logs with --site, or --scenario NAME[:SEED]")
+    if seconds is not None:
+        check_length("--seconds", seconds, 0.0, MAX_SCENARIO_S, "length of a simulated scenario", unit="s")
     if logs and site is None:
         raise fail("evaluate", "logs need --site SITE.json")
     bases = [load(p, confirm_scans=confirm_scans, max_tracks=max_tracks, without_outline=without_outline)
@@ -116,6 +118,8 @@ def evaluate_cmd(
             if not log.labelled:
                 raise fail(p, "not a labelled log (no truth_poses)")
             log = fit_to_model(log, base, p)
+            if seconds is not None:  # its first SECONDS, as a scenario's
+                log = log.slice(0, int(np.sum(log.stamps - log.stamps[0] <= seconds + 1e-9)))
             jobs.append((str(p), lambda log=log: (log, site_obj, True)))
     if jobs and len(bases) > 1:
         raise fail("--model", f"given {len(bases)} times: several models are for match scenarios of lasers of "
