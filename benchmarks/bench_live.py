@@ -105,6 +105,6 @@ def run(ctx) -> None:
     ulog, usite = _data.scenario("lab-trajectory", 5, 200 if ctx.quick else 600)
     umodel = _data.utm_model(usite, ctx.log, ctx.quick)
     live_case(ctx, "utm-30lx_40hz", UTM_30LX, ulog, umodel, duration)
-    n = 30 if ctx.quick else 300
+    n = 20 if ctx.quick else 300  # the first 10 of each case are dropped (warm-up)
     step_alone(ctx, "urg-04lx_10hz", URG_04LX, log, model, n)
     step_alone(ctx, "utm-30lx_40hz", UTM_30LX, ulog, umodel, n)

@@ -313,7 +313,7 @@ def run(ctx) -> None:
                  stages=not q)
     # The smoke run replays a short chunk's worth once (a compile and a run: a check that it runs, not a rate).
     bench_batch(ctx, model, 64 if q else 3000, 1 if q else 5, 64 if q else 256)
-    bench_several(ctx, n_pool, repeats, 1 if q else 5, 3.0 if q else 30.0)
+    bench_several(ctx, n_pool, 100 if q else repeats, 1 if q else 5, 3.0 if q else 30.0)
     scan0 = jax.tree.map(lambda a: a[0], to_scans(log, model.n_beams))
     kernels = count_kernels(compiled_text(lambda s, x: step(model, s, x), init_state(model), scan0)).total
     ctx.results.sections[SECTION] = {"urg_log": "spl-crossing seed 3", "utm_log": "lab-trajectory seed 5",

@@ -3,7 +3,7 @@
 A classifier that finds the robot in every scan is no ground truth if the tracker never confirms it
 (a top speed learnt as 0 m/s from a robot turned on the spot did exactly that, silently). So after
 fitting, ``gtsjax train`` replays each labelled log through the complete step (stages a–g, tracker
-included, as ``replay`` runs it) and scores, per tracked class, the scans of the held-out seconds (the
+included, step by step as the live loop runs it) and scores, per tracked class, the scans of the held-out seconds (the
 tracker runs through the whole log, so that a held-out second is tracked as a live run would track it):
 
 - detection rate: scans with the class in view in which the step detected it (within ``radius``); in
@@ -155,11 +155,13 @@ def seen(log: ScanLog, sensor_pose: np.ndarray, truth_xy: np.ndarray, present: n
 def check_log(model: Model, log: ScanLog, held: np.ndarray, tracked: Sequence[str], *, radius: float = 0.3,
               settle_s: float | None = None) -> dict:
     """Per tracked class of ``log``'s labels, counts over the held-out scans (``held`` [T]) of ``log``
-    replayed whole through ``model`` (its site attached) as ``gtsjax replay`` replays it (perception
-    vectorised over the chunk: the live step's arithmetic, in less time), for the classes ``tracked``;
-    summed over logs by :func:`summarise`."""
+    replayed whole through ``model`` (its site attached) step by step, as the live loop and ``gtsjax
+    evaluate`` run it (the vectorised form of ``replay`` gives the same to round-off in 0.6 times the
+    time, a second on a training log: the same program as evaluate's, compiled once where a model is
+    trained and then evaluated in one process), for the classes ``tracked``; summed over logs by
+    :func:`summarise`."""
     classes = list(model.classes)
-    _, out = process_log(model, to_scans(log, model.n_beams), vectorise=True)
+    _, out = process_log(model, to_scans(log, model.n_beams))
     rate = 1.0 / max(float(np.median(np.diff(log.stamps))) if log.n_scans > 1 else 0.1, 1e-3)
     settle = settle_s if settle_s is not None else float(model.tracker.n_confirm) / rate + 0.5
     truth = log.truth_poses

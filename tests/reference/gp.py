@@ -1,16 +1,18 @@
-"""One of the model's GPs as a fitted scikit-learn ``GaussianProcessRegressor`` (``ConstantKernel ×
-RBF`` with the model's hyperparameters, ``optimizer=None``), for stages d and e.
+"""One of the model's GPs carried into scikit-learn (``ConstantKernel × RBF`` with the model's
+hyperparameters, ``optimizer=None``), for stages d and e.
 
-**How a model GP becomes a scikit-learn GPR.** An exact :class:`gtsjax.gp.GP` stores its
-standardised training inputs and centred targets: the GPR is fitted on those with ``alpha`` equal
-to the GP's effective noise ``σn² + jitter σf²``, which reproduces its mean and variance. A
+**How a model GP is carried over.** An exact :class:`gtsjax.gp.GP` stores its standardised training
+inputs and centred targets: a ``GaussianProcessRegressor`` is fitted on those with ``alpha`` equal to
+the GP's effective noise ``σn² + jitter σf²``, which reproduces its mean and variance. A
 :class:`gtsjax.gp.SparseGP` (the DTC predictor the shipped models hold) stores only its ``M``
 inducing inputs ``Z``, the weights ``w`` of its mean ``k_Z(x)ᵀ w``, ``L_m⁻¹`` (``K_ZZ + a I = L_m
-L_mᵀ``, ``a = jitter σf²``) and ``L_b⁻¹ L_m⁻¹``. The GPR is fitted on ``Z`` with ``alpha = a`` and
-targets ``(K_ZZ + a I) w``, so that its ``alpha_`` is ``w`` and its mean is the DTC mean; its
-variance ``σf² − k_Zᵀ (K_ZZ + a I)⁻¹ k_Z`` is the first two terms of the DTC variance, to which the
-third, ``‖L_b⁻¹ L_m⁻¹ k_Z‖²``, is added from the stored matrix (``a`` is recovered as the stored
-effective noise minus ``σn²``).
+L_mᵀ``, ``a = jitter σf²``) and ``L_b⁻¹ L_m⁻¹``. Its mean is scikit-learn's kernel between the input
+and ``Z`` times ``w`` (a GPR fitted on ``Z`` with ``alpha = a`` and targets ``(K_ZZ + a I) w`` has
+``alpha_ = w`` and predicts the same, at the price of a Cholesky factorisation of the 6 000 inducing
+points of a shipped pose GP: 6 s each, for nothing the product does not check). Its variance
+``σf² − k_Zᵀ (K_ZZ + a I)⁻¹ k_Z`` over the variance's inducing points is a GPR's fitted on those with
+``alpha = a``, to which the third term of the DTC variance, ``‖L_b⁻¹ L_m⁻¹ k_Z‖²``, is added from the
+stored matrix (``a`` is recovered as the stored effective noise minus ``σn²``).
 """
 
 import warnings
@@ -57,13 +59,11 @@ class SklearnGP:
         self.x_mean = _f(gp.x_mean)
         self.x_scale = _f(gp.x_scale)
         self.y_mean = float(gp.y_mean)
-        self.var_gpr = None
-        if hasattr(gp, "z"):  # SparseGP (DTC)
+        self.kernel = kernel
+        if hasattr(gp, "z"):  # SparseGP (DTC): the mean k_Z(x)ᵀ w, the variance a GPR's on the first mv points
             use = np.asarray(gp.z_mask, bool)
-            z = _f(gp.z)[use]
-            w = _f(gp.weights)[use]
+            self.z, self.w = _f(gp.z)[use], _f(gp.weights)[use]
             a = max(float(_f(gp.noise)) - self.noise_var, 1e-12 * sf2)
-            targets = (kernel(z) + a * np.eye(len(z))) @ w
             mv = int(gp.proj_m.shape[0])  # the variance uses the first mv inducing points only
             use_v = np.asarray(gp.z_mask, bool)[:mv]
             self.proj_b = _f(gp.proj_b)[np.ix_(use_v, use_v)]
@@ -71,27 +71,30 @@ class SklearnGP:
             self.var_gpr = GaussianProcessRegressor(
                 kernel, alpha=a, optimizer=None, normalize_y=False, copy_X_train=False
             ).fit(zv, np.zeros(len(zv)))
-        else:  # exact GP
+        else:  # exact GP: one GPR on its training rows gives both
             use = np.asarray(gp.mask, bool)
-            z = _f(gp.x)[use]
-            targets = _f(gp.y)[use]
             a = float(np.exp(_f(p.log_noise_var)) + _f(gp.jitter) * sf2)
-            self.proj_b = None
-        self.gpr = GaussianProcessRegressor(kernel, alpha=a, optimizer=None, normalize_y=False, copy_X_train=False)
-        self.gpr.fit(z, targets)
-        self.var_gpr = self.var_gpr or self.gpr
+            self.var_gpr = GaussianProcessRegressor(kernel, alpha=a, optimizer=None, normalize_y=False,
+                                                    copy_X_train=False).fit(_f(gp.x)[use], _f(gp.y)[use])
+            self.z, self.w, self.proj_b = None, None, None
+
+    def _mean(self, xs: np.ndarray) -> np.ndarray:
+        """The centred predictive mean of standardised inputs."""
+        if self.z is None:
+            return self.var_gpr.predict(xs)
+        return self.kernel(xs, self.z) @ self.w
 
     def _std(self, x: np.ndarray) -> np.ndarray:
         return (x - self.x_mean) / self.x_scale
 
     def predict_mean(self, x: np.ndarray) -> np.ndarray:
         """Predictive mean (eq. 7) of raw inputs ``x`` [n, d]."""
-        return self.gpr.predict(self._std(x)) + self.y_mean
+        return self._mean(self._std(x)) + self.y_mean
 
     def predict(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Predictive mean and variance, observation noise included (what pose regression uses)."""
         xs = self._std(x)
-        mean = self.gpr.predict(xs)
+        mean = self._mean(xs)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # sklearn warns when it clips a variance of -1e-17 at 0
             _, std = self.var_gpr.predict(xs, return_std=True)
@@ -103,15 +106,13 @@ class SklearnGP:
 
 
 class SklearnSharedGP:
-    """A group of the model's pose GPs that share one kernel (:class:`gtsjax.gp.SharedSparseGP`) as
-    one multi-output scikit-learn ``GaussianProcessRegressor``: what a careful user of scikit-learn
-    does with GPs of one kernel, one kernel row per test input for every output.
+    """A group of the model's pose GPs that share one kernel (:class:`gtsjax.gp.SharedSparseGP`) in
+    scikit-learn: one kernel row per test input for every output, as a careful user would.
 
-    In unit-signal terms (``K_j = s_j R``) every output's mean is ``r_Z(x)ᵀ W[:, j]``, and the DTC
-    predictor's jitter is the same fraction of each output's signal, so one GPR with kernel ``R``
-    (``ConstantKernel(1) × RBF``), ``alpha`` = that fraction and the targets ``(R_ZZ + a I) W`` [M, k]
-    has ``alpha_ = W`` and predicts every mean at once; the variance of output ``j`` is ``s_j`` times the
-    unit GPR's ``1 − r_vᵀ (R_vv + a I)⁻¹ r_v`` plus ``s_j ‖P_b,j r_v‖²`` (the group's stored unit
+    In unit-signal terms (``K_j = s_j R``) every output's mean is ``r_Z(x)ᵀ W[:, j]`` (``R``
+    scikit-learn's ``ConstantKernel(1) × RBF``: every mean at once), and the DTC predictor's jitter is
+    the same fraction ``a`` of each output's signal, so one unit GPR with ``alpha = a`` serves every
+    variance: that of output ``j`` is ``s_j`` times the unit GPR's ``1 − r_vᵀ (R_vv + a I)⁻¹ r_v`` plus ``s_j ‖P_b,j r_v‖²`` (the group's stored unit
     ``P_b``), plus the output's ``σn²``."""
 
     def __init__(self, g):
@@ -123,9 +124,7 @@ class SklearnSharedGP:
         a = max(float(_f(g.noise)[0] - self.noise_var[0]) / float(self.signal[0]), 1e-12)  # the jitter fraction
         self.x_mean, self.x_scale, self.y_mean = _f(g.x_mean), _f(g.x_scale), _f(g.y_mean)
         use = np.asarray(g.z_mask, bool)
-        z, w = _f(g.z)[use], _f(g.weights)[use]
-        self.gpr = GaussianProcessRegressor(kernel, alpha=a, optimizer=None, normalize_y=False, copy_X_train=False)
-        self.gpr.fit(z, (kernel(z) + a * np.eye(len(z))) @ w)
+        self.kernel, self.z, self.w = kernel, _f(g.z)[use], _f(g.weights)[use]
         mv = int(g.proj_m.shape[0])
         use_v = use[:mv]
         self.proj_b = _f(g.proj_b)[:, use_v][:, :, use_v]
@@ -135,7 +134,7 @@ class SklearnSharedGP:
     def predict(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Every output's predictive mean and variance (noise included), each [n, k]."""
         xs = (x - self.x_mean) / self.x_scale
-        mean = self.gpr.predict(xs).reshape(len(xs), -1)
+        mean = self.kernel(xs, self.z) @ self.w
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             _, std = self.var_gpr.predict(xs, return_std=True)
