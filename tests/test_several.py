@@ -91,6 +91,28 @@ def test_two_lasers_seeing_the_robots_give_one_track_each_and_more_recall(match)
         assert res["recall"] >= one["recall"] - 1e-9, (name, one["recall"], res["recall"])
 
 
+def test_one_lasers_scans_widened_to_every_laser_track_as_that_laser_alone():
+    """``evaluate`` runs each laser alone, and both, through one compiled program: each laser's scans
+    merged as a merge of both lasers (``widened``), the other without a scan and watching nothing.
+    Every output equals that laser's own merge, run with one laser in the state. Ten robots, some
+    walking out of one laser's reach into the other's: there the silent laser, left watching, kept
+    a track that should have ended (ten more rows for the south laser on this scene)."""
+    from gtsjax.drivers.several import widened
+
+    logs, site = simulate_match("spl-match-2", seed=2000, n_robots=10, seconds=5.0, referee=False)
+    model = load_model(demo_model_path()).with_site(one_sensor(site, "north"))
+    logs = {n: fit_to_model(log, model, n) for n, log in logs.items()}
+    for name in logs:
+        merged, alone = _run(model, site, {name: logs[name]})
+        wide = widened(merged, tuple(logs))
+        assert wide.names == tuple(logs) and set(wide.laser) == {tuple(logs).index(name)}
+        _, out = process_several(model, wide, site_poses(site, wide.names), chunk=32)
+        assert len(_reported_ids(alone)) >= 5
+        for field in ("track_id", "track_mask", "track_class", "det_mask"):
+            np.testing.assert_array_equal(np.asarray(getattr(out, field)), np.asarray(getattr(alone, field)), field)
+        np.testing.assert_allclose(np.asarray(out.track_pose), np.asarray(alone.track_pose), atol=1e-5)
+
+
 def test_a_laser_that_stops_leaves_the_other_tracking(match):
     """The south laser unplugged half-way (its log cut): the north laser's robots stay tracked to the
     end, in every scan after the cut, as the north laser alone tracks them."""

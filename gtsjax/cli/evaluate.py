@@ -183,7 +183,7 @@ def _evaluate_match(bases, spec: str, name: str, seed: int, robots: int, seconds
     scanner model of the match's lasers (:func:`~gtsjax.drivers.several.models_for_lasers`)."""
     from ..drivers.evaluation import evaluate_outputs
     from ..drivers.setup import attach_site, fit_to_model
-    from ..drivers.several import merge_logs, models_for_lasers, process_several, site_poses
+    from ..drivers.several import merge_logs, models_for_lasers, process_several, site_poses, widened
     from ..io.site import one_sensor
     from ..sim.match import simulate_match
 
@@ -203,8 +203,10 @@ def _evaluate_match(bases, spec: str, name: str, seed: int, robots: int, seconds
         mixed = len(used) > 1
         merged = merge_logs({n: logs[n] for n in combo}, mixed=mixed)
         combo_models = tuple(models[i] for i in used)
+        if len(models) == 1:  # every combination through one program: the state holds every laser
+            merged = widened(merged, tuple(names))
         _, o = process_several(combo_models, merged, site_poses(site, merged.names),
-                               kinds=tuple(used.index(kinds[names.index(n)]) for n in combo), filtered=smooth)
+                               kinds=tuple(used.index(kinds[names.index(n)]) for n in merged.names), filtered=smooth)
         if smooth:
             from ..drivers.smoothing import smooth_output
 

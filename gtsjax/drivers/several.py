@@ -16,6 +16,7 @@ import dataclasses
 import math
 from pathlib import Path
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -92,6 +93,16 @@ def merge_logs(logs: "dict[str, ScanLog]", *, mixed: bool = False) -> Merged:
     return Merged(log, laser[order], index[order], span, names, dict(logs))
 
 
+def widened(merged: Merged, names: "tuple[str, ...]") -> Merged:
+    """``merged`` (scans of some of a site's lasers) as a merge of every laser of ``names``, the others
+    without a scan: its laser indices into ``names``. One laser's scans, two lasers' and all run then
+    through one compiled program (the state's shapes are the number of lasers), a laser without scans
+    watching nothing (:func:`process_several`). One scanner model only (``sources`` holds only the
+    lasers that have scans)."""
+    at = np.asarray([names.index(n) for n in merged.names], np.int32)
+    return dataclasses.replace(merged, laser=at[merged.laser], names=tuple(names))
+
+
 def process_several(model: "Model | tuple[Model, ...]", merged: Merged, sensor_poses, *, kinds=None, chunk: int = 256,
                     state: SeveralState | None = None, callback=None, filtered: bool = False
                     ) -> tuple[SeveralState, Output]:
@@ -106,6 +117,11 @@ def process_several(model: "Model | tuple[Model, ...]", merged: Merged, sensor_p
     check_models(models)
     if state is None:
         state = init_several(models, jnp.asarray(sensor_poses, jnp.float32), kinds if len(models) > 1 else None)
+        # A laser without a scan here (a merge widened to every laser of a site, :func:`widened`)
+        # watches nothing: no track is taken as seen by it, as if it were not in the state at all.
+        silent = ~np.isin(np.arange(len(merged.names)), merged.laser)
+        if silent.any():
+            state = eqx.tree_at(lambda st: st.reach, state, jnp.where(jnp.asarray(silent)[:, None], 0.0, state.reach))
     lanes = Lanes(jnp.asarray(merged.laser, jnp.int32), jnp.asarray(np.asarray(kinds, np.int32)[merged.laser]),
                   jnp.asarray(merged.span_dt, jnp.float32))
     if len(models) == 1:
