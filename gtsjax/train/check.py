@@ -65,7 +65,8 @@ MIN_RETURNS = 3  # returns on an object for it to be in view (a scan's lone retu
 def _counts() -> dict:
     """Per class, what :func:`_score` counts (summed over logs by :func:`summarise`)."""
     return {"in_view": 0, "settled": 0, "detected": 0, "detected_settled": 0, "rows": 0, "rows_detected": 0,
-            "lost": dict.fromkeys(STAGES, 0), "undetected": dict.fromkeys(STAGES, 0), "err_xy": [], "err_th": []}
+            "lost": dict.fromkeys(STAGES, 0), "undetected": dict.fromkeys(STAGES, 0), "err_xy": [], "err_th": [],
+            "det_err": []}
 
 
 def _score(r: dict, found: bool, settled: bool, row: "tuple[float, float] | None", lost) -> None:
@@ -184,7 +185,10 @@ def check_log(model: Model, log: ScanLog, held: np.ndarray, tracked: Sequence[st
         for t in np.flatnonzero(in_view[:, i] & held):
             xy = truth[t, i, :2]
             det = np.asarray(out.det_mask[t]) & (np.asarray(out.det_class[t]) == c)
-            found = det.any() and np.min(np.linalg.norm(out.det_pose[t][det, :2] - xy, axis=1)) <= radius
+            gap = np.where(det, np.linalg.norm(out.det_pose[t][:, :2] - xy, axis=1), np.inf)
+            found = bool(gap.min() <= radius) if gap.size else False
+            if found:  # the detection's error in the object's own frame (its pose before the tracker)
+                r["det_err"].append(frame_error(out.det_pose[t][int(np.argmin(gap))], truth[t, i], turns[c]))
             rows = np.asarray(out.track_mask[t]) & (np.asarray(out.track_class[t]) == c)
             d = np.where(rows, np.linalg.norm(out.track_pose[t][:, :2] - xy, axis=1), np.inf)
             j = int(np.argmin(d))
@@ -207,6 +211,7 @@ def summarise(parts: Sequence[dict]) -> dict:
                 t["undetected"][k] += r["undetected"][k]
             t["err_xy"] += r["err_xy"]
             t["err_th"] += r["err_th"]
+            t["det_err"] += r["det_err"]
     out = {}
     for name, t in total.items():
         exy, eth = np.asarray(t["err_xy"]), np.asarray(t["err_th"])
@@ -225,11 +230,36 @@ def summarise(parts: Sequence[dict]) -> dict:
     return out
 
 
+def detection_errors(parts: Sequence[dict]) -> dict[str, np.ndarray]:
+    """Per class, the errors of :func:`check_log`'s detections in the object's own frame (ahead, left,
+    heading; :func:`frame_error`) over logs: ``[n, 3]``."""
+    out: dict[str, list] = {}
+    for part in parts:
+        for name, r in part.items():
+            out.setdefault(name, []).extend(r["det_err"])
+    return {name: np.asarray(e, np.float64).reshape(-1, 3) for name, e in out.items()}
+
+
+def frame_error(estimate, truth, turns: "int | None") -> tuple[float, float, float]:
+    """``estimate − truth`` of a pose in the object's own frame: ahead, left (m) and heading (rad).
+    For an object alike turned by a ``1/turns`` of a turn, the truth's turn nearest the estimate's."""
+    err = float(wrap(estimate[2] - truth[2]))
+    th = float(truth[2])
+    if turns:
+        step = 2 * np.pi / turns
+        k = round(err / step)
+        th, err = th + k * step, float(wrap(err - k * step))
+    dx, dy = float(estimate[0] - truth[0]), float(estimate[1] - truth[1])
+    c, s = np.cos(th), np.sin(th)
+    return c * dx + s * dy, -s * dx + c * dy, err
+
+
 def check_pipeline(model: Model, logs: Sequence[ScanLog], sites: Sequence[Site], held: Sequence[np.ndarray],
-                   tracked: Sequence[str]) -> dict:
-    """:func:`check_log` over every labelled log (each with its site and held-out scans), summarised."""
+                   tracked: Sequence[str]) -> tuple[dict, dict[str, np.ndarray]]:
+    """:func:`check_log` over every labelled log (each with its site and held-out scans), summarised;
+    and the detections' errors in each class's own frame (:func:`detection_errors`)."""
     parts = [check_log(model.with_site(site), log, h, tracked) for log, site, h in zip(logs, sites, held, strict=True)]
-    return summarise(parts)
+    return summarise(parts), detection_errors(parts)
 
 
 def verdict(summary: dict, simulated: dict | None = None, min_scored: int = 30) -> list[str]:
