@@ -211,7 +211,6 @@ def summarise(parts: Sequence[dict]) -> dict:
                 t["undetected"][k] += r["undetected"][k]
             t["err_xy"] += r["err_xy"]
             t["err_th"] += r["err_th"]
-            t["det_err"] += r["det_err"]
     out = {}
     for name, t in total.items():
         exy, eth = np.asarray(t["err_xy"]), np.asarray(t["err_th"])
