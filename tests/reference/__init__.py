@@ -22,7 +22,7 @@ One module per stage, in the order of data flow:
 ============ ==========================================================================================
 segment      stage a: breaks between consecutive beams, the first ``K`` segments
 features     stages b–c: each segment's ORS, characteristic vector and binary filters
-gp           one of the model's GPs (exact or DTC) as a fitted scikit-learn GPR
+gp           one of the model's GPs (exact or DTC) in scikit-learn: its kernel, and a fitted GPR
 classify     stages c–d: shape envelopes, class scores, thresholds, the open-set test
 pose         stage e: ORS-relative pose and variances from the pose GPs
 maptransform stage f: landmark association and the centred least-squares transform

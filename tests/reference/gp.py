@@ -30,10 +30,10 @@ _FITTED: dict[tuple[int, ...], tuple[list, "SklearnGP"]] = {}
 
 
 def sklearn_gp(gp) -> "SklearnGP | SklearnSharedGP":
-    """:class:`SklearnGP` of ``gp`` (:class:`SklearnSharedGP` of a shared group), built once per set of arrays: carrying a pose GP over 6 000 examples
-    into scikit-learn costs seconds (two Cholesky factorisations), and a model changed elsewhere
-    (``eqx.tree_at`` on its tracker) keeps the same GP arrays. Keyed by the identity of the arrays,
-    which the entry keeps alive, so a key is never reused by other arrays."""
+    """:class:`SklearnGP` of ``gp`` (:class:`SklearnSharedGP` of a shared group), built once per set of
+    arrays (an exact GP's GPR is fitted on all its rows; a model changed elsewhere, ``eqx.tree_at`` on
+    its tracker, keeps the same GP arrays). Keyed by the identity of the arrays, which the entry keeps
+    alive, so a key is never reused by other arrays."""
     import jax
 
     leaves = jax.tree_util.tree_leaves(gp)
