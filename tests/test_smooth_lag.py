@@ -101,6 +101,42 @@ def test_rows_equal_a_numpy_rts_loop_over_the_scans_up_to_t_plus_lag(lag):
         np.testing.assert_allclose(got[3:], want[3:], rtol=2e-4, atol=1e-9, err_msg=f"scan {t}")
 
 
+def test_lagged_rows_have_the_class_pose_offset_taken_off():
+    """A tracker with a class's mean error to take off (``pose_offset``): each lagged row is the row
+    smoothed without it, moved back by the offset along the smoothed pose's own axes, as the forward
+    rows and ``replay --smooth``'s are (``TrackerParams.off``)."""
+    import equinox as eqx
+
+    log, site = simulate("spl-crossing", seed=2003, n_scans=40)
+    model = load_model(demo_model_path()).with_site(site)
+    scans = to_scans(log, model.n_beams)
+    _, (out, filt) = process_log(model, scans, filtered=True)
+    offset = np.zeros((len(model.classes), 3), np.float32)
+    offset[model.class_index("robot")] = (0.02, -0.01, np.radians(3.0))
+    params = eqx.tree_at(lambda p: p.pose_offset, model.tracker, jnp.asarray(offset), is_leaf=lambda x: x is None)
+    T, M = out.track_live.shape
+    plain_rows, shifted_rows = _Rows(), _Rows()
+    plain, shifted = FixedLag(model.tracker, 3, M, None, writer=plain_rows), FixedLag(params, 3, M, None, writer=shifted_rows)
+    dt = np.asarray(scans.dt, np.float32)
+    for t in range(T):
+        packed = np.asarray(pack_tracks(jax.tree.map(lambda a, t=t: a[t], out)))
+        block = np.asarray(pack_filtered(_Tracker(filt.mean[t], filt.cov[t], filt.main[t])))
+        table = np.concatenate([packed, np.pad(block, ((0, 1), (0, 0)))], axis=1)
+        rows = rows_from_packed(float(log.stamps[t]), packed, model.classes)
+        plain.push(table, rows, float(dt[t]))
+        shifted.push(table, rows, float(dt[t]))
+    plain.close()
+    shifted.close()
+    a = [r for scan in plain_rows.scans for r in scan]
+    b = [r for scan in shifted_rows.scans for r in scan]
+    assert len(a) > 20 and [(r.stamp, r.track_id) for r in a] == [(r.stamp, r.track_id) for r in b]
+    k = np.asarray([model.class_index(r.cls) for r in a])
+    want = np.asarray(params.off(jnp.asarray(k), jnp.asarray([[r.x, r.y, r.theta] for r in a], jnp.float32)))
+    np.testing.assert_allclose([[r.x, r.y] for r in b], want[:, :2], atol=2e-6)
+    np.testing.assert_allclose(wrap(np.asarray([r.theta for r in b]) - want[:, 2]), 0.0, atol=2e-6)
+    assert [(r.var_x, r.var_theta) for r in a] == [(r.var_x, r.var_theta) for r in b]
+
+
 def test_rows_equal_the_fixed_interval_smoother_of_a_real_forward_pass():
     """Three robots crossing, the shipped model's forward pass (the live step's computation, each
     scan's filtered state kept): every reported row of scan ``t`` smoothed over ``t … t + L`` equals

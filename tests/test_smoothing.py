@@ -167,3 +167,31 @@ def test_replay_smooth_with_two_lasers(match_model, tmp_path, capsys):  # noqa: 
     ps, _ = _errors(outs["s"], stamps, truth)
     rmse = lambda e: float(np.sqrt(np.mean(e**2)))  # noqa: E731
     assert rmse(ps) < 0.95 * rmse(pf), (rmse(ps), rmse(pf))
+
+
+def test_smoothed_rows_have_the_class_pose_offset_taken_off(tiny):
+    """A tracker with a class's mean error to take off (``pose_offset``): the smoother's rows are the
+    same smoothing (the filtered states do not carry the offset) with the offset taken off each live
+    slot's smoothed pose along its own axes, as the forward rows have it taken off."""
+    import equinox as eqx
+    import jax.numpy as jnp
+
+    from gtsjax.drivers.batch import process_log
+    from gtsjax.drivers.smoothing import smooth_output
+    from gtsjax.io.logs import to_scans
+
+    model = tiny["model"].with_site(tiny["site"])
+    log = tiny["train_log"].slice(0, 24)
+    scans = to_scans(log, model.n_beams)
+    _, (out, filtered) = process_log(model, scans, chunk=256, vectorise=True, filtered=True)
+    offset = np.zeros((len(model.classes), 3), np.float32)
+    offset[model.class_index("robot")] = (0.02, -0.01, np.radians(3.0))
+    params = eqx.tree_at(lambda p: p.pose_offset, model.tracker, jnp.asarray(offset), is_leaf=lambda x: x is None)
+    plain = smooth_output(out, filtered, log.stamps, model.tracker)
+    shifted = smooth_output(out, filtered, log.stamps, params)
+    live = np.asarray(out.track_live, bool)
+    assert live.sum() > 10
+    want = np.asarray(params.off(jnp.asarray(np.asarray(out.track_class)), jnp.asarray(np.asarray(plain.track_pose))))
+    np.testing.assert_allclose(np.asarray(shifted.track_pose)[live], want[live], atol=1e-6)
+    np.testing.assert_array_equal(np.asarray(shifted.track_pose)[~live], np.asarray(out.track_pose)[~live])
+    assert np.abs(np.asarray(shifted.track_pose)[live] - np.asarray(plain.track_pose)[live]).max() > 0.005

@@ -59,6 +59,22 @@ class TrackerParams(eqx.Module):
     m_report: Int[Array, ""]
     birth_exclusion: Float[Array, ""]  # metres
     constant_velocity: Bool[Array, ""]
+    # Each class's mean pose error in its own frame (ahead, left in m, heading in rad), measured at
+    # training on held-out detections, taken off the reported rows (:meth:`off`); None: nothing taken off.
+    pose_offset: Float[Array, "classes 3"] | None = None
+
+    def off(self, class_id, pose):
+        """``pose`` [..., 3] of tracks of ``class_id`` [...] with their class's ``pose_offset`` taken off:
+        moved back along the track's own axes (its heading first turned back by the heading's part).
+        On the rows, with the track's heading, not on each detection: a detection read on the wrong
+        side would move by twice the offset the wrong way (docs/accuracy.md)."""
+        if self.pose_offset is None:
+            return pose
+        o = self.pose_offset[jnp.clip(class_id, 0, self.pose_offset.shape[0] - 1)]
+        th = pose[..., 2] - o[..., 2]
+        c, s = jnp.cos(th), jnp.sin(th)
+        return jnp.stack([pose[..., 0] - (c * o[..., 0] - s * o[..., 1]), pose[..., 1] - (s * o[..., 0] + c * o[..., 1]),
+                          jnp.arctan2(jnp.sin(th), jnp.cos(th))], axis=-1)
 
     @classmethod
     def default(

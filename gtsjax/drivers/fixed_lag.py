@@ -48,7 +48,7 @@ FILTERED_WIDTH = MAIN + 1
 _LIVE, _CUT = FILTERED_WIDTH, FILTERED_WIDTH + 1
 _EXTRA = slice(FILTERED_WIDTH + 2, FILTERED_WIDTH + 2 + NX)
 _WIDTH = _EXTRA.stop
-_ID, _REP, _LIVE_COL = COLUMN["track_id"], COLUMN["reported"], COLUMN["live"]
+_ID, _REP, _LIVE_COL, _CLS_COL = COLUMN["track_id"], COLUMN["reported"], COLUMN["live"], COLUMN["class"]
 
 
 def pack_filtered(tracker: TrackerState) -> Float[Array, "tracks filtered"]:
@@ -139,6 +139,7 @@ class FixedLag:
         self.smoother = WindowSmoother(params, lag + 1, tracks, parallel)
         self.window = np.zeros(self.smoother.shape, np.float32)
         self.dt = np.zeros(lag + 1, np.float32)
+        self.classes = np.zeros((lag + 1, tracks), np.int32)  # each slot's class per scan of the window
         self.pending: deque = deque()  # the scans not yet written: (scan, rows, slot of each row's track id)
         self.newest = -1  # the window's newest scan, counted from the first
         self.prev = None  # the last scan's (live, ids, heading, cov, main), for its successor's cut and widening
@@ -166,6 +167,8 @@ class FixedLag:
         w = self.window
         w[:-1] = w[1:]
         self.dt[:-1] = self.dt[1:]
+        self.classes[:-1] = self.classes[1:]
+        self.classes[-1] = table[:, _CLS_COL].astype(np.int32)
         w[-1, :, :FILTERED_WIDTH] = filt
         w[-1, :, _LIVE], w[-1, :, _CUT], w[-1, :, _EXTRA] = live, cut, extra
         self.dt[-1] = dt
@@ -201,7 +204,11 @@ class FixedLag:
         i = self.lag - (self.newest - scan)  # its place in the window, the newest scan last
         if not rows or not 0 <= i <= self.lag:
             return
-        s = smoothed[i].tolist()
+        s = smoothed[i]
+        if self.params.pose_offset is not None:  # the class's mean error off the smoothed pose, as off the live row's
+            s = s.copy()
+            s[:, :3] = np.asarray(self.params.off(jnp.asarray(self.classes[i]), jnp.asarray(s[:, :3])))
+        s = s.tolist()
         out = []
         for r in rows:
             x, y, th, vx, vy, vth, cxy = s[slot_of[r.track_id]]

@@ -126,7 +126,8 @@ def smooth_output(out, filtered, stamps: np.ndarray, params, parallel: bool = Tr
     ms, ps = smooth_tracks(jnp.asarray(mean), jnp.asarray(cov, jnp.float32), jnp.asarray(dt), jnp.asarray(live),
                            params, parallel=parallel, cut=jnp.asarray(cut), extra=jnp.asarray(extra))
     ms, ps = np.asarray(ms), np.asarray(ps)
-    pose = np.where(live[..., None], ms[..., :3], np.asarray(out.track_pose))
+    smoothed = np.asarray(params.off(jnp.asarray(np.asarray(out.track_class)), jnp.asarray(ms[..., :3])))
+    pose = np.where(live[..., None], smoothed, np.asarray(out.track_pose))
     var = np.where(live[..., None], np.diagonal(ps, axis1=-2, axis2=-1)[..., :3], np.asarray(out.track_var))
     cov_xy = np.where(live, ps[..., 0, 1], np.asarray(out.track_cov_xy))
     return eqx.tree_at(lambda o: (o.track_pose, o.track_var, o.track_cov_xy), out,

@@ -84,30 +84,33 @@ def calibrate(reg: PoseRegressor, vectors, target, *, good_deg: float = 15.0,
 
 
 
-# A class's mean pose error is reported from this many held-out detections read on the right side;
-# past these bounds it says the labels or the site are wrong, not the outline (the shipped model's is
-# about 2 mm, docs/accuracy.md), and training warns.
+
+# A class's mean pose error is learnt from this many held-out detections read on the right side; past
+# these bounds it says the labels or the site are wrong, not the outline (the shipped model's is about
+# 2 mm, docs/accuracy.md): training warns and takes nothing off.
 MIN_BIAS_DETECTIONS = 30
 BIAS_RANGE_M = 0.03
 BIAS_RANGE_DEG = 3.0
 WRONG_SIDE_DEG = 30.0
 
 
-def pose_bias(errors: "dict[str, np.ndarray]") -> "tuple[list[dict], list[str]]":
+def pose_bias(errors: "dict[str, np.ndarray]", classes: "tuple[str, ...]"
+              ) -> "tuple[np.ndarray | None, list[dict], list[str]]":
     """Each tracked class's mean pose error in its own frame (ahead, left, heading) on the tracking
     check's detections of the labelled logs' held-out scans (``errors``: per class ``[n, 3]``,
     :func:`~gtsjax.train.check.detection_errors`; those more than 30° off, a misread side, left out).
-    Returns rows of the learnt-parameter table (``source`` "measured", with the detections and the
-    standard error; at least :data:`MIN_BIAS_DETECTIONS`) and a warning per class whose mean lies past
-    the sanity bounds.
+    Returns the ``[classes, 3]`` offsets the tracker takes off its rows
+    (``TrackerParams.pose_offset``; None if no class has one), rows of the learnt-parameter table
+    (with the detections and the standard error; from :data:`MIN_BIAS_DETECTIONS` on), and a warning
+    per class whose mean lies past the sanity bounds (then not taken off).
 
     Why: the learnt outline is not quite the robot's (learnt from labelled poses that carry the map
     transformation's errors, it comes out smaller) and every view's refined pose carries part of that
     mismatch the same way: the same millimetres on every held-out scene, what no filter removes and
     every clock ``grade`` estimates inherits. The view-dependent rest is not a function of where the
-    laser stands (``scripts/view_bias.py``). It is measured, not taken off: taken off each detection,
-    a misread side moves by twice it (docs/accuracy.md)."""
-    rows, warnings = [], []
+    laser stands (``scripts/view_bias.py``) and is left alone."""
+    offsets = np.zeros((len(classes), 3), np.float32)
+    rows, warnings, any_set = [], [], False
     for name, err in errors.items():
         err = np.asarray(err, np.float64).reshape(-1, 3)
         err = err[np.abs(np.degrees(err[:, 2])) <= WRONG_SIDE_DEG]
@@ -116,17 +119,23 @@ def pose_bias(errors: "dict[str, np.ndarray]") -> "tuple[list[dict], list[str]]"
             continue
         mean = err.mean(axis=0)
         se = err.std(axis=0, ddof=1) / np.sqrt(n)
-        if not (abs(mean[0]) <= BIAS_RANGE_M and abs(mean[1]) <= BIAS_RANGE_M
-                and abs(math.degrees(mean[2])) <= BIAS_RANGE_DEG):
+        inside = (abs(mean[0]) <= BIAS_RANGE_M and abs(mean[1]) <= BIAS_RANGE_M
+                  and abs(math.degrees(mean[2])) <= BIAS_RANGE_DEG)
+        if inside:
+            offsets[classes.index(name)] = mean
+            any_set = True
+        else:
             warnings.append(f"{name}: its detections on the held-out scans are off by {1e3 * mean[0]:+.0f} mm ahead, "
                             f"{1e3 * mean[1]:+.0f} mm left and {math.degrees(mean[2]):+.1f}° on average, past what an "
-                            "outline explains: check the labels' poses and the site")
+                            "outline explains: check the labels' poses and the site; not taken off")
         for j, (part, unit, scale, bound) in enumerate((("ahead", "mm", 1e3, 1e3 * BIAS_RANGE_M),
                                                         ("left", "mm", 1e3, 1e3 * BIAS_RANGE_M),
                                                         ("heading", "°", math.degrees(1.0), BIAS_RANGE_DEG))):
             rows.append({"class": name, "parameter": f"pose bias {part}", "unit": unit,
-                         "value": round(float(mean[j]) * scale, 3 if unit == "°" else 2), "source": "measured",
+                         "value": round(float(mean[j]) * scale, 3 if unit == "°" else 2),
+                         "source": "learnt" if inside else "measured",
                          "evidence": f"mean error of {n} held-out detections in its own frame (right side only), "
-                                     f"standard error {scale * se[j]:.2g} {unit}",
+                                     f"standard error {scale * se[j]:.2g} {unit}; "
+                                     + ("taken off the rows" if inside else "not taken off"),
                          "hard_range": None, "plausible": [-bound, bound]})
-    return rows, warnings
+    return (offsets if any_set else None), rows, warnings

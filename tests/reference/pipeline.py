@@ -68,8 +68,21 @@ class ReferencePipeline:
         self.bounds = _f(s.bounds) if bool(s.has_bounds) else None
         self.tracker = Tracker(model.tracker, model.max_tracks, period=model.scan_period)
         self.outline = None if model.outline is None else Outline.of(model.outline)
+        offset = model.tracker.pose_offset
+        self.pose_offset = None if offset is None else _f(offset)
         self.max_objects = model.max_objects
         self.reset()
+
+    def reported_pose(self, cls: int, pose) -> np.ndarray:
+        """A track's pose as reported: its class's mean error in its own frame (``pose_offset``)
+        taken off, moved back along the track's axes after its heading is turned back."""
+        x, y, th = (float(v) for v in pose)
+        if self.pose_offset is None:
+            return np.array([x, y, th])
+        ahead, left, turn = self.pose_offset[cls]
+        th -= turn
+        return np.array([x - (math.cos(th) * ahead - math.sin(th) * left),
+                         y - (math.sin(th) * ahead + math.cos(th) * left), wrap(th)])
 
     def reset(self) -> None:
         """Before the first scan: the site's rough sensor pose as the transform, no tracks."""
@@ -189,7 +202,7 @@ class ReferencePipeline:
         return RefOutput(
             track_id=np.array([t.track_id for t in tracks], int),
             track_class=np.array([t.cls for t in tracks], int),
-            track_pose=np.array([t.kf.x[:3, 0] for t in tracks]).reshape(-1, 3),
+            track_pose=np.array([self.reported_pose(t.cls, t.kf.x[:3, 0]) for t in tracks]).reshape(-1, 3),
             track_var=np.array([np.diag(t.kf.P)[:3] for t in tracks]).reshape(-1, 3),
             track_cov_xy=np.array([t.kf.P[0, 1] for t in tracks]).reshape(-1),
             A=tf.A.copy(),
