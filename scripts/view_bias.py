@@ -33,19 +33,17 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from gtsjax.cli.demo import demo_model_path  # noqa: E402
+from gtsjax.core.geometry import wrap  # noqa: E402
 from gtsjax.drivers.batch import process_log  # noqa: E402
 from gtsjax.io import to_scans  # noqa: E402
 from gtsjax.io.modelfile import load_model  # noqa: E402
 from gtsjax.sim import simulate  # noqa: E402
+from gtsjax.train.check import frame_error  # noqa: E402
 
 RADIUS = 0.3  # m: a detection this near a labelled robot is that robot's
 WRONG_SIDE = np.radians(30.0)
 RANGE_EDGES = (2.5, 4.0)
 BEARINGS = 8
-
-
-def wrap(a):
-    return (a + np.pi) % (2 * np.pi) - np.pi
 
 
 def detections(model, name: str, seed: int) -> dict:
@@ -69,10 +67,8 @@ def detections(model, name: str, seed: int) -> dict:
             if gap[j] > RADIUS:
                 continue
             x, y, th = truth[t, i]
-            ex, ey = det[j, :2] - (x, y)
             bearing = wrap(np.arctan2(sensor[1] - det[j, 1], sensor[0] - det[j, 0]) - det[j, 2])
-            rows.append((np.cos(th) * ex + np.sin(th) * ey, -np.sin(th) * ex + np.cos(th) * ey,
-                         wrap(det[j, 2] - th), bearing, np.hypot(*(sensor[:2] - det[j, :2])),
+            rows.append((*frame_error(det[j], truth[t, i], 1), bearing, np.hypot(*(sensor[:2] - det[j, :2])),
                          hash((round(x, 4), round(y, 4), round(th, 4), i))))
     a = np.asarray(rows, np.float64).reshape(-1, 6)
     right = np.abs(a[:, 2]) <= WRONG_SIDE

@@ -13,6 +13,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from .e_refine import SIDES
+from .geometry import compose, relative, wrap
 
 _F32 = jnp.float32
 NX = 6  # x, y, theta, vx, vy, omega
@@ -71,10 +72,8 @@ class TrackerParams(eqx.Module):
         if self.pose_offset is None:
             return pose
         o = self.pose_offset[jnp.clip(class_id, 0, self.pose_offset.shape[0] - 1)]
-        th = pose[..., 2] - o[..., 2]
-        c, s = jnp.cos(th), jnp.sin(th)
-        return jnp.stack([pose[..., 0] - (c * o[..., 0] - s * o[..., 1]), pose[..., 1] - (s * o[..., 0] + c * o[..., 1]),
-                          jnp.arctan2(jnp.sin(th), jnp.cos(th))], axis=-1)
+        back = compose(pose, relative(o, jnp.zeros_like(o)))  # the offset's inverse, in the row's own frame
+        return jnp.concatenate([back[..., :2], wrap(back[..., 2:])], axis=-1)
 
     @classmethod
     def default(

@@ -83,8 +83,6 @@ def calibrate(reg: PoseRegressor, vectors, target, *, good_deg: float = 15.0,
                        is_leaf=lambda v: v is None)
 
 
-
-
 # A class's mean pose error is learnt from this many held-out detections read on the right side; past
 # these bounds it says the labels or the site are wrong, not the outline (the shipped model's is about
 # 2 mm, docs/accuracy.md): training warns and takes nothing off.

@@ -29,7 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..core.g_track import HOLDS, Detections, TrackerState, reported, track_step
-from ..core.geometry import wrap
+from ..core.geometry import relative, wrap
 from ..core.model import Model
 from ..core.pipeline import REASONS
 from ..drivers.batch import process_log
@@ -186,7 +186,7 @@ def check_log(model: Model, log: ScanLog, held: np.ndarray, tracked: Sequence[st
             xy = truth[t, i, :2]
             det = np.asarray(out.det_mask[t]) & (np.asarray(out.det_class[t]) == c)
             gap = np.where(det, np.linalg.norm(out.det_pose[t][:, :2] - xy, axis=1), np.inf)
-            found = bool(gap.min() <= radius) if gap.size else False
+            found = bool(gap.min() <= radius)
             if found:  # the detection's error in the object's own frame (its pose before the tracker)
                 r["det_err"].append(frame_error(out.det_pose[t][int(np.argmin(gap))], truth[t, i], turns[c]))
             rows = np.asarray(out.track_mask[t]) & (np.asarray(out.track_class[t]) == c)
@@ -242,15 +242,10 @@ def detection_errors(parts: Sequence[dict]) -> dict[str, np.ndarray]:
 def frame_error(estimate, truth, turns: "int | None") -> tuple[float, float, float]:
     """``estimate − truth`` of a pose in the object's own frame: ahead, left (m) and heading (rad).
     For an object alike turned by a ``1/turns`` of a turn, the truth's turn nearest the estimate's."""
-    err = float(wrap(estimate[2] - truth[2]))
-    th = float(truth[2])
-    if turns:
-        step = 2 * np.pi / turns
-        k = round(err / step)
-        th, err = th + k * step, float(wrap(err - k * step))
-    dx, dy = float(estimate[0] - truth[0]), float(estimate[1] - truth[1])
-    c, s = np.cos(th), np.sin(th)
-    return c * dx + s * dy, -s * dx + c * dy, err
+    truth = np.asarray(truth, np.float64)
+    step = 2 * np.pi / (turns or 1)
+    turned = truth + (0.0, 0.0, step * round(float(wrap(estimate[2] - truth[2])) / step))
+    return tuple(float(v) for v in relative(turned, np.asarray(estimate, np.float64)))
 
 
 def check_pipeline(model: Model, logs: Sequence[ScanLog], sites: Sequence[Site], held: Sequence[np.ndarray],
