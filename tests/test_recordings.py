@@ -113,6 +113,15 @@ def test_training_checks_that_its_model_tracks(trained):
             np.radians(bias["pose bias heading"]["value"])]
     np.testing.assert_allclose(got, want, atol=1e-5)
     assert np.all(np.abs(got[:2]) < 0.01) and abs(np.degrees(got[2])) < 1.0, got
+    # The rows' position variance floor (lever 6) where the check had rows enough: what the table lists
+    # is what the tracker adds; the heading's is listed as measured and not added.
+    floor = {r["parameter"]: r for r in report["learnt"] if r["parameter"].endswith("sd floor")}
+    if floor:
+        assert [floor[p]["source"] for p in ("row position sd floor", "row heading sd floor")] == ["learnt", "measured"]
+        added = np.asarray(model.tracker.var_floor)[model.classes.index("robot")] if model.tracker.var_floor is not None \
+            else np.zeros(2)
+        np.testing.assert_allclose(np.sqrt(added[0]) * 1e3, floor["row position sd floor"]["value"], atol=0.006)
+        assert added[1] == 0
 
 
 @pytest.fixture(scope="module", params=["static", "walking"])

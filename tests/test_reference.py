@@ -106,22 +106,28 @@ def test_reference_follows_the_model(spl):
     assert first_g == first_r >= 5
 
 
-def test_reference_takes_the_pose_offset_off_the_rows(spl):
+def test_reference_takes_the_pose_offset_off_the_rows_and_adds_the_variance_floor(spl):
     """A tracker with a class's mean error to take off (``pose_offset``: 2 cm ahead, 1 cm to the right,
-    3° for the robot): the reference, which moves each confirmed track's pose back along its own axes,
-    reports the same rows; every row is the one without the offset moved back by it in the track's
-    frame, and the tracking itself (ids, detections) is unchanged."""
+    3° for the robot) and a variance floor to add (``var_floor``: (1 cm)² to each position variance,
+    (2°)² to the heading's): the reference, which moves each confirmed track's pose back along its own
+    axes and adds the floor to its filter's variances, reports the same rows; every row is the one
+    without them moved back by the offset in the track's frame, with the floor added to its variances,
+    and the tracking itself (ids, detections) is unchanged."""
     log, model = spl
     k = model.class_index("robot")
     offset = np.zeros((len(model.classes), 3), np.float32)
     offset[k] = (0.02, -0.01, np.radians(3.0))
-    shifted = eqx.tree_at(lambda m: m.tracker.pose_offset, model, jnp.asarray(offset), is_leaf=lambda x: x is None)
+    floor = np.zeros((len(model.classes), 2), np.float32)
+    floor[k] = (1e-4, np.radians(2.0) ** 2)
+    shifted = eqx.tree_at(lambda m: (m.tracker.pose_offset, m.tracker.var_floor), model,
+                          (jnp.asarray(offset), jnp.asarray(floor)), is_leaf=lambda x: x is None)
     scans = to_scans(log.slice(0, 80), model.n_beams)
     _, out = process_log(shifted, scans)
     _, plain = process_log(model, scans)
     agree = compare_tracks(out, ReferencePipeline(shifted).run(scans_to_numpy(scans)))
     assert agree["pairs_compared"] > 40 and agree["scans_same_ids"] == 80
     assert agree["max_pos_diff_m"] < 2e-3 and agree["max_heading_diff_deg"] < 0.2
+    assert agree["max_variance_rel_diff"] < 0.05, agree
     for field in ("track_id", "track_mask", "det_mask"):
         np.testing.assert_array_equal(np.asarray(getattr(out, field)), np.asarray(getattr(plain, field)))
     np.testing.assert_array_equal(np.asarray(out.det_pose), np.asarray(plain.det_pose))
@@ -135,6 +141,9 @@ def test_reference_takes_the_pose_offset_off_the_rows(spl):
     want = -np.array([np.cos(h) * 0.02 + np.sin(h) * -0.01, -np.sin(h) * 0.02 + np.cos(h) * -0.01])
     np.testing.assert_allclose(moved, np.broadcast_to(want, moved.shape), atol=2e-6)
     np.testing.assert_allclose(wrap(b[:, 2] - a[:, 2]), -h, atol=2e-6)
+    added = floor[np.asarray(plain.track_class)[rows]][:, [0, 0, 1]]
+    assert np.all(added > 0)  # the robot's rows
+    np.testing.assert_allclose(np.asarray(out.track_var)[rows], np.asarray(plain.track_var)[rows] + added, rtol=1e-6)
 
 
 def test_reference_rejects_what_the_model_rejects(tiny):

@@ -101,10 +101,11 @@ def test_rows_equal_a_numpy_rts_loop_over_the_scans_up_to_t_plus_lag(lag):
         np.testing.assert_allclose(got[3:], want[3:], rtol=2e-4, atol=1e-9, err_msg=f"scan {t}")
 
 
-def test_lagged_rows_have_the_class_pose_offset_taken_off():
-    """A tracker with a class's mean error to take off (``pose_offset``): each lagged row is the row
-    smoothed without it, moved back by the offset along the smoothed pose's own axes, as the forward
-    rows and ``replay --smooth``'s are (``TrackerParams.off``)."""
+def test_lagged_rows_have_the_class_pose_offset_taken_off_and_the_floor_added():
+    """A tracker with a class's mean error to take off (``pose_offset``) and a variance floor
+    (``var_floor``): each lagged row is the row smoothed without them, moved back by the offset along
+    the smoothed pose's own axes and with the floor added to its variances, as the forward rows and
+    ``replay --smooth``'s are (``TrackerParams.off``, ``TrackerParams.widened``)."""
     import equinox as eqx
 
     log, site = simulate("spl-crossing", seed=2003, n_scans=40)
@@ -113,7 +114,10 @@ def test_lagged_rows_have_the_class_pose_offset_taken_off():
     _, (out, filt) = process_log(model, scans, filtered=True)
     offset = np.zeros((len(model.classes), 3), np.float32)
     offset[model.class_index("robot")] = (0.02, -0.01, np.radians(3.0))
-    params = eqx.tree_at(lambda p: p.pose_offset, model.tracker, jnp.asarray(offset), is_leaf=lambda x: x is None)
+    floor = np.zeros((len(model.classes), 2), np.float32)
+    floor[model.class_index("robot")] = (1e-4, np.radians(2.0) ** 2)
+    params = eqx.tree_at(lambda p: (p.pose_offset, p.var_floor), model.tracker, (jnp.asarray(offset), jnp.asarray(floor)),
+                         is_leaf=lambda x: x is None)
     T, M = out.track_live.shape
     plain_rows, shifted_rows = _Rows(), _Rows()
     plain, shifted = FixedLag(model.tracker, 3, M, None, writer=plain_rows), FixedLag(params, 3, M, None, writer=shifted_rows)
@@ -134,7 +138,10 @@ def test_lagged_rows_have_the_class_pose_offset_taken_off():
     want = np.asarray(params.off(jnp.asarray(k), jnp.asarray([[r.x, r.y, r.theta] for r in a], jnp.float32)))
     np.testing.assert_allclose([[r.x, r.y] for r in b], want[:, :2], atol=2e-6)
     np.testing.assert_allclose(wrap(np.asarray([r.theta for r in b]) - want[:, 2]), 0.0, atol=2e-6)
-    assert [(r.var_x, r.var_theta) for r in a] == [(r.var_x, r.var_theta) for r in b]
+    added = floor[k][:, [0, 0, 1]]
+    np.testing.assert_allclose([[r.var_x, r.var_y, r.var_theta] for r in b],
+                               np.asarray([[r.var_x, r.var_y, r.var_theta] for r in a]) + added, rtol=1e-5)
+    assert [r.cov_xy for r in a] == [r.cov_xy for r in b]
 
 
 def test_rows_equal_the_fixed_interval_smoother_of_a_real_forward_pass():

@@ -169,10 +169,11 @@ def test_replay_smooth_with_two_lasers(match_model, tmp_path, capsys):  # noqa: 
     assert rmse(ps) < 0.95 * rmse(pf), (rmse(ps), rmse(pf))
 
 
-def test_smoothed_rows_have_the_class_pose_offset_taken_off(tiny):
-    """A tracker with a class's mean error to take off (``pose_offset``): the smoother's rows are the
-    same smoothing (the filtered states do not carry the offset) with the offset taken off each live
-    slot's smoothed pose along its own axes, as the forward rows have it taken off."""
+def test_smoothed_rows_have_the_class_pose_offset_taken_off_and_the_floor_added(tiny):
+    """A tracker with a class's mean error to take off (``pose_offset``) and a variance floor
+    (``var_floor``): the smoother's rows are the same smoothing (the filtered states carry neither)
+    with the offset taken off each live slot's smoothed pose along its own axes and the floor added to
+    its smoothed variances, as the forward rows have them."""
     import equinox as eqx
     import jax.numpy as jnp
 
@@ -186,7 +187,10 @@ def test_smoothed_rows_have_the_class_pose_offset_taken_off(tiny):
     _, (out, filtered) = process_log(model, scans, chunk=256, vectorise=True, filtered=True)
     offset = np.zeros((len(model.classes), 3), np.float32)
     offset[model.class_index("robot")] = (0.02, -0.01, np.radians(3.0))
-    params = eqx.tree_at(lambda p: p.pose_offset, model.tracker, jnp.asarray(offset), is_leaf=lambda x: x is None)
+    floor = np.zeros((len(model.classes), 2), np.float32)
+    floor[model.class_index("robot")] = (1e-4, np.radians(2.0) ** 2)
+    params = eqx.tree_at(lambda p: (p.pose_offset, p.var_floor), model.tracker, (jnp.asarray(offset), jnp.asarray(floor)),
+                         is_leaf=lambda x: x is None)
     plain = smooth_output(out, filtered, log.stamps, model.tracker)
     shifted = smooth_output(out, filtered, log.stamps, params)
     live = np.asarray(out.track_live, bool)
@@ -195,3 +199,6 @@ def test_smoothed_rows_have_the_class_pose_offset_taken_off(tiny):
     np.testing.assert_allclose(np.asarray(shifted.track_pose)[live], want[live], atol=1e-6)
     np.testing.assert_array_equal(np.asarray(shifted.track_pose)[~live], np.asarray(out.track_pose)[~live])
     assert np.abs(np.asarray(shifted.track_pose)[live] - np.asarray(plain.track_pose)[live]).max() > 0.005
+    added = floor[np.asarray(out.track_class)[live]][:, [0, 0, 1]]
+    np.testing.assert_allclose(np.asarray(shifted.track_var)[live], np.asarray(plain.track_var)[live] + added, rtol=1e-6)
+    np.testing.assert_array_equal(np.asarray(shifted.track_var)[~live], np.asarray(out.track_var)[~live])

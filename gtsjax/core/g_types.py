@@ -63,6 +63,10 @@ class TrackerParams(eqx.Module):
     # Each class's mean pose error in its own frame (ahead, left in m, heading in rad), measured at
     # training on held-out detections, taken off the reported rows (:meth:`off`); None: nothing taken off.
     pose_offset: Float[Array, "classes 3"] | None = None
+    # Each class's variance floor of the reported rows (position m², added to var_x and var_y; heading
+    # rad²), learnt at training so that the rows' 95 % ellipses hold 95 % of the held-out rows' errors
+    # (:meth:`widened`); None: the filter's variances as they are.
+    var_floor: Float[Array, "classes 2"] | None = None
 
     def off(self, class_id, pose):
         """``pose`` [..., 3] of tracks of ``class_id`` [...] with their class's ``pose_offset`` taken off:
@@ -74,6 +78,16 @@ class TrackerParams(eqx.Module):
         o = self.pose_offset[jnp.clip(class_id, 0, self.pose_offset.shape[0] - 1)]
         back = compose(pose, relative(o, jnp.zeros_like(o)))  # the offset's inverse, in the row's own frame
         return jnp.concatenate([back[..., :2], wrap(back[..., 2:])], axis=-1)
+
+    def widened(self, class_id, var):
+        """``var`` [..., 3] (var_x, var_y, var_theta) of tracks of ``class_id`` [...] with their class's
+        ``var_floor`` added. The filter's variance is that of noise it averages away; a view's error is
+        mostly its bias, the same scan after scan (docs/accuracy.md), which the filter's variance
+        shrinks past: a floor, not a factor, stands for it."""
+        if self.var_floor is None:
+            return var
+        f = self.var_floor[jnp.clip(class_id, 0, self.var_floor.shape[0] - 1)]
+        return var + jnp.stack([f[..., 0], f[..., 0], f[..., 1]], axis=-1).astype(var.dtype)
 
     @classmethod
     def default(

@@ -283,7 +283,7 @@ def update_view(model: Model, prev_tf: Transform, tracker: TrackerState, p: Perc
         track_id=ts.track_id,
         track_class=ts.class_id,
         track_pose=model.tracker.off(ts.class_id, ts.mean[:, :3]),
-        track_var=jnp.diagonal(ts.cov, axis1=1, axis2=2)[:, :3],
+        track_var=model.tracker.widened(ts.class_id, jnp.diagonal(ts.cov, axis1=1, axis2=2)[:, :3]),
         track_cov_xy=ts.cov[:, 0, 1],
         # Confirmed, recently observed, inside the site's bounds (a coasting track may leave them), and
         # if missed in this scan, not where the scan sees through.

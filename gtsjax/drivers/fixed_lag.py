@@ -205,9 +205,10 @@ class FixedLag:
         if not rows or not 0 <= i <= self.lag:
             return
         s = smoothed[i]
-        if self.params.pose_offset is not None:  # the class's mean error off the smoothed pose, as off the live row's
+        if self.params.pose_offset is not None or self.params.var_floor is not None:  # as the live row's
             s = s.copy()
             s[:, :3] = np.asarray(self.params.off(jnp.asarray(self.classes[i]), jnp.asarray(s[:, :3])))
+            s[:, 3:6] = np.asarray(self.params.widened(jnp.asarray(self.classes[i]), jnp.asarray(s[:, 3:6])))
         s = s.tolist()
         out = []
         for r in rows:

@@ -128,7 +128,9 @@ def smooth_output(out, filtered, stamps: np.ndarray, params, parallel: bool = Tr
     ms, ps = np.asarray(ms), np.asarray(ps)
     smoothed = np.asarray(params.off(jnp.asarray(np.asarray(out.track_class)), jnp.asarray(ms[..., :3])))
     pose = np.where(live[..., None], smoothed, np.asarray(out.track_pose))
-    var = np.where(live[..., None], np.diagonal(ps, axis1=-2, axis2=-1)[..., :3], np.asarray(out.track_var))
+    var = np.asarray(params.widened(jnp.asarray(np.asarray(out.track_class)),
+                                    jnp.asarray(np.diagonal(ps, axis1=-2, axis2=-1)[..., :3])))
+    var = np.where(live[..., None], var, np.asarray(out.track_var))
     cov_xy = np.where(live, ps[..., 0, 1], np.asarray(out.track_cov_xy))
     return eqx.tree_at(lambda o: (o.track_pose, o.track_var, o.track_cov_xy), out,
                        (pose.astype(np.float32), var.astype(np.float32), cov_xy.astype(np.float32)))

@@ -36,7 +36,7 @@ from ..io.site import Site
 from ..precision import exact_products
 from ..sensors import MODELS, with_scanner
 from .bounds import outline_rows, shape_rows
-from .calibrate import pose_bias
+from .calibrate import pose_bias, variance_floor
 from .check import check_pipeline, coverage, held_mask, simulated_checks, verdict
 from .classifier import fit_classifier, fit_support, landmark_lookalikes
 from .classifier import fit_envelope as fit_envelope
@@ -236,15 +236,18 @@ def train(logs: Sequence[ScanLog], site: "Site | Sequence[Site]", cfg: TrainConf
     report["warnings"] = report["warnings"] + where
     if cfg.check_pipeline:
         run.stage("tracking check")
-        errors = _tracking_check(report, model, logs, site, ex_lab, lab.held, mobiles, rate_hz, cfg.seed)
+        errors, row_errs = _tracking_check(report, model, logs, site, ex_lab, lab.held, mobiles, rate_hz, cfg.seed)
         # Each class's mean error in its own frame on the held-out detections, a bias no filter removes:
-        # listed, and taken off the tracks' rows from now on (the check's figures are of the model before).
+        # listed, and taken off the tracks' rows from now on (the check's figures are of the model before);
+        # then the variance the rows need beside the filter's for their 95 % ellipses to hold 95 % of the
+        # held-out rows' errors (with that offset off), added to every row's.
         offset, rows, warned = pose_bias(errors, classes)
-        report["learnt"] = report["learnt"] + rows
-        report["warnings"] = report["warnings"] + warned
-        if offset is not None:
-            model = eqx.tree_at(lambda m: m.tracker.pose_offset, model, jnp.asarray(offset),
-                                is_leaf=lambda x: x is None)
+        floor, floor_rows, floor_warned = variance_floor(row_errs, classes, offset, errors)
+        report["learnt"] = report["learnt"] + rows + floor_rows
+        report["warnings"] = report["warnings"] + warned + floor_warned
+        for leaf, value in ((lambda m: m.tracker.pose_offset, offset), (lambda m: m.tracker.var_floor, floor)):
+            if value is not None:
+                model = eqx.tree_at(leaf, model, jnp.asarray(value), is_leaf=lambda x: x is None)
     if len(lab.bg_ex.cls):
         report["heldout_background_logs"] = evaluate_examples(
             model, lab.bg_ex.take(np.flatnonzero(np.isin(lab.bg_ex.group, lab.held))))
@@ -411,12 +414,13 @@ def _report(run: _Run, model: Model, ex: Examples, is_held: np.ndarray, ex_lab: 
 
 def _tracking_check(report: dict, model: Model, logs: Sequence[ScanLog], site: "Site | Sequence[Site]",
                     ex_lab: Examples, held: list, mobiles: tuple[str, ...], rate_hz: float,
-                    seed: int) -> dict[str, np.ndarray]:
+                    seed: int) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
     """The trained step run over the labelled logs' held-out seconds and on simulated stays and walks
     with the held-out errors: whether it can track each class, a verdict no single figure gives.
-    Returns the held-out detections' errors in each class's own frame (for :func:`pose_bias`)."""
+    Returns the held-out detections' errors in each class's own frame (for :func:`pose_bias`) and the
+    held-out rows' errors with their variances (for :func:`variance_floor`)."""
     held_scans = [held_mask(log, i, ex_lab.where, ex_lab.group, held) for i, log in enumerate(logs)]
-    report["pipeline"], errors = check_pipeline(model, logs, per_log_sites(site, len(logs)), held_scans, mobiles)
+    report["pipeline"], errors, rows = check_pipeline(model, logs, per_log_sites(site, len(logs)), held_scans, mobiles)
     report["pipeline_simulated"] = simulated_checks(model, report["heldout"], mobiles, rate_hz, seed)
     report["pipeline_problems"] = verdict(report["pipeline"], report["pipeline_simulated"])
-    return errors
+    return errors, rows

@@ -59,6 +59,7 @@ ADVICE = {
 ROWS_PER_DETECTION = 0.9  # rows for at least this share of the scans in which the robot was detected
 DETECTION = 0.9  # the robot detected in at least this share of the held-out scans in which it is in view
 JUMP_SPEED = 2.0  # m/s: a labelled object faster than this between two scans was put down elsewhere
+JUMP_TURN = np.radians(2.0)  # rad: and one turned by this much more than its class's top turn rate allows
 MIN_RETURNS = 3  # returns on an object for it to be in view (a scan's lone return is a mixed pixel)
 
 
@@ -66,13 +67,14 @@ def _counts() -> dict:
     """Per class, what :func:`_score` counts (summed over logs by :func:`summarise`)."""
     return {"in_view": 0, "settled": 0, "detected": 0, "detected_settled": 0, "rows": 0, "rows_detected": 0,
             "lost": dict.fromkeys(STAGES, 0), "undetected": dict.fromkeys(STAGES, 0), "err_xy": [], "err_th": [],
-            "det_err": []}
+            "det_err": [], "row_err": []}
 
 
-def _score(r: dict, found: bool, settled: bool, row: "tuple[float, float] | None", lost) -> None:
+def _score(r: dict, found: bool, settled: bool, row: "tuple | None", lost) -> None:
     """One object in one scan into the counts ``r``: whether it was detected, whether it is old enough to
-    be tracked, its row's position and heading errors (None: no row) and, for a scan without one,
-    ``lost()``, the stage that lost it."""
+    be tracked, its row's position and heading errors and its error with the row's variances (the
+    columns of :func:`row_errors`; None: no row) and, for a scan without one, ``lost()``, the stage that
+    lost it."""
     r["in_view"] += 1
     r["detected"] += int(found)
     if not found:
@@ -88,6 +90,8 @@ def _score(r: dict, found: bool, settled: bool, row: "tuple[float, float] | None
     r["rows_detected"] += int(found)
     r["err_xy"].append(row[0])
     r["err_th"].append(row[1])
+    if len(row) > 2:  # with its variances (the labelled logs' rows; the simulated checks' have none)
+        r["row_err"].append(row[2])
 
 
 def _stage_of_hold(hold: int) -> str:
@@ -96,13 +100,20 @@ def _stage_of_hold(hold: int) -> str:
     return {"too few scans": "confirmation", "none": "tracker"}.get(name, name)
 
 
-def _since(xy: np.ndarray, stamps: np.ndarray, present: np.ndarray) -> np.ndarray:
+def _since(xy: np.ndarray, stamps: np.ndarray, present: np.ndarray, theta: "np.ndarray | None" = None,
+           turn_rate: "np.ndarray | float" = np.inf) -> np.ndarray:
     """Seconds since each object (``xy`` [T, M, 2]) appeared, or last jumped (a labelled robot put down at
-    its next grid pose between two scans: no tracker follows that, nor should it)."""
+    its next grid pose between two scans: no tracker follows that, nor should it), or, given its
+    headings ``theta`` [T, M], last turned faster than ``turn_rate`` (rad/s, per object) allows (a robot
+    turned by hand between two scans of a recording turned on the spot: the track's heading follows
+    it within a few scans, and those scans are the recording's habit, not the model's error)."""
     since = np.zeros(present.shape)
     for t in range(1, len(stamps)):
         dt = stamps[t] - stamps[t - 1]
         jump = np.hypot(*(xy[t] - xy[t - 1]).T) > JUMP_SPEED * dt + 0.02
+        if theta is not None:
+            turned = np.abs(wrap(np.nan_to_num(theta[t] - theta[t - 1])))
+            jump = jump | (turned > np.asarray(turn_rate) * dt + JUMP_TURN)
         since[t] = np.where(present[t] & present[t - 1] & ~jump, since[t - 1] + dt, 0.0)
     return since
 
@@ -171,7 +182,9 @@ def check_log(model: Model, log: ScanLog, held: np.ndarray, tracked: Sequence[st
         b = np.asarray(model.site.bounds)
         x, y = np.nan_to_num(truth[..., 0]), np.nan_to_num(truth[..., 1])
         present &= (x >= b[0]) & (y >= b[1]) & (x <= b[2]) & (y <= b[3])
-    since = _since(truth[..., :2], log.stamps, present)
+    rates = np.array([float(model.tracker.max_turn_rate[classes.index(str(c))]) if str(c) in classes else np.inf
+                      for c in log.truth_classes])
+    since = _since(truth[..., :2], log.stamps, present, truth[..., 2], rates)
     in_view = present & seen(log, np.asarray(out.sensor_pose, np.float64), np.nan_to_num(truth[..., :2]), present,
                              np.asarray(model.site.landmark_xy, np.float64), radius)
     res: dict[str, dict] = {}
@@ -192,8 +205,13 @@ def check_log(model: Model, log: ScanLog, held: np.ndarray, tracked: Sequence[st
             rows = np.asarray(out.track_mask[t]) & (np.asarray(out.track_class[t]) == c)
             d = np.where(rows, np.linalg.norm(out.track_pose[t][:, :2] - xy, axis=1), np.inf)
             j = int(np.argmin(d))
-            row = (float(d[j]), float(heading_error(out.track_pose[t][j, 2] - truth[t, i, 2], turns[c]))
-                   ) if d[j] <= radius else None
+            row = None
+            if d[j] <= radius:
+                e_th = float(heading_error(out.track_pose[t][j, 2] - truth[t, i, 2], turns[c]))
+                var = np.asarray(out.track_var[t][j], np.float64)
+                full = (*(np.asarray(out.track_pose[t][j, :2], np.float64) - truth[t, i, :2]), e_th, var[0], var[1],
+                        float(out.track_cov_xy[t][j]), var[2], float(truth[t, i, 2]))
+                row = (float(d[j]), e_th, full)
             _score(r, found, since[t, i] >= settle, row, lambda t=t, xy=xy, c=c: _lost_at(out, t, xy, c, radius))
     return res
 
@@ -239,6 +257,17 @@ def detection_errors(parts: Sequence[dict]) -> dict[str, np.ndarray]:
     return {name: np.asarray(e, np.float64).reshape(-1, 3) for name, e in out.items()}
 
 
+def row_errors(parts: Sequence[dict]) -> dict[str, np.ndarray]:
+    """Per class, :func:`check_log`'s settled rows over logs, ``[n, 8]``: the position error (x, y in
+    the field), the heading error, the row's var_x, var_y, cov_xy and var_theta, and the true heading
+    (the columns of ``gtsjax evaluate``'s errors, ``drivers.evaluation.error_bar_figures``)."""
+    out: dict[str, list] = {}
+    for part in parts:
+        for name, r in part.items():
+            out.setdefault(name, []).extend(r["row_err"])
+    return {name: np.asarray(e, np.float64).reshape(-1, 8) for name, e in out.items()}
+
+
 def frame_error(estimate, truth, turns: "int | None") -> tuple[float, float, float]:
     """``estimate − truth`` of a pose in the object's own frame: ahead, left (m) and heading (rad).
     For an object alike turned by a ``1/turns`` of a turn, the truth's turn nearest the estimate's."""
@@ -249,11 +278,12 @@ def frame_error(estimate, truth, turns: "int | None") -> tuple[float, float, flo
 
 
 def check_pipeline(model: Model, logs: Sequence[ScanLog], sites: Sequence[Site], held: Sequence[np.ndarray],
-                   tracked: Sequence[str]) -> tuple[dict, dict[str, np.ndarray]]:
+                   tracked: Sequence[str]) -> tuple[dict, dict[str, np.ndarray], dict[str, np.ndarray]]:
     """:func:`check_log` over every labelled log (each with its site and held-out scans), summarised;
-    and the detections' errors in each class's own frame (:func:`detection_errors`)."""
+    the detections' errors in each class's own frame (:func:`detection_errors`); and the rows' errors
+    with their variances (:func:`row_errors`)."""
     parts = [check_log(model.with_site(site), log, h, tracked) for log, site, h in zip(logs, sites, held, strict=True)]
-    return summarise(parts), detection_errors(parts)
+    return summarise(parts), detection_errors(parts), row_errors(parts)
 
 
 def verdict(summary: dict, simulated: dict | None = None, min_scored: int = 30) -> list[str]:

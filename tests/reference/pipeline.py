@@ -70,6 +70,8 @@ class ReferencePipeline:
         self.outline = None if model.outline is None else Outline.of(model.outline)
         offset = model.tracker.pose_offset
         self.pose_offset = None if offset is None else _f(offset)
+        floor = model.tracker.var_floor
+        self.var_floor = None if floor is None else _f(floor)
         self.max_objects = model.max_objects
         self.reset()
 
@@ -83,6 +85,14 @@ class ReferencePipeline:
         th -= turn
         return np.array([x - (math.cos(th) * ahead - math.sin(th) * left),
                          y - (math.sin(th) * ahead + math.cos(th) * left), wrap(th)])
+
+    def reported_var(self, cls: int, var) -> np.ndarray:
+        """A track's (var_x, var_y, var_theta) as reported: its class's floor (``var_floor``: position,
+        heading) added."""
+        var = np.array([float(v) for v in var])
+        if self.var_floor is not None:
+            var += self.var_floor[cls][[0, 0, 1]]
+        return var
 
     def reset(self) -> None:
         """Before the first scan: the site's rough sensor pose as the transform, no tracks."""
@@ -203,7 +213,7 @@ class ReferencePipeline:
             track_id=np.array([t.track_id for t in tracks], int),
             track_class=np.array([t.cls for t in tracks], int),
             track_pose=np.array([self.reported_pose(t.cls, t.kf.x[:3, 0]) for t in tracks]).reshape(-1, 3),
-            track_var=np.array([np.diag(t.kf.P)[:3] for t in tracks]).reshape(-1, 3),
+            track_var=np.array([self.reported_var(t.cls, np.diag(t.kf.P)[:3]) for t in tracks]).reshape(-1, 3),
             track_cov_xy=np.array([t.kf.P[0, 1] for t in tracks]).reshape(-1),
             A=tf.A.copy(),
             mu_s=tf.mu_s.copy(),
@@ -249,7 +259,7 @@ def compare_tracks(outputs, ref: list[RefOutput]) -> dict:
     var, cov_xy = np.asarray(outputs.track_var, np.float64), np.asarray(outputs.track_cov_xy, np.float64)
     n = len(ref)
     same_ids = 0
-    dpos, dth, dcorr = [], [], []
+    dpos, dth, dcorr, dvar = [], [], [], []
     all_g, all_r = set(), set()
     for t in range(n):
         g = {int(i): pose[t, m] for m, i in enumerate(ids[t]) if mask[t, m]}
@@ -258,6 +268,8 @@ def compare_tracks(outputs, ref: list[RefOutput]) -> dict:
         g_corr = {int(i): cov_xy[t, m] / np.sqrt(var[t, m, 0] * var[t, m, 1]) for m, i in enumerate(ids[t]) if mask[t, m]}
         r_corr = {int(i): c / np.sqrt(v[0] * v[1])
                   for i, c, v in zip(ref[t].track_id, ref[t].track_cov_xy, ref[t].track_var, strict=True)}
+        g_var = {int(i): var[t, m] for m, i in enumerate(ids[t]) if mask[t, m]}
+        r_var = {int(i): np.asarray(v, np.float64) for i, v in zip(ref[t].track_id, ref[t].track_var, strict=True)}
         all_g |= g.keys()
         all_r |= r.keys()
         same_ids += g.keys() == r.keys()
@@ -265,6 +277,7 @@ def compare_tracks(outputs, ref: list[RefOutput]) -> dict:
             dpos.append(float(np.hypot(*(g[i][:2] - r[i][:2]))))
             dth.append(abs(float(wrap(g[i][2] - r[i][2]))))
             dcorr.append(abs(float(g_corr[i] - r_corr[i])))
+            dvar.append(float(np.max(np.abs(g_var[i] - r_var[i]) / r_var[i])))
     dpos, dth = np.asarray(dpos), np.asarray(dth)
     return {
         "scans": n,
@@ -278,5 +291,6 @@ def compare_tracks(outputs, ref: list[RefOutput]) -> dict:
         "p99_pos_diff_m": float(np.percentile(dpos, 99)) if dpos.size else 0.0,
         "max_heading_diff_deg": float(np.degrees(dth.max())) if dth.size else 0.0,
         "max_xy_correlation_diff": max(dcorr, default=0.0),
+        "max_variance_rel_diff": max(dvar, default=0.0),
         "degraded_scans_reference": int(sum(o.degraded for o in ref)),
     }
