@@ -29,9 +29,10 @@ scanner; an error near it can only drop with more beams on the robot (nearer, or
     python scripts/range_curve.py [--model M.npz] [--outline nao] [--layout spl] [--ranges 0.75 1 ...]
 
 Prints a Markdown table. Default: the shipped model (URG-04LX) on the SPL field it was trained for,
-and the Nao outline. The errors are in the field frame: the step's detections in the sensor's own
-frame are about 1 % of the range short (the landmarks' detections are too, and stage f's affine map,
-singular values 1.010–1.015 on spl-eval, stretches both back), so they are not scored there.
+and the Nao outline. The errors are in the field frame: the shipped model's detections in the
+sensor's own frame are 1 % of the range short (its landmarks' are too, and stage f's affine map,
+singular values 1.010–1.015 on spl-eval, stretches both back: training's first pass leaves the
+scale unanchored, docs/accuracy.md), so they are not scored there.
 """
 
 import argparse
