@@ -16,6 +16,7 @@ from gtsjax.gp import predict_mean  # noqa: E402
 from gtsjax.io import to_scans  # noqa: E402
 from gtsjax.io.modelfile import load_model  # noqa: E402
 from gtsjax.sim import simulate  # noqa: E402
+from tests._utils import offset_and_floor
 from tests.reference.gp import sklearn_gp  # noqa: E402
 from tests.reference.pipeline import ReferencePipeline, compare_tracks, scans_to_numpy  # noqa: E402
 from tests.reference.track import wrap  # noqa: E402
@@ -114,13 +115,8 @@ def test_reference_takes_the_pose_offset_off_the_rows_and_adds_the_variance_floo
     without them moved back by the offset in the track's frame, with the floor added to its variances,
     and the tracking itself (ids, detections) is unchanged."""
     log, model = spl
-    k = model.class_index("robot")
-    offset = np.zeros((len(model.classes), 3), np.float32)
-    offset[k] = (0.02, -0.01, np.radians(3.0))
-    floor = np.zeros((len(model.classes), 2), np.float32)
-    floor[k] = (1e-4, np.radians(2.0) ** 2)
-    shifted = eqx.tree_at(lambda m: (m.tracker.pose_offset, m.tracker.var_floor), model,
-                          (jnp.asarray(offset), jnp.asarray(floor)), is_leaf=lambda x: x is None)
+    _, floor, params = offset_and_floor(model)
+    shifted = eqx.tree_at(lambda m: m.tracker, model, params)
     scans = to_scans(log.slice(0, 80), model.n_beams)
     _, out = process_log(shifted, scans)
     _, plain = process_log(model, scans)

@@ -29,6 +29,7 @@ from gtsjax.io.modelfile import load_model
 from gtsjax.sensors import URG_04LX
 from gtsjax.sim import simulate
 from gtsjax.sim.emulator import SensorEmulator, log_source
+from tests._utils import offset_and_floor
 from tests.test_several import _Frame, _Link, match  # noqa: F401  (the fixture: two lasers on the match's field)
 from tests.test_smooth import _filter, _params, _rts_numpy, _simulate
 
@@ -106,18 +107,12 @@ def test_lagged_rows_have_the_class_pose_offset_taken_off_and_the_floor_added():
     (``var_floor``): each lagged row is the row smoothed without them, moved back by the offset along
     the smoothed pose's own axes and with the floor added to its variances, as the forward rows and
     ``replay --smooth``'s are (``TrackerParams.off``, ``TrackerParams.widened``)."""
-    import equinox as eqx
 
     log, site = simulate("spl-crossing", seed=2003, n_scans=40)
     model = load_model(demo_model_path()).with_site(site)
     scans = to_scans(log, model.n_beams)
     _, (out, filt) = process_log(model, scans, filtered=True)
-    offset = np.zeros((len(model.classes), 3), np.float32)
-    offset[model.class_index("robot")] = (0.02, -0.01, np.radians(3.0))
-    floor = np.zeros((len(model.classes), 2), np.float32)
-    floor[model.class_index("robot")] = (1e-4, np.radians(2.0) ** 2)
-    params = eqx.tree_at(lambda p: (p.pose_offset, p.var_floor), model.tracker, (jnp.asarray(offset), jnp.asarray(floor)),
-                         is_leaf=lambda x: x is None)
+    offset, floor, params = offset_and_floor(model)
     T, M = out.track_live.shape
     plain_rows, shifted_rows = _Rows(), _Rows()
     plain, shifted = FixedLag(model.tracker, 3, M, None, writer=plain_rows), FixedLag(params, 3, M, None, writer=shifted_rows)

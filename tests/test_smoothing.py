@@ -11,7 +11,7 @@ from gtsjax.core.geometry import wrap
 from gtsjax.drivers.smoothing import cuts, resets
 from gtsjax.io import load_log, save_log, save_site
 from gtsjax.io.gtd import read_gtd
-from tests._utils import cli
+from tests._utils import cli, offset_and_floor
 from tests.test_cli_paths import match_model  # noqa: F401  (the fixture: a small model of the match's field)
 
 
@@ -174,7 +174,6 @@ def test_smoothed_rows_have_the_class_pose_offset_taken_off_and_the_floor_added(
     (``var_floor``): the smoother's rows are the same smoothing (the filtered states carry neither)
     with the offset taken off each live slot's smoothed pose along its own axes and the floor added to
     its smoothed variances, as the forward rows have them."""
-    import equinox as eqx
     import jax.numpy as jnp
 
     from gtsjax.drivers.batch import process_log
@@ -185,12 +184,7 @@ def test_smoothed_rows_have_the_class_pose_offset_taken_off_and_the_floor_added(
     log = tiny["train_log"].slice(0, 24)
     scans = to_scans(log, model.n_beams)
     _, (out, filtered) = process_log(model, scans, chunk=256, vectorise=True, filtered=True)
-    offset = np.zeros((len(model.classes), 3), np.float32)
-    offset[model.class_index("robot")] = (0.02, -0.01, np.radians(3.0))
-    floor = np.zeros((len(model.classes), 2), np.float32)
-    floor[model.class_index("robot")] = (1e-4, np.radians(2.0) ** 2)
-    params = eqx.tree_at(lambda p: (p.pose_offset, p.var_floor), model.tracker, (jnp.asarray(offset), jnp.asarray(floor)),
-                         is_leaf=lambda x: x is None)
+    offset, floor, params = offset_and_floor(model)
     plain = smooth_output(out, filtered, log.stamps, model.tracker)
     shifted = smooth_output(out, filtered, log.stamps, params)
     live = np.asarray(out.track_live, bool)

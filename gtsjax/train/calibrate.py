@@ -14,7 +14,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..core.e_pose import MAX_THETA_VAR, PoseRegressor, regress_one_class
-from ..drivers.evaluation import heading_error
+from ..core.geometry import compose, relative, wrap
+from ..drivers.evaluation import CHI2_95, heading_error
 
 # Median of χ² with one degree of freedom, and its 0.999 quantile: the tracker's heading gate.
 _CHI2_1_MEDIAN = 0.45493642311957283
@@ -111,7 +112,7 @@ def pose_bias(errors: "dict[str, np.ndarray]", classes: "tuple[str, ...]"
     rows, warnings, any_set = [], [], False
     for name, err in errors.items():
         err = np.asarray(err, np.float64).reshape(-1, 3)
-        err = err[np.abs(np.degrees(err[:, 2])) <= WRONG_SIDE_DEG]
+        err = _right_side(err)
         n = len(err)
         if n < MIN_BIAS_DETECTIONS:
             continue
@@ -147,20 +148,25 @@ MIN_FLOOR_ROWS = 100
 FLOOR_RANGE_MM = 30.0
 FLOOR_RANGE_DEG = 5.0
 COVERAGE = 0.95
-_CHI2_2_95, _CHI2_1_95 = 5.991464547107979, 3.841458820694124
 
 
 def _with_offset(e: np.ndarray, offset: "np.ndarray | None") -> np.ndarray:
     """Rows' errors ``e`` [n, 8] (:func:`~gtsjax.train.check.row_errors`) as they are once the class's
-    ``offset`` (ahead, left, heading; ``TrackerParams.off``) is taken off the rows."""
+    ``offset`` (ahead, left, heading) is taken off the rows as ``TrackerParams.off`` takes it: each row
+    (its position relative to the truth's, its heading) composed with the offset's inverse."""
     if offset is None or not np.any(offset):
         return e
+    row = np.column_stack([e[:, :2], e[:, 7] + e[:, 2]])
+    back = compose(row, relative(np.asarray(offset, np.float64), np.zeros(3)))
     e = e.copy()
-    th = e[:, 7] + e[:, 2] - offset[2]  # the row's heading once turned back
-    e[:, 0] -= np.cos(th) * offset[0] - np.sin(th) * offset[1]
-    e[:, 1] -= np.sin(th) * offset[0] + np.cos(th) * offset[1]
-    e[:, 2] = np.angle(np.exp(1j * (e[:, 2] - offset[2])))
+    e[:, :2], e[:, 2] = back[:, :2], wrap(back[:, 2] - e[:, 7])
     return e
+
+
+def _right_side(err: np.ndarray) -> np.ndarray:
+    """The rows of ``err`` (heading error, rad, in column 2) within :data:`WRONG_SIDE_DEG`: a side read
+    wrong is a misread, counted apart, never part of a bias or a spread."""
+    return err[np.abs(np.degrees(err[:, 2])) <= WRONG_SIDE_DEG]
 
 
 def needed_floors(e: np.ndarray) -> np.ndarray:
@@ -168,11 +174,11 @@ def needed_floors(e: np.ndarray) -> np.ndarray:
     that puts its error inside its 95 % ellipse (χ²₂) and interval (χ²₁): ``[n, 2]``, 0 where it is
     inside already. Position: the root of ``dᵀ(Σ + fI)⁻¹d = k``, a quadratic in ``f``."""
     dx, dy, eth, vx, vy, cxy, vth, _ = e.T
-    k = _CHI2_2_95
+    k = CHI2_95[2]
     b = k * (vx + vy) - (dx**2 + dy**2)
     c = k * (vx * vy - cxy**2) - (vy * dx**2 - 2 * cxy * dx * dy + vx * dy**2)
     pos = np.where(c < 0, (-b + np.sqrt(np.maximum(b**2 - 4 * k * c, 0.0))) / (2 * k), 0.0)
-    head = np.maximum(eth**2 / _CHI2_1_95 - vth, 0.0)
+    head = np.maximum(eth**2 / CHI2_95[1] - vth, 0.0)
     return np.column_stack([pos, head])
 
 
@@ -190,7 +196,7 @@ def _detection_variance(err: "np.ndarray | None") -> np.ndarray:
     if err is None:
         return np.array([np.inf, np.inf])
     err = np.asarray(err, np.float64).reshape(-1, 3)
-    err = err[np.abs(np.degrees(err[:, 2])) <= WRONG_SIDE_DEG]
+    err = _right_side(err)
     if len(err) < MIN_BIAS_DETECTIONS:
         return np.array([np.inf, np.inf])
     v = err.var(axis=0, ddof=1)
@@ -232,7 +238,7 @@ def variance_floor(rows: "dict[str, np.ndarray]", classes: "tuple[str, ...]", of
         # A row read on the wrong side is a misread no error bar should cover (evaluate counts those
         # apart, "reads more than 30° off"): a floor wide enough for it would make every other row's
         # ellipse useless.
-        e = e[np.abs(np.degrees(e[:, 2])) <= WRONG_SIDE_DEG]
+        e = _right_side(e)
         if len(e) < MIN_FLOOR_ROWS:
             continue
         need = needed_floors(e)

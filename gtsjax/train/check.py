@@ -247,25 +247,26 @@ def summarise(parts: Sequence[dict]) -> dict:
     return out
 
 
-def detection_errors(parts: Sequence[dict]) -> dict[str, np.ndarray]:
-    """Per class, the errors of :func:`check_log`'s detections in the object's own frame (ahead, left,
-    heading; :func:`frame_error`) over logs: ``[n, 3]``."""
+def _gathered(parts: Sequence[dict], key: str, width: int) -> dict[str, np.ndarray]:
+    """Per class, the ``key`` lists of :func:`check_log`'s counts over logs, as ``[n, width]``."""
     out: dict[str, list] = {}
     for part in parts:
         for name, r in part.items():
-            out.setdefault(name, []).extend(r["det_err"])
-    return {name: np.asarray(e, np.float64).reshape(-1, 3) for name, e in out.items()}
+            out.setdefault(name, []).extend(r[key])
+    return {name: np.asarray(e, np.float64).reshape(-1, width) for name, e in out.items()}
+
+
+def detection_errors(parts: Sequence[dict]) -> dict[str, np.ndarray]:
+    """Per class, the errors of :func:`check_log`'s detections in the object's own frame (ahead, left,
+    heading; :func:`frame_error`) over logs: ``[n, 3]``."""
+    return _gathered(parts, "det_err", 3)
 
 
 def row_errors(parts: Sequence[dict]) -> dict[str, np.ndarray]:
     """Per class, :func:`check_log`'s settled rows over logs, ``[n, 8]``: the position error (x, y in
     the field), the heading error, the row's var_x, var_y, cov_xy and var_theta, and the true heading
     (the columns of ``gtsjax evaluate``'s errors, ``drivers.evaluation.error_bar_figures``)."""
-    out: dict[str, list] = {}
-    for part in parts:
-        for name, r in part.items():
-            out.setdefault(name, []).extend(r["row_err"])
-    return {name: np.asarray(e, np.float64).reshape(-1, 8) for name, e in out.items()}
+    return _gathered(parts, "row_err", 8)
 
 
 def frame_error(estimate, truth, turns: "int | None") -> tuple[float, float, float]:
