@@ -16,7 +16,6 @@ error is split by
 Prints Markdown tables. Default: the shipped model.
 """
 
-import argparse
 import sys
 from pathlib import Path
 
@@ -25,10 +24,14 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _args import parser  # noqa: E402  (scripts/_args.py, beside this script)
+
 from gtsjax.cli.demo import demo_model_path  # noqa: E402
 from gtsjax.drivers.evaluation import evaluate_outputs  # noqa: E402
 from gtsjax.drivers.setup import attach_site, fit_to_model  # noqa: E402
 from gtsjax.drivers.several import merge_logs, models_for_lasers, process_several, site_poses  # noqa: E402
+from gtsjax.errors import InputError  # noqa: E402
 from gtsjax.io.modelfile import load_model  # noqa: E402
 from gtsjax.io.site import one_sensor  # noqa: E402
 from gtsjax.sim.match import simulate_match  # noqa: E402
@@ -60,16 +63,25 @@ def table(title: str, edges, value: np.ndarray, err_deg: np.ndarray) -> None:
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = parser(__doc__)
     ap.add_argument("--seed", type=int, default=2000)
     ap.add_argument("--seconds", type=float, default=30.0)
     ap.add_argument("--robots", type=int, default=10)
     ap.add_argument("--model", default=None, help="model file (default: the shipped model)")
     args = ap.parse_args(argv)
+    for bad, what in ((args.seed < 0, f"--seed must be 0 or more, got {args.seed}"),
+                      (args.seconds <= 0, f"--seconds must be positive, got {args.seconds:g}"),
+                      (not 1 <= args.robots <= 14, f"--robots must be 1 to 14, got {args.robots}")):
+        if bad:
+            ap.error(what)
+    try:
+        model = load_model(args.model or demo_model_path())
+    except InputError as e:
+        ap.error(str(e))
     jax.config.update("jax_enable_x64", True)
     logs, site = simulate_match("spl-match-2", seed=args.seed, n_robots=args.robots, seconds=args.seconds)
     names = list(logs)
-    base = attach_site(load_model(args.model or demo_model_path()), one_sensor(site, names[0]))
+    base = attach_site(model, one_sensor(site, names[0]))
     models, _ = models_for_lasers([base], site, names)
     merged = merge_logs({n: fit_to_model(log, models[0], n) for n, log in logs.items()})
     _, out = process_several((models[0],), merged, site_poses(site, merged.names))

@@ -35,9 +35,9 @@ singular values 1.010–1.015 on spl-eval, stretches both back: training's first
 scale unanchored, docs/accuracy.md), so they are not scored there.
 """
 
-import argparse
 import math
 import sys
+import warnings
 from pathlib import Path
 
 import jax
@@ -45,9 +45,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _args import parser  # noqa: E402  (scripts/_args.py, beside this script)
+
 from gtsjax.cli.demo import demo_model_path  # noqa: E402
 from gtsjax.drivers.batch import process_log  # noqa: E402
 from gtsjax.drivers.evaluation import heading_turns  # noqa: E402
+from gtsjax.errors import InputError  # noqa: E402
 from gtsjax.io.logs import to_scans  # noqa: E402
 from gtsjax.io.modelfile import load_model  # noqa: E402
 from gtsjax.sensors import get_model  # noqa: E402
@@ -63,7 +67,8 @@ LAYOUTS = {"spl": spl_layout, "hall": hall_layout, "lab": lab_layout}
 def placements(layout, ranges, n: int, fov: float, rng: np.random.Generator, margin: float = 0.35) -> np.ndarray:
     """``[len(ranges), n, 3]`` poses in the field: at each range from the layout's laser, ``n`` random
     bearings inside ``fov`` (radians, centred on where it looks) that put the robot inside the field's
-    bounds (``margin`` from them), and random headings. A range the field has no room for raises."""
+    bounds (``margin`` from them), and random headings. A range the field has no room for raises
+    ``ValueError``."""
     sx, sy, sth = layout.sensor_pose
     x0, y0, x1, y1 = layout.bounds
     out = np.zeros((len(ranges), n, 3))
@@ -72,7 +77,7 @@ def placements(layout, ranges, n: int, fov: float, rng: np.random.Generator, mar
         x, y = sx + r * np.cos(b), sy + r * np.sin(b)
         inside = np.flatnonzero((x >= x0 + margin) & (x <= x1 - margin) & (y >= y0 + margin) & (y <= y1 - margin))
         if len(inside) < n:
-            raise SystemExit(f"range {r:g} m: the field has no room for the robot there (try smaller --ranges)")
+            raise ValueError(f"--ranges {r:g}: the field has no room for the robot that far from its laser")
         k = inside[:n]
         out[i] = np.column_stack([x[k], y[k], rng.uniform(-math.pi, math.pi, n)])
     return out
@@ -159,6 +164,7 @@ def detections(model, layout, sensor, outline: str, poses: np.ndarray, scans: in
 def split(err: np.ndarray) -> dict:
     """Per range: detection rate, misreads, and the position (radial) and heading errors' RMS, bias of
     the view and noise about it, from ``[P, S, 3]`` errors (misreads left out of the RMS)."""
+    warnings.simplefilter("ignore", RuntimeWarning)  # a range with no detection: its figures are NaN, said so
     found = np.isfinite(err[..., 0])
     wrong = found & (np.abs(err[..., 2]) > WRONG_SIDE)
     good = np.where((found & ~wrong)[..., None], err, np.nan)
@@ -171,7 +177,7 @@ def split(err: np.ndarray) -> dict:
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = parser(__doc__)
     ap.add_argument("--model", default=None, help="model file (default: the shipped model)")
     ap.add_argument("--outline", default="nao", help="the simulated robot's outline (nao, box, cart)")
     ap.add_argument("--layout", default="spl", choices=sorted(LAYOUTS), help="the site: its laser, landmarks and field")
@@ -181,13 +187,25 @@ def main(argv=None) -> None:
     ap.add_argument("--fov-deg", type=float, default=150.0, help="bearings drawn within this, centred ahead")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
+    for bad, what in ((min(args.ranges) <= 0, f"--ranges must be positive metres, got {min(args.ranges):g}"),
+                      (args.placements < 1, f"--placements must be at least 1, got {args.placements}"),
+                      (args.scans < 1, f"--scans must be at least 1, got {args.scans}"),
+                      (not 0 < args.fov_deg <= 360, f"--fov-deg must be in (0, 360], got {args.fov_deg:g}")):
+        if bad:
+            ap.error(what)
+    try:
+        model = load_model(args.model or demo_model_path())
+        shape = robot_shape(args.outline)
+    except InputError as e:
+        ap.error(str(e))
     jax.config.update("jax_enable_x64", True)
-    model = load_model(args.model or demo_model_path())
     sensor = get_model(model.sensor_model)
     layout = LAYOUTS[args.layout]()
-    shape = robot_shape(args.outline)
     rng = np.random.default_rng(args.seed)
-    poses = placements(layout, args.ranges, args.placements, math.radians(args.fov_deg), rng)
+    try:
+        poses = placements(layout, args.ranges, args.placements, math.radians(args.fov_deg), rng)
+    except ValueError as e:
+        ap.error(str(e))
     print(f"{sensor.name} on the {args.layout} layout, model {args.model or 'demo'}, outline {args.outline}: "
           f"{args.placements} placements × {args.scans} scans per range; errors of single detections in the field "
           "(stages a–f, before the tracker), misreads (over 30°) apart\n")
