@@ -10,6 +10,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import jax.scipy.special
 from jaxtyping import Array, Bool, Float, Int
 
 from .g_types import NX, DetectionRows, TrackerParams, TrackerState, _select
@@ -30,6 +31,40 @@ _NEW_P = 0.1
 _MERGE = 0.05
 # How much more weight another hypothesis needs before the state's heading becomes it: odds of 3 to 1.
 _SWITCH_ODDS = 3.0
+# The track's velocity read as one observation of its direction of travel per this many seconds: a
+# constant-velocity filter's velocity averages about a second of positions, and taken at full weight
+# in every scan the same motion would count ten or forty times over (:func:`motion_evidence`).
+_MOTION_S = 1.0
+# Slower than this (m/s), the direction of travel is not read: a robot standing still, whose filtered
+# velocity is noise (its uncertainty already makes the reading weak; this makes it none).
+_MOTION_MIN_SPEED = 0.05
+
+
+def motion_evidence(state: TrackerState, params: TrackerParams, dt: Float[Array, ""]) -> Float[Array, "tracks sides"]:
+    """Lever 2 of issue 55, the direction of travel as evidence for each heading hypothesis: the log of
+    its likelihood against a uniform heading's, ``log((1 - u)·2π·VM(φ_j - travel - μ; κ') + u)`` with
+    the class's learnt offset ``μ``, concentration ``κ`` and other share ``u``
+    (``TrackerParams.motion_heading``), ``κ' = κ / (1 + κ σ²)`` where σ² is the variance of the
+    track's direction of travel (its velocity's across-track variance over its speed²), weighted by
+    ``dt / _MOTION_S``. Zero for a track slower than ``_MOTION_MIN_SPEED``, of a class that learnt no
+    motion (κ = 0), or where nothing was learnt. A view that looks the same from two sides then leans
+    to the side the robot walks towards; a holonomic robot's learnt ``u`` near 1 leaves its views to decide."""
+    if params.motion_heading is None:
+        return jnp.zeros_like(state.side_heading)
+    mh = params.motion_heading[jnp.clip(state.class_id, 0, params.motion_heading.shape[0] - 1)]  # [M, 3]
+    mu, kappa, other = mh[:, 0], jnp.maximum(mh[:, 1], 0.0), jnp.clip(mh[:, 2], 1e-3, 1.0)
+    v = state.mean[:, 3:5]
+    speed2 = jnp.maximum(jnp.sum(v**2, axis=-1), 1e-12)
+    across = jnp.stack([-v[:, 1], v[:, 0]], axis=-1)  # the speed times the unit vector across the travel
+    var_dir = jnp.einsum("mi,mij,mj->m", across, state.cov[:, 3:5, 3:5], across) / speed2**2
+    k = kappa / (1.0 + kappa * var_dir)
+    delta = wrap(state.side_heading - jnp.arctan2(v[:, 1], v[:, 0])[:, None] - mu[:, None])
+    # 2π·VM(δ; k) = exp(k (cos δ - 1)) / i0e(k): finite for any k.
+    ll = jnp.logaddexp(jnp.log1p(-other)[:, None] + k[:, None] * (jnp.cos(delta) - 1.0)
+                       - jnp.log(jax.scipy.special.i0e(k))[:, None], jnp.log(other)[:, None])
+    moving = params.constant_velocity & (speed2 >= _MOTION_MIN_SPEED**2) & (kappa > 0)
+    weight = jnp.minimum(dt / _MOTION_S, 1.0)
+    return jnp.where(moving[:, None] & jnp.isfinite(state.side_logw), weight * ll, 0.0)
 
 
 def side_evidence(
@@ -152,6 +187,7 @@ def weigh_headings(
     ev, near, nu, S, d2 = side_evidence(
         state.side_heading, state.side_var, obs.side_heading, obs.side_logp, obs.cov[:, 2, 2]
     )
+    ev = ev + motion_evidence(state, params, dt)
     heading, var, logw, rest, main, switch = heading_mixture(
         state, ev, nu, S, d2, seen, obs.pose[:, 2], obs.cov[:, 2, 2], dt, params
     )

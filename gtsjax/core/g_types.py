@@ -67,6 +67,13 @@ class TrackerParams(eqx.Module):
     # rad²), learnt at training so that the rows' 95 % ellipses hold 95 % of the held-out rows' errors
     # (:meth:`widened`); None: the filter's variances as they are.
     var_floor: Float[Array, "classes 2"] | None = None
+    # Each class's heading against its direction of travel, learnt at training from its labels'
+    # translating windows (``gtsjax.train.motion.motion_heading``): the mean offset (rad), the
+    # concentration κ of a von Mises about it, and the share of travel in any other direction (a Nao's
+    # sidesteps, a holonomic robot's everything). Evidence for the heading hypotheses of a moving track
+    # (:func:`~gtsjax.core.g_heading.motion_evidence`); κ = 0 for a class that learnt none; None: no
+    # class did.
+    motion_heading: Float[Array, "classes 3"] | None = None
 
     def off(self, class_id, pose):
         """``pose`` [..., 3] of tracks of ``class_id`` [...] with their class's ``pose_offset`` taken off:

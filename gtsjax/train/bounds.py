@@ -35,6 +35,18 @@ MAX_SPEED = Bound("max speed", "m/s", 0.3, 5.0, (0.3, 2.0), "--max-speed",
                   "a walking robot is slower than 2 m/s; people's legs (1-1.5 m/s) are told from robots by it")
 MAX_TURN_RATE = Bound("max turn rate", "rad/s", 1.0, 12.0, (1.0, 2 * math.pi), "--max-turn-rate",
                       "a humanoid turns at about 1 rad/s, a wheeled robot at up to one turn a second")
+# A mobile class's heading against its direction of travel (the tracker's motion evidence,
+# ``core.g_heading.motion_evidence``): the spread of its heading about its travel, the offset, and the
+# share of travel in other directions. The floor keeps labels steadier than any robot walks (a
+# simulator's, a hand-drawn path) from making one second of walking outweigh every view; at 180° the
+# travel says nothing (a holonomic robot).
+MOTION_SPREAD = Bound("heading's spread about its travel", "°", 5.0, 180.0, (0.5, 90.0), None,
+                      "a robot that walks along its heading does so within some degrees; above 90° its travel "
+                      "says little of its heading")
+MOTION_OFFSET = Bound("heading less its travel", "°", -180.0, 180.0, (-180.0, 180.0), None,
+                      "any offset: a robot may walk forwards, backwards or sideways")
+MOTION_OTHER = Bound("share of travel off its heading", "", 0.0, 1.0, (0.0, 1.0), None,
+                     "sidesteps and turns on the spot; 1 for a robot that travels any way it likes")
 # The scanner's rate: the tracker's confirmation, reporting and deletion times are seconds, turned into
 # scans by it. Hokuyo's scanners run at 10-40 Hz.
 SCAN_RATE = Bound("scan rate", "Hz", 1.0, 100.0, (5.0, 50.0), "--scan-rate",

@@ -48,14 +48,19 @@ def _windows(values: np.ndarray, k: int) -> np.ndarray:
     return np.lib.stride_tricks.sliding_window_view(values, k)
 
 
-def _rates(step: np.ndarray, net: np.ndarray, duration: np.ndarray, minimum: float, fastest: float) -> np.ndarray:
-    """Rates of the windows that moved: net change at least ``minimum`` and at least half the path (a
-    consistent motion, not jitter back and forth), no step over three times the window's median step (a
-    jump: carried to the next pose between two scans), and no step faster than ``fastest`` per second
-    (a log of one scan per pose, stamped at the scan period, jumps between poses at every step)."""
+def _moved(step: np.ndarray, net: np.ndarray, duration: np.ndarray, minimum: float, fastest: float) -> np.ndarray:
+    """Which windows moved: net change at least ``minimum`` and at least half the path (a consistent
+    motion, not jitter back and forth), no step over three times the window's median step (a jump:
+    carried to the next pose between two scans), and no step faster than ``fastest`` per second (a log
+    of one scan per pose, stamped at the scan period, jumps between poses at every step)."""
     path = step.sum(1)
     smooth = step.max(1) <= 3.0 * np.median(step, axis=1) + 1e-3
-    moved = (net >= minimum) & (net >= 0.5 * path) & smooth & (step.max(1) <= fastest * duration / step.shape[1])
+    return (net >= minimum) & (net >= 0.5 * path) & smooth & (step.max(1) <= fastest * duration / step.shape[1])
+
+
+def _rates(step: np.ndarray, net: np.ndarray, duration: np.ndarray, minimum: float, fastest: float) -> np.ndarray:
+    """Rates of the windows that moved (:func:`_moved`)."""
+    moved = _moved(step, net, duration, minimum, fastest)
     return net[moved] / duration[moved]
 
 
@@ -104,6 +109,125 @@ def motion_limits(logs: Sequence[ScanLog], classes: tuple[str, ...], *, period: 
         if name in speeds or name in turns:
             out[name] = info
     return out
+
+
+KAPPA_MAX = 1e5  # the fit's concentration at most (a spread of 0.18°): labels that follow their travel exactly
+
+
+def travel_offsets(logs: Sequence[ScanLog], classes: tuple[str, ...], *, period: float) -> dict[str, np.ndarray]:
+    """Per labelled class, its heading less its direction of travel (rad) in each translating window
+    (:func:`_moved`, as :func:`motion_limits` counts them): the direction of the window's net
+    displacement, the heading the circular mean of the window's labelled headings."""
+    k = max(2, round(WINDOW_S / period))
+    out: dict[str, list] = {}
+    for log in logs:
+        for m, name in enumerate(log.truth_classes):
+            if str(name) not in classes:
+                continue
+            p = log.truth_poses[:, m]
+            present = np.isfinite(p).all(axis=1)
+            for a, b in _runs(log.stamps, present, period):
+                if b - a <= k:
+                    continue
+                q, t = p[a:b], log.stamps[a:b]
+                step = np.hypot(*np.diff(q[:, :2], axis=0).T)
+                d = q[k:, :2] - q[:-k, :2]
+                moved = _moved(_windows(step, k), np.hypot(*d.T), t[k:] - t[:-k], MIN_TRANSLATION,
+                               bounds.MAX_SPEED.plausible[1])
+                heading = np.angle(_windows(np.exp(1j * q[:, 2]), k + 1).mean(1))
+                out.setdefault(str(name), []).append(wrap(heading - np.arctan2(d[:, 1], d[:, 0]))[moved])
+    return {c: np.concatenate(v) for c, v in out.items()}
+
+
+def fit_von_mises_uniform(delta: np.ndarray, iters: int = 500) -> tuple[float, float, float]:
+    """``(μ, κ, u)`` of the mixture ``(1 - u)·VM(μ, κ) + u/2π`` fitted to the angles ``delta`` by
+    maximum likelihood (EM; κ's M-step solves A(κ) = I1(κ)/I0(κ) = R̄ by Newton's method from Banerjee
+    et al.'s approximation). The share ``u`` is what travels in any other direction: a robot's
+    sidesteps, all of a holonomic robot's."""
+    delta = np.asarray(delta, np.float64)
+    mu = float(np.angle(np.mean(np.exp(1j * delta))))
+    kappa, u = 1.0, 0.5
+    for _ in range(iters):
+        vm = np.exp(kappa * (np.cos(delta - mu) - 1.0)) / _i0e(kappa)  # 2π·VM
+        r = (1.0 - u) * vm / ((1.0 - u) * vm + u)
+        if r.sum() < 1e-9:
+            return mu, 0.0, 1.0
+        u_new = float(np.clip(1.0 - r.mean(), 1e-3, 1.0))
+        z = np.sum(r * np.exp(1j * delta))
+        mu_new = float(np.angle(z))
+        kappa_new = _inverse_a(min(abs(z) / r.sum(), 1.0 - 1e-12))
+        done = (abs(u_new - u) < 1e-9 and abs(kappa_new - kappa) < 1e-8 * max(1.0, kappa)
+                and abs(wrap(mu_new - mu)) < 1e-10)
+        mu, kappa, u = mu_new, kappa_new, u_new
+        if done:
+            break
+    return mu, kappa, u
+
+
+def _inverse_a(rbar: float) -> float:
+    """κ with A(κ) = I1(κ)/I0(κ) = ``rbar`` (at most :data:`KAPPA_MAX`): Banerjee et al.'s approximation,
+    then Newton's method on A (A'(κ) = 1 - A² - A/κ)."""
+    kappa = min(rbar * (2.0 - rbar**2) / (1.0 - rbar**2), KAPPA_MAX)
+    for _ in range(20):
+        a = _a(kappa)
+        step = (a - rbar) / max(1.0 - a * a - a / max(kappa, 1e-12), 1e-15)
+        kappa = float(np.clip(kappa - step, 0.5 * kappa, min(2.0 * kappa + 1e-6, KAPPA_MAX)))
+        if abs(step) < 1e-10 * max(1.0, kappa):
+            break
+    return kappa
+
+
+def _a(x: float) -> float:
+    """I1(x)/I0(x): the power series of I0 and I1 up to 50, their asymptotic series above."""
+    if x <= 50.0:
+        k = np.arange(120)
+        log_t = (2 * k) * np.log(x / 2 + 1e-300) - 2 * np.cumsum(np.log(np.maximum(k, 1)))  # (x/2)^2k / k!²
+        t = np.exp(log_t - log_t.max())
+        return float(np.sum(t * (x / 2) / (k + 1)) / np.sum(t))
+    i0 = 1.0 + 1.0 / (8 * x) + 9.0 / (128 * x**2) + 225.0 / (3072 * x**3)
+    i1 = 1.0 - 3.0 / (8 * x) - 15.0 / (128 * x**2) - 315.0 / (3072 * x**3)
+    return i1 / i0
+
+
+def _i0e(x: float) -> float:
+    """exp(-x)·I0(x): NumPy's I0 up to 50, its asymptotic series above (I0 overflows past about 700;
+    at 50 the series' relative error is below 1e-7)."""
+    if x <= 50.0:
+        return float(np.i0(x) * np.exp(-x))
+    return float((1.0 + 1.0 / (8 * x) + 9.0 / (128 * x**2) + 225.0 / (3072 * x**3)) / np.sqrt(2 * np.pi * x))
+
+
+def motion_heading(logs: Sequence[ScanLog], classes: tuple[str, ...], mobiles: tuple[str, ...], *,
+                   period: float) -> tuple[np.ndarray | None, list[dict]]:
+    """Each mobile class's heading against its direction of travel (lever 2 of issue 55), for
+    ``TrackerParams.motion_heading``: ``[classes, 3]`` rows ``(μ, κ, u)`` (:func:`fit_von_mises_uniform`
+    on :func:`travel_offsets`), its spread ``1/√κ`` held to :data:`.bounds.MOTION_SPREAD`; κ = 0 (no
+    evidence) for a class with less than ``MIN_EVIDENCE_S`` of translating windows. None if no class
+    learnt it. Also the learnt-parameter table's rows."""
+    offsets = travel_offsets(logs, classes, period=period)
+    table = np.zeros((len(classes), 3))
+    table[:, 2] = 1.0
+    rows = []
+    for i, c in enumerate(classes):
+        if c not in mobiles:
+            continue
+        d = offsets.get(c, np.zeros(0))
+        seconds = round(float(d.size * period), 2)
+        if seconds < MIN_EVIDENCE_S:
+            why = (f"only {seconds:g} s of translation in the labels (at least {MIN_EVIDENCE_S:g} s needed)" if seconds
+                   else "no translation in the labels")
+            rows.append(bounds.entry(bounds.MOTION_SPREAD, c, 180.0, "default", why + ": its travel is no evidence"))
+            continue
+        mu, kappa, u = fit_von_mises_uniform(d)
+        raw = float(np.degrees(1.0 / np.sqrt(max(kappa, 1e-9))))
+        spread = bounds.clamp(bounds.MOTION_SPREAD, raw)
+        evidence = f"{seconds:g} s of translation in the labels ({WINDOW_S:g} s windows)"
+        held = f"; fitted {raw:.2g}°, held to {spread:g}°" if spread != raw else ""
+        table[i] = [mu, 1.0 / np.radians(spread) ** 2 if spread < 180.0 else 0.0, u]
+        rows += [bounds.entry(bounds.MOTION_SPREAD, c, round(spread, 2), "learnt", evidence + held, learnt=round(raw, 2)),
+                 bounds.entry(bounds.MOTION_OFFSET, c, round(float(np.degrees(mu)), 2), "learnt", evidence),
+                 bounds.entry(bounds.MOTION_OTHER, c, round(u, 3), "learnt", evidence)]
+    return (table if np.any(table[:, 1] > 0) else None), rows
 
 
 def _one_limit(bound, cls: str, set_value: float | None, info: dict, key: str, default: float, seconds_key: str,
