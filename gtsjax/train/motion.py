@@ -19,6 +19,7 @@ the plausible range (:mod:`.bounds`) is a placement, not motion: a robot faster 
 from collections.abc import Iterator, Sequence
 
 import numpy as np
+from scipy import optimize, special
 
 from ..core.g_track import DEFAULT_MAX_SPEED, DEFAULT_MAX_TURN_RATE
 from ..core.geometry import wrap
@@ -41,6 +42,19 @@ def _runs(stamps: np.ndarray, present: np.ndarray, period: float) -> Iterator[tu
     edges = np.diff(np.concatenate([[0], ok.astype(int), [0]]))
     for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True):
         yield int(a), int(b) + 1  # steps a..b-1 join scans a..b
+
+
+def _labelled_runs(logs: Sequence[ScanLog], period: float, k: int, *,
+                   with_heading: bool) -> Iterator[tuple[str, np.ndarray, np.ndarray]]:
+    """``(class, poses [n, 3], stamps [n])`` of each labelled object's runs (:func:`_runs`) longer than
+    ``k`` steps, present where its position is labelled (and its heading, ``with_heading``)."""
+    for log in logs:
+        for m, name in enumerate(log.truth_classes):
+            p = log.truth_poses[:, m]
+            present = np.isfinite(p).all(axis=1) if with_heading else ~np.isnan(p[:, 0]) & ~np.isnan(p[:, 1])
+            for a, b in _runs(log.stamps, present, period):
+                if b - a > k:
+                    yield str(name), p[a:b], log.stamps[a:b]
 
 
 def _windows(values: np.ndarray, k: int) -> np.ndarray:
@@ -75,25 +89,17 @@ def motion_limits(logs: Sequence[ScanLog], classes: tuple[str, ...], *, period: 
     k = max(2, round(WINDOW_S / period))
     speeds: dict[str, list] = {}
     turns: dict[str, list] = {}
-    for log in logs:
-        for m, name in enumerate(log.truth_classes):
-            p = log.truth_poses[:, m]
-            present = ~np.isnan(p[:, 0]) & ~np.isnan(p[:, 1])
-            for a, b in _runs(log.stamps, present, period):
-                if b - a <= k:
-                    continue
-                q, t = p[a:b], log.stamps[a:b]
-                step = np.hypot(*np.diff(q[:, :2], axis=0).T)
-                duration = t[k:] - t[:-k]
-                net = np.hypot(*(q[k:, :2] - q[:-k, :2]).T)
-                speeds.setdefault(str(name), []).append(_rates(_windows(step, k), net, duration, MIN_TRANSLATION,
-                                                                 bounds.MAX_SPEED.plausible[1]))
-                if np.isfinite(q[:, 2]).all():
-                    turn = wrap(np.diff(q[:, 2]))
-                    net_turn = np.abs(_windows(turn, k).sum(1))
-                    turns.setdefault(str(name), []).append(
-                        _rates(np.abs(_windows(turn, k)), net_turn, duration, MIN_TURN,
-                               bounds.MAX_TURN_RATE.plausible[1]))
+    for name, q, t in _labelled_runs(logs, period, k, with_heading=False):
+        step = np.hypot(*np.diff(q[:, :2], axis=0).T)
+        duration = t[k:] - t[:-k]
+        net = np.hypot(*(q[k:, :2] - q[:-k, :2]).T)
+        speeds.setdefault(name, []).append(_rates(_windows(step, k), net, duration, MIN_TRANSLATION,
+                                                  bounds.MAX_SPEED.plausible[1]))
+        if np.isfinite(q[:, 2]).all():
+            turn = wrap(np.diff(q[:, 2]))
+            net_turn = np.abs(_windows(turn, k).sum(1))
+            turns.setdefault(name, []).append(
+                _rates(np.abs(_windows(turn, k)), net_turn, duration, MIN_TURN, bounds.MAX_TURN_RATE.plausible[1]))
     out = {}
     window_s = k * period
     for name in classes:
@@ -120,42 +126,34 @@ def travel_offsets(logs: Sequence[ScanLog], classes: tuple[str, ...], *, period:
     displacement, the heading the circular mean of the window's labelled headings."""
     k = max(2, round(WINDOW_S / period))
     out: dict[str, list] = {}
-    for log in logs:
-        for m, name in enumerate(log.truth_classes):
-            if str(name) not in classes:
-                continue
-            p = log.truth_poses[:, m]
-            present = np.isfinite(p).all(axis=1)
-            for a, b in _runs(log.stamps, present, period):
-                if b - a <= k:
-                    continue
-                q, t = p[a:b], log.stamps[a:b]
-                step = np.hypot(*np.diff(q[:, :2], axis=0).T)
-                d = q[k:, :2] - q[:-k, :2]
-                moved = _moved(_windows(step, k), np.hypot(*d.T), t[k:] - t[:-k], MIN_TRANSLATION,
-                               bounds.MAX_SPEED.plausible[1])
-                heading = np.angle(_windows(np.exp(1j * q[:, 2]), k + 1).mean(1))
-                out.setdefault(str(name), []).append(wrap(heading - np.arctan2(d[:, 1], d[:, 0]))[moved])
+    for name, q, t in _labelled_runs(logs, period, k, with_heading=True):
+        if name not in classes:
+            continue
+        step = np.hypot(*np.diff(q[:, :2], axis=0).T)
+        d = q[k:, :2] - q[:-k, :2]
+        moved = _moved(_windows(step, k), np.hypot(*d.T), t[k:] - t[:-k], MIN_TRANSLATION,
+                       bounds.MAX_SPEED.plausible[1])
+        heading = np.angle(_windows(np.exp(1j * q[:, 2]), k + 1).mean(1))
+        out.setdefault(name, []).append(wrap(heading - np.arctan2(d[:, 1], d[:, 0]))[moved])
     return {c: np.concatenate(v) for c, v in out.items()}
 
 
 def fit_von_mises_uniform(delta: np.ndarray, iters: int = 500) -> tuple[float, float, float]:
     """``(μ, κ, u)`` of the mixture ``(1 - u)·VM(μ, κ) + u/2π`` fitted to the angles ``delta`` by
-    maximum likelihood (EM; κ's M-step solves A(κ) = I1(κ)/I0(κ) = R̄ by Newton's method from Banerjee
-    et al.'s approximation). The share ``u`` is what travels in any other direction: a robot's
-    sidesteps, all of a holonomic robot's."""
+    maximum likelihood (EM; κ's M-step solves A(κ) = I1(κ)/I0(κ) = R̄, :func:`_inverse_a`). The share
+    ``u`` is what travels in any other direction: a robot's sidesteps, all of a holonomic robot's."""
     delta = np.asarray(delta, np.float64)
     mu = float(np.angle(np.mean(np.exp(1j * delta))))
     kappa, u = 1.0, 0.5
     for _ in range(iters):
-        vm = np.exp(kappa * (np.cos(delta - mu) - 1.0)) / _i0e(kappa)  # 2π·VM
+        vm = np.exp(kappa * (np.cos(delta - mu) - 1.0)) / special.i0e(kappa)  # 2π·VM
         r = (1.0 - u) * vm / ((1.0 - u) * vm + u)
         if r.sum() < 1e-9:
             return mu, 0.0, 1.0
         u_new = float(np.clip(1.0 - r.mean(), 1e-3, 1.0))
         z = np.sum(r * np.exp(1j * delta))
         mu_new = float(np.angle(z))
-        kappa_new = _inverse_a(min(abs(z) / r.sum(), 1.0 - 1e-12))
+        kappa_new = _inverse_a(abs(z) / r.sum())
         done = (abs(u_new - u) < 1e-9 and abs(kappa_new - kappa) < 1e-8 * max(1.0, kappa)
                 and abs(wrap(mu_new - mu)) < 1e-10)
         mu, kappa, u = mu_new, kappa_new, u_new
@@ -164,37 +162,16 @@ def fit_von_mises_uniform(delta: np.ndarray, iters: int = 500) -> tuple[float, f
     return mu, kappa, u
 
 
+def _a(kappa: float) -> float:
+    """A(κ) = I1(κ)/I0(κ), from the exponentially scaled functions (finite for any κ)."""
+    return float(special.i1e(kappa) / special.i0e(kappa))
+
+
 def _inverse_a(rbar: float) -> float:
-    """κ with A(κ) = I1(κ)/I0(κ) = ``rbar`` (at most :data:`KAPPA_MAX`): Banerjee et al.'s approximation,
-    then Newton's method on A (A'(κ) = 1 - A² - A/κ)."""
-    kappa = min(rbar * (2.0 - rbar**2) / (1.0 - rbar**2), KAPPA_MAX)
-    for _ in range(20):
-        a = _a(kappa)
-        step = (a - rbar) / max(1.0 - a * a - a / max(kappa, 1e-12), 1e-15)
-        kappa = float(np.clip(kappa - step, 0.5 * kappa, min(2.0 * kappa + 1e-6, KAPPA_MAX)))
-        if abs(step) < 1e-10 * max(1.0, kappa):
-            break
-    return kappa
-
-
-def _a(x: float) -> float:
-    """I1(x)/I0(x): the power series of I0 and I1 up to 50, their asymptotic series above."""
-    if x <= 50.0:
-        k = np.arange(120)
-        log_t = (2 * k) * np.log(x / 2 + 1e-300) - 2 * np.cumsum(np.log(np.maximum(k, 1)))  # (x/2)^2k / k!²
-        t = np.exp(log_t - log_t.max())
-        return float(np.sum(t * (x / 2) / (k + 1)) / np.sum(t))
-    i0 = 1.0 + 1.0 / (8 * x) + 9.0 / (128 * x**2) + 225.0 / (3072 * x**3)
-    i1 = 1.0 - 3.0 / (8 * x) - 15.0 / (128 * x**2) - 315.0 / (3072 * x**3)
-    return i1 / i0
-
-
-def _i0e(x: float) -> float:
-    """exp(-x)·I0(x): NumPy's I0 up to 50, its asymptotic series above (I0 overflows past about 700;
-    at 50 the series' relative error is below 1e-7)."""
-    if x <= 50.0:
-        return float(np.i0(x) * np.exp(-x))
-    return float((1.0 + 1.0 / (8 * x) + 9.0 / (128 * x**2) + 225.0 / (3072 * x**3)) / np.sqrt(2 * np.pi * x))
+    """κ with A(κ) = ``rbar``, at most :data:`KAPPA_MAX` (A rises from 0 to 1: one root, bracketed)."""
+    if rbar >= _a(KAPPA_MAX):
+        return KAPPA_MAX
+    return float(optimize.brentq(lambda k: _a(k) - rbar, 0.0, KAPPA_MAX, xtol=1e-12, rtol=1e-12))
 
 
 def motion_heading(logs: Sequence[ScanLog], classes: tuple[str, ...], mobiles: tuple[str, ...], *,
