@@ -65,6 +65,7 @@ def test_the_offset_of_a_robot_that_walks_at_an_angle_is_learnt(offset):
     assert table[0].tolist() == [0.0, 0.0, 1.0]  # background: no evidence
     assert abs(math.remainder(table[1, 0] - math.radians(offset), 2 * math.pi)) < 0.02
     spread = {r["parameter"]: r for r in rows}[B.MOTION_SPREAD.what]
+    assert "warning" not in spread, spread  # a holonomic robot's wide spread is plausible
     assert spread["source"] == "learnt" and spread["value"] == B.MOTION_SPREAD.floor  # steadier than a robot: held
     assert table[1, 1] == pytest.approx(1 / math.radians(B.MOTION_SPREAD.floor) ** 2)
     assert all(r["hard_range"][0] <= r["value"] <= r["hard_range"][1] for r in rows)
@@ -73,6 +74,7 @@ def test_the_offset_of_a_robot_that_walks_at_an_angle_is_learnt(offset):
 def test_a_robot_that_travels_any_way_learns_its_travel_says_little():
     table, rows = motion_heading([_walk(np.nan)], ("robot",), ("robot",), period=0.1)
     spread = {r["parameter"]: r for r in rows}[B.MOTION_SPREAD.what]
+    assert "warning" not in spread, spread  # a holonomic robot's wide spread is plausible
     # Uniform offsets: a wide spread or almost all of it "other"; either way a weak likelihood.
     mu, kappa, u = table[0] if table is not None else (0.0, 0.0, 1.0)
     loglik = np.log((1 - u) * np.exp(kappa * (np.cos(np.linspace(-np.pi, np.pi, 73)) - 1)) / special.i0e(kappa) + u)
@@ -84,6 +86,7 @@ def test_a_robot_turned_on_the_spot_gives_no_evidence():
     assert table is None
     (row,) = rows
     assert row["source"] == "default" and "no translation" in row["evidence"]
+    assert "warning" not in row, row  # no evidence is no implausible value: training says nothing of it
 
 
 def _tracks(v, cov_v, heading, class_id):

@@ -40,9 +40,9 @@ MAX_TURN_RATE = Bound("max turn rate", "rad/s", 1.0, 12.0, (1.0, 2 * math.pi), "
 # share of travel in other directions. The floor keeps labels steadier than any robot walks (a
 # simulator's, a hand-drawn path) from making one second of walking outweigh every view; at 180° the
 # travel says nothing (a holonomic robot).
-MOTION_SPREAD = Bound("heading's spread about its travel", "°", 5.0, 180.0, (0.5, 90.0), None,
-                      "a robot that walks along its heading does so within some degrees; above 90° its travel "
-                      "says little of its heading")
+MOTION_SPREAD = Bound("heading's spread about its travel", "°", 5.0, 180.0, (0.5, 180.0), None,
+                      "a robot that walks along its heading does so within some degrees; at 180° its travel "
+                      "says nothing of its heading (a holonomic robot, or labels without translation)")
 MOTION_OFFSET = Bound("heading less its travel", "°", -180.0, 180.0, (-180.0, 180.0), None,
                       "any offset: a robot may walk forwards, backwards or sideways")
 MOTION_OTHER = Bound("share of travel off its heading", "", 0.0, 1.0, (0.0, 1.0), None,
