@@ -27,8 +27,12 @@ from tests._utils import cli
 # Small models: enough views for 2 cm, few enough for about a minute of training on 2 cores.
 SMALL = dataclasses.replace(TrainConfig(), max_per_class=100, max_pose_examples=300, max_pose_fit=150, n_inducing=300,
                             n_inducing_class=128, max_landmark_examples=100, restarts=1)
-# The defaults' classifier with pose GPs of a size that trains in a third of the defaults' time.
-MID = dataclasses.replace(TrainConfig(), max_pose_examples=1000, max_pose_fit=300, n_inducing=1000, restarts=1)
+# The defaults' classifier examples with pose GPs of a size that trains in a third of the defaults' time,
+# and the classifier's hyperparameters fitted on 600 of its examples instead of 1 500 (each GP still
+# conditioned on all of them): the cart's training in 56 s instead of 85 here, with the same scores
+# (83.3 % put down, 100 % walking) and the same shortfall said.
+MID = dataclasses.replace(TrainConfig(), max_pose_examples=1000, max_pose_fit=300, n_inducing=1000, restarts=1,
+                          max_class_fit=600)
 
 CASES = {
     # The recording that broke training: 16 headings turned on the spot, one scan each, carried away between points.
