@@ -89,9 +89,10 @@ def _step_by_step(models, upd, state, scans: Scan, lanes, n_real: Int[Array, ""]
         raise ValueError("step by step runs one model; lasers of different scanners are vectorised only")
     model = models[0]
     at = lambda tree, i: jax.tree.map(lambda a: jax.lax.dynamic_index_in_dim(a, i, keepdims=False), tree)  # noqa: E731
-    one = lambda st, sc, lane: upd(st, perceive(model, sc), sc, lane)  # noqa: E731
-    out_shape = jax.eval_shape(lambda st, sc, ln: one(st, sc, ln)[1], state, at(scans, 0),
-                               None if lanes is None else at(lanes, 0))
+    # Jitted so that the loop body's call finds the trace ``eval_shape`` made of it (JAX caches a jitted
+    # function's trace by its arguments' shapes): the step is traced once, not twice (half the tracing).
+    one = jax.jit(lambda st, sc, lane: upd(st, perceive(model, sc), sc, lane))
+    out_shape = jax.eval_shape(one, state, at(scans, 0), None if lanes is None else at(lanes, 0))[1]
     size = scans.dt.shape[0]
     buf0 = jax.tree.map(lambda sd: jnp.zeros((size,) + sd.shape, sd.dtype), out_shape)
 

@@ -178,6 +178,9 @@ class LiveStep:
         self.state_layout = Packing.of(state0)
         n = model.n_beams
 
+        # Jitted so that ``live_step`` finds the trace ``eval_shape`` made of it (JAX caches a jitted
+        # function's trace by its arguments' shapes): the step is traced once at start-up, not twice.
+        @jax.jit
         def run(state, frame):
             raw, dt = frame[:2 * n].reshape(2, n), frame[2 * n]
             valid = valid_beams(raw[0], sensor.range_min, sensor.range_max)
