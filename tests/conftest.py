@@ -48,6 +48,21 @@ from gtsjax.cli import release_compiled_if_crowded, use_compile_cache  # noqa: E
 use_compile_cache()
 
 
+# The test files that each hold a worker for a minute or more (``--durations=0`` of full runs on 2 cores),
+# the longest first. xdist hands whole files (``--dist loadfile``) to the workers in collection order
+# (``--no-loadscope-reorder``: its own order counts tests, not seconds); with these first, the long ones
+# run while the other worker works through the rest, and the run does not end on one worker's long file
+# with the other idle (in a run with three workers the 8-minute recordings file came last and ran alone).
+LONGEST_FIRST = ("test_recordings.py", "test_docs_blocks.py", "test_benchmarks.py", "test_cli_commands.py",
+                 "test_pipeline.py", "test_gp.py", "test_reference.py", "test_cli_paths.py", "test_enrol.py",
+                 "test_several.py", "test_signals.py", "test_openset.py")
+
+
+def pytest_collection_modifyitems(items):
+    rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: each file's tests in order
+
+
 @pytest.fixture(autouse=True)
 def _release_compiled_programs():
     """A worker runs hundreds of tests in one process, and every step it loads from the compilation
