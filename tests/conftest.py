@@ -43,6 +43,8 @@ install_checks()
 # folder of the tests' own that every worker and every ``gtsjax`` subprocess shares: the step of the demo
 # model compiles once per run, not once per command. ``GTSJAX_CACHE_DIR=off`` turns it off.
 os.environ.setdefault("GTSJAX_CACHE_DIR", os.path.join(tempfile.gettempdir(), f"gtsjax-tests-xla-{os.getuid()}"))
+import jax  # noqa: E402
+
 from gtsjax.cli import release_compiled_if_crowded, use_compile_cache  # noqa: E402  (after the import hook)
 
 use_compile_cache()
@@ -63,14 +65,35 @@ def pytest_collection_modifyitems(items):
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: each file's tests in order
 
 
+# Reading ``/proc/self/maps`` (some 30 000 lines in a busy worker) after every one of some 1 500 tests
+# cost half a minute of CI, and what fills it is a program loaded from the compilation cache (~2 000
+# mappings each) or compiled afresh (~90 for the step; a few for each of the many tiny programs of
+# eager operations). So the mappings are counted after a test that loaded or compiled a program of a
+# size that the cache keeps, and after every 25th test whatever it did. ``[big programs, tests]``
+# since the last count.
+_SINCE_COUNTED = [0, 0]
+
+
+def _count_program(event: str, duration: float = 1.0, **_kwargs) -> None:
+    if event.endswith("/cache_hits") or (event.endswith("/backend_compile_duration") and duration >= 0.2):
+        _SINCE_COUNTED[0] += 1
+
+
+jax.monitoring.register_event_listener(_count_program)
+jax.monitoring.register_event_duration_secs_listener(_count_program)
+
+
 @pytest.fixture(autouse=True)
 def _release_compiled_programs():
     """A worker runs hundreds of tests in one process, and every step it loads from the compilation
     cache holds ~2 000 memory mappings until JAX's caches are cleared: past Linux's 65 530 the next
     load crashes the worker (``release_compiled_if_crowded``). Cleared after any test that leaves
-    the process above half of that."""
+    the process above half of that (counted as said above)."""
     yield
-    release_compiled_if_crowded()
+    _SINCE_COUNTED[1] += 1
+    if _SINCE_COUNTED[0] or _SINCE_COUNTED[1] >= 25:
+        _SINCE_COUNTED[:] = [0, 0]
+        release_compiled_if_crowded()
 
 
 SHARED = Path(os.environ.get("GTSJAX_SHARED", Path(__file__).resolve().parents[1].parent / "shared"))
