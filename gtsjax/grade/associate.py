@@ -23,7 +23,6 @@ decided per window of time and then smoothed along each track:
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from .clock import CAP_M, WINDOW_S, Belief
 
@@ -55,6 +54,8 @@ def window_winners(cost: np.ndarray, gate: float = GATE_M) -> np.ndarray:
     allowed = cost <= gate
     if R == 0 or K == 0 or not allowed.any():
         return won
+    from scipy.optimize import linear_sum_assignment  # here: every command imports this module
+
     big = gate * 10.0 * max(R, K)  # an excluded pair never buys two allowed ones
     ri, ci = linear_sum_assignment(np.where(allowed, cost, big))
     for r, c in zip(ri, ci, strict=True):

@@ -19,7 +19,6 @@ the plausible range (:mod:`.bounds`) is a placement, not motion: a robot faster 
 from collections.abc import Iterator, Sequence
 
 import numpy as np
-from scipy import optimize, special
 
 from ..core.g_track import DEFAULT_MAX_SPEED, DEFAULT_MAX_TURN_RATE
 from ..core.geometry import wrap
@@ -142,6 +141,8 @@ def fit_von_mises_uniform(delta: np.ndarray, iters: int = 500) -> tuple[float, f
     """``(μ, κ, u)`` of the mixture ``(1 - u)·VM(μ, κ) + u/2π`` fitted to the angles ``delta`` by
     maximum likelihood (EM; κ's M-step solves A(κ) = I1(κ)/I0(κ) = R̄, :func:`_inverse_a`). The share
     ``u`` is what travels in any other direction: a robot's sidesteps, all of a holonomic robot's."""
+    from scipy import special  # here, not at the top: every command imports this module, few fit
+
     delta = np.asarray(delta, np.float64)
     mu = float(np.angle(np.mean(np.exp(1j * delta))))
     kappa, u = 1.0, 0.5
@@ -164,11 +165,15 @@ def fit_von_mises_uniform(delta: np.ndarray, iters: int = 500) -> tuple[float, f
 
 def _a(kappa: float) -> float:
     """A(κ) = I1(κ)/I0(κ), from the exponentially scaled functions (finite for any κ)."""
+    from scipy import special
+
     return float(special.i1e(kappa) / special.i0e(kappa))
 
 
 def _inverse_a(rbar: float) -> float:
     """κ with A(κ) = ``rbar``, at most :data:`KAPPA_MAX` (A rises from 0 to 1: one root, bracketed)."""
+    from scipy import optimize
+
     if rbar >= _a(KAPPA_MAX):
         return KAPPA_MAX
     return float(optimize.brentq(lambda k: _a(k) - rbar, 0.0, KAPPA_MAX, xtol=1e-12, rtol=1e-12))
