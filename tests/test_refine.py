@@ -316,6 +316,25 @@ def test_fit_matches_reference(nao):
     np.testing.assert_allclose(H, rH, rtol=1e-4, atol=1e-5 * np.max(np.abs(rH)))
 
 
+def test_reference_fit_of_many_starts_is_each_starts_own_fit(nao):
+    """The reference's fit from several starts at once (``fit_many``, the steps written over an axis of
+    starts, for its speed) gives each start what its plain one-start loop (``fit_one``) gives, to
+    float64 rounding: poses, robust costs and normal matrices."""
+    radii, _ = nao
+    ol = ref.Outline.of(make_outline([radii]))
+    rng = np.random.default_rng(5)
+    truth, views = random_views(rng, 6)
+    for t, (pts, mask) in zip(truth, views, strict=True):
+        starts = t[None] + np.concatenate([rng.uniform(-0.06, 0.06, (5, 2)), rng.uniform(-0.35, 0.35, (5, 1))], -1)
+        p = ref.thin(np.asarray(pts, np.float64)[np.asarray(mask, bool)])
+        many = ref.fit_many(ol, 0, p, starts)
+        for j, start in enumerate(starts):
+            pose, cost, H = ref.fit_one(ol, 0, p, start)
+            np.testing.assert_allclose(many[0][j], pose, rtol=0, atol=1e-10)
+            np.testing.assert_allclose(many[1][j], cost, rtol=1e-10, atol=1e-14)
+            np.testing.assert_allclose(many[2][j], H, rtol=1e-10, atol=1e-12 * np.max(np.abs(H)))
+
+
 def test_refine_matches_reference(nao):
     """``refine`` on random views from GP poses some of them a side off, with four sides, a prior and
     a temperature, one candidate not run and one with too few points and one above ``max_rms``: the

@@ -147,6 +147,49 @@ def fit_one(ol: Outline, k: int, pts: np.ndarray, start) -> tuple[np.ndarray, fl
     return pose, cost, H
 
 
+def fit_many(ol: Outline, k: int, pts: np.ndarray, starts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`fit_one` from each of ``starts`` ``[h, 3]`` at once, the same steps written over a leading
+    axis of starts (each start's arithmetic is its own): poses ``[h, 3]``, costs ``[h]``, ``H``
+    ``[h, 3, 3]``. The reference's time went into NumPy's per-call cost on a few dozen points, one
+    start and one step at a time (``tests/test_reference.py`` checks it against :func:`fit_one`)."""
+    free = free_points(ol, pts)
+    both = np.concatenate([pts, free])
+    n, c = len(pts), ol.robust
+    pose = np.asarray(starts, np.float64).copy()
+
+    def normal(pose):
+        h = len(pose)
+        if n == 0:
+            return np.zeros((h, 3, 3)), np.zeros((h, 3)), np.zeros(h)
+        cs, sn = np.cos(pose[:, 2]), np.sin(pose[:, 2])
+        R = np.stack([np.stack([cs, -sn], -1), np.stack([sn, cs], -1)], -2)  # [h, 2, 2]
+        dR = np.stack([np.stack([-sn, -cs], -1), np.stack([cs, -sn], -1)], -2)
+        q = both[None] - pose[:, None, :2]  # [h, m, 2]
+        r, g = lookup(ol, k, np.einsum("hmi,hij->hmj", q, R))
+        r, g = r.reshape(h, -1), g.reshape(h, -1, 2)
+        J = np.concatenate([-np.einsum("hmi,hji->hmj", g, R),
+                            np.einsum("hmi,hmi->hm", g, np.einsum("hmi,hij->hmj", q, dR))[..., None]], -1)
+        r, rf, J, Jf = r[:, :n], r[:, n:], J[:, :n], J[:, n:]
+        w = 1.0 / (1.0 + (r / c) ** 2)
+        inside = (rf < 0).astype(np.float64)
+        H = np.einsum("hm,hmi,hmj->hij", w, J, J) + np.einsum("hm,hmi,hmj->hij", inside, Jf, Jf)
+        b = np.einsum("hmi,hm->hi", J, w * r) + np.einsum("hmi,hm->hi", Jf, inside * rf)
+        cost = np.sum(c * c * np.log1p((r / c) ** 2), 1) + np.sum(inside * rf**2, 1)
+        return H, b, cost
+
+    eye = np.eye(3)
+    for _ in range(ITERATIONS):
+        H, b, _ = normal(pose)
+        A = H + DAMPING * H * eye + RIDGE * eye
+        delta = np.linalg.solve(A, -b[..., None])[..., 0]
+        delta[:, :2] = np.clip(delta[:, :2], -MAX_STEP_XY, MAX_STEP_XY)
+        delta[:, 2] = np.clip(delta[:, 2], -MAX_STEP_TH, MAX_STEP_TH)
+        pose = pose + delta
+    pose[:, 2] = wrap(pose[:, 2])
+    H, _, cost = normal(pose)
+    return pose, cost, H
+
+
 def thin(p: np.ndarray) -> np.ndarray:
     """At most ``POINTS`` of a candidate's points, every ``ceil(n / POINTS)``-th from the first."""
     return p[:: max(1, -(-len(p) // POINTS))][:POINTS]
@@ -160,8 +203,7 @@ def fit(ol: Outline, cls, pts, mask, start):
     poses, costs, hs = np.zeros((n, h, 3)), np.zeros((n, h)), np.zeros((n, h, 3, 3))
     for i in range(n):
         p = thin(pts[i][np.asarray(mask[i], bool)])
-        for j in range(h):
-            poses[i, j], costs[i, j], hs[i, j] = fit_one(ol, int(cls[i]), p, start[i, j])
+        poses[i], costs[i], hs[i] = fit_many(ol, int(cls[i]), p, start[i])
     return poses, costs, hs
 
 
@@ -256,7 +298,7 @@ def refine(ol: Outline, cls, run, pts, mask, pose_gp, cov_gp) -> Refined:
         p = thin(np.asarray(pts[i], np.float64)[np.asarray(mask[i], bool)])
         n_pts = len(p)
         starts = [np.array([pose_gp[i, 0], pose_gp[i, 1], pose_gp[i, 2] + offs[j]]) for j in range(h)]
-        fits = [fit_one(ol, k, p, s) for s in starts]
+        fits = list(zip(*fit_many(ol, k, p, np.asarray(starts)), strict=True))
         good = np.zeros(h, bool)
         for j in range(h):
             out.fit_pose[i, j], out.cost[i, j] = fits[j][0], fits[j][1]
