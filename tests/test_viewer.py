@@ -66,10 +66,18 @@ def test_a_demo_runs_rrd_reopens_with_one_track_per_robot(tmp_path):
         assert per_entity.get(e, 0) > 0, e  # "/field": the transform that draws the field y up
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+def _free_ports(n: int = 2) -> list[int]:
+    """``n`` distinct ports free now: the sockets are held together, so the system cannot hand the same
+    port out twice (two ports taken one after the other could be one port, released and given again:
+    the web viewer then refused to serve on its own gRPC port, in a run with three workers)."""
+    socks = [socket.socket() for _ in range(n)]
+    try:
+        for s in socks:
+            s.bind(("127.0.0.1", 0))
+        return [s.getsockname()[1] for s in socks]
+    finally:
+        for s in socks:
+            s.close()
 
 
 def _listening() -> dict[int, str]:
@@ -99,7 +107,7 @@ def test_view_web_serves_page_and_data_on_one_address_and_says_it(host, monkeypa
 
     _, site = simulate("spl-trajectory", seed=3, n_scans=2)
     model = load_model(demo_model_path()).with_site(site)
-    web, grpc = _free_port(), _free_port()
+    web, grpc = _free_ports()
     if host is None:
         monkeypatch.delenv("GTSJAX_VIEW_HOST", raising=False)
     else:
@@ -137,7 +145,7 @@ def test_replay_view_web_draws_in_headless_chromium(tmp_path):
     log, site = simulate("spl-trajectory", seed=3, n_scans=80)
     save_log(log, tmp_path / "t.npz")
     save_site(site, tmp_path / "site.json")
-    web, grpc = _free_port(), _free_port()
+    web, grpc = _free_ports()
     env = dict(cli_env(), GTSJAX_VIEW_WEB_PORT=str(web), GTSJAX_VIEW_GRPC_PORT=str(grpc))
     root = Path(__file__).resolve().parents[1]
     proc = subprocess.Popen([*CHILD, "replay", str(tmp_path / "t.npz"), "--site",
