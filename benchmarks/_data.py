@@ -106,13 +106,13 @@ def utm_model(site, log=print, quick: bool = False):
 def gp_examples(n_scans: int = 1200):
     """The robot examples of the SPL training grid: GP inputs ``[E, 23]`` and ORS-relative pose
     targets ``[E, 3]`` (x̃, ỹ, θ̃), labelled as ``gtsjax train`` labels them (first pass)."""
-    from gtsjax.train import TrainConfig, class_list, estimate_transforms, label_log, run_front_end
+    from gtsjax.train import TrainConfig, class_list, label_log, landmark_centres, run_front_end
 
     log, site = scenario("spl-train", 0, n_scans)
     cfg = TrainConfig()
     classes, _, _ = class_list([log], site)
     fe = run_front_end(log, cfg.frontend, log.n_beams)
-    tf = estimate_transforms(fe["origin"], fe["keep"], site, cfg)
+    tf, _ = landmark_centres(log, fe, site, cfg)
     ex, _ = label_log(log, fe, tf, site, classes, cfg, 0)
     robot = ex.cls == classes.index("robot")
     return np.asarray(ex.vectors[robot]), np.asarray(ex.target[robot])

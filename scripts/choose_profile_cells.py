@@ -23,7 +23,7 @@ from gtsjax import FrontEndConfig
 from gtsjax.core.geometry import wrap
 from gtsjax.gp import fit
 from gtsjax.sim import simulate
-from gtsjax.train import TrainConfig, class_list, estimate_transforms, label_log, run_front_end
+from gtsjax.train import TrainConfig, class_list, label_log, landmark_centres, run_front_end
 
 LAYOUTS = {
     "fixed span 0.6 m, 10 cells": dict(cells_on_bbox=False, cell_span=0.6),
@@ -36,7 +36,7 @@ LAYOUTS = {
 def robot_examples(log, site, fe: FrontEndConfig, cfg: TrainConfig):
     classes, _, _ = class_list([log], site)
     out = run_front_end(log, fe, log.n_beams)
-    tf = estimate_transforms(out["origin"], out["keep"], site, cfg)
+    tf, _ = landmark_centres(log, out, site, cfg)
     ex, _ = label_log(log, out, tf, site, classes, cfg, 0)
     sel = ex.cls == classes.index("robot")
     return ex.vectors[sel], ex.target[sel]

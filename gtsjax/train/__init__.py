@@ -35,7 +35,7 @@ from ..io.logs import ScanLog
 from ..io.site import Site
 from ..precision import exact_products
 from ..sensors import MODELS, with_scanner
-from .bounds import outline_rows, shape_rows
+from .bounds import landmark_rows, outline_rows, shape_rows
 from .calibrate import pose_bias, variance_floor
 from .check import check_pipeline, coverage, held_mask, simulated_checks, verdict
 from .classifier import fit_classifier, fit_support, landmark_lookalikes
@@ -57,6 +57,7 @@ from .labels import class_list as class_list
 from .labels import estimate_transforms as estimate_transforms
 from .labels import fit_background as fit_background
 from .labels import label_log as label_log
+from .labels import landmark_centres as landmark_centres
 from .labels import run_front_end as run_front_end
 from .motion import confirmation_entry, motion_heading, scan_rate_entry, tracker_limits
 from .motion import motion_limits as motion_limits
@@ -216,7 +217,7 @@ def train(logs: Sequence[ScanLog], site: "Site | Sequence[Site]", cfg: TrainConf
     outline, outline_report = fit_outlines(logs, ex, is_held, classes, mobiles, pose, cfg.frontend.window, run.rng,
                                            turns=turns)
     tracker, rate_hz, motion, learnt = _motion_limits(run, logs, env_report, sup_report)
-    learnt = learnt + half_turn_rows + outline_rows(outline_report)
+    learnt = learnt + landmark_rows(lab.centres, names, run.landmarks) + half_turn_rows + outline_rows(outline_report)
     notes = notes + [row["warning"] for row in learnt if "warning" in row]
     model = _assemble(run, first, n_beams, lab.columns, classifier=classifier, envelope=envelope, pose=pose,
                       tracker=tracker, outline=outline)
@@ -301,6 +302,7 @@ class _FirstPass:
     bg_ex: Examples
     bg_info: list[dict]
     held: list
+    centres: list[dict]  # per labelled log: the landmarks' radius and the map's scale (labels.landmark_centres)
 
 
 def _first_labels(run: _Run, logs: Sequence[ScanLog], site: "Site | Sequence[Site]", background: Sequence[ScanLog],
@@ -308,10 +310,10 @@ def _first_labels(run: _Run, logs: Sequence[ScanLog], site: "Site | Sequence[Sit
     """Labels, pass 1 (transforms from raw ORS origins), the background logs' examples and the held-out
     split by one-second blocks: what the landmark classes' position GPs are learnt from."""
     per_log, columns = front_end_logs(logs, run.cfg.frontend, n_beams)
-    ex1, cls_slots, offset = first_pass(logs, per_log, site, run.classes, run.cfg)
+    ex1, cls_slots, offset, centres = first_pass(logs, per_log, site, run.classes, run.cfg)
     bg_ex, bg_info = background_examples(background, bg_names, run.cfg, n_beams, columns, offset)
     held = holdout_groups(run.rng, np.concatenate([ex1.group, bg_ex.group]), run.cfg.holdout)
-    return _FirstPass(per_log, columns, ex1, cls_slots, bg_ex, bg_info, held)
+    return _FirstPass(per_log, columns, ex1, cls_slots, bg_ex, bg_info, held, centres)
 
 
 def _landmark_positions(run: _Run, lab: _FirstPass) -> list:

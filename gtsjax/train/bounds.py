@@ -80,6 +80,42 @@ SEARCH_PRIOR = Bound("prior of the searched sides", "", 0.05, 0.8, (0.05, 0.8), 
                      "misread")
 
 
+# The radius of the site's round landmarks (``train.labels.landmark_centres``): the first labelling
+# pass places each landmark candidate at the centre of a circle of this radius through its points, the
+# radius that leaves the map rigid. RoboCup's goal and field posts are 5 cm in radius.
+LANDMARK_RADIUS = Bound("radius of the round landmarks", "mm", 10.0, 300.0, (15.0, 150.0), None,
+                        "a post a laser places by its centre is 1.5-15 cm in radius")
+# How far from rigid (1) the first pass's map may be before the labels are warned about: a share of
+# every label's range.
+MAP_SCALE_WARN = 0.005
+
+
+def landmark_rows(centres: list[dict], names: list[str], landmarks: tuple[str, ...]) -> list[dict]:
+    """Rows of the learnt-parameter table for each labelled log's landmark radius
+    (``train.labels.landmark_centres``'s evidence), and a warning where its map stayed far from rigid."""
+    rows = []
+    who = ", ".join(landmarks) or None
+    for ev, name in zip(centres, names, strict=True):
+        before, after = ev["scale_before"], ev["scale_after"]
+        if not math.isfinite(before):
+            continue  # never three landmarks in view: no map to measure
+        if math.isfinite(ev["radius"]):
+            rows.append(entry(LANDMARK_RADIUS, who, round(1e3 * ev["radius"], 1), "learnt",
+                              f"{ev['candidates']} candidates near the landmarks in {name}: the map's scale "
+                              f"{before:.4f} from their surfaces, {after:.4f} from circles of this radius"))
+            continue
+        row = {"class": who, "parameter": LANDMARK_RADIUS.what, "unit": LANDMARK_RADIUS.unit, "value": 0.0,
+               "source": "default", "evidence": f"no radius within {LANDMARK_RADIUS.floor:g}-{LANDMARK_RADIUS.ceiling:g} "
+               f"mm makes the map of {name} rigid: it is fitted to the candidates' surfaces (scale {before:.4f})",
+               "hard_range": None, "plausible": list(LANDMARK_RADIUS.plausible)}  # none learnt: nothing to hold
+        if abs(before - 1.0) > MAP_SCALE_WARN:
+            row["warning"] = (f"the map of {name} from its landmarks scales by {before:.4f}, not 1 (landmarks that are "
+                              f"not round, or a tilted laser): its labels sit {100 * abs(before - 1):.1f} % of their "
+                              "range off, and the learnt outlines are that much off in size")
+        rows.append(row)
+    return rows
+
+
 def outline_rows(outline_report: dict) -> list[dict]:
     """Rows of the learnt-parameter table for each class's calibrated side posterior and where a fit on
     another side takes its position from (``train.outline.fit_outlines``'s report)."""

@@ -8,9 +8,10 @@ candidate that passes the binary filters is ``background``.
 
 "Near" needs each scan's map transformation (eq. 10), which is estimated as stage f does at run time
 (the core's own ``update_transform``), from the candidates near the site's landmarks, seeded by the
-site's rough sensor pose. Two passes: the first (:func:`first_pass`) uses the candidates' ORS origins
-(which sit on the visible surface, a few cm in front of a post's centre); it gives the landmark
-classes' position targets, whose GPs then move each landmark candidate to its centre for the second
+site's rough sensor pose. Two passes: the first (:func:`first_pass`) places each landmark candidate at
+the centre of a circle through its points (its ORS origin sits on the visible surface, a few cm in
+front of a post's centre), of the radius that leaves the map rigid; it gives the landmark classes'
+position targets, whose GPs then move each landmark candidate to its centre for the second
 pass (:func:`second_pass`), as the step does at run time. All targets come from the second pass.
 
 Every frame change goes through the core's geometry (:mod:`gtsjax.core.geometry`), on float64 host
@@ -40,6 +41,7 @@ from ..errors import InputError
 from ..io.logs import ScanLog, fit_geometry, to_scans
 from ..io.site import Site
 from ..sensors import get_model
+from .bounds import LANDMARK_RADIUS, MAP_SCALE_WARN
 from .config import TrainConfig
 
 BACKGROUND = "background"
@@ -251,6 +253,105 @@ def estimate_transforms(det_s: np.ndarray, keep: np.ndarray, site: Site, cfg: Tr
             "n": np.asarray(tfs.n_landmarks)}
 
 
+
+
+def map_scale(tf: dict, min_landmarks: int = 3) -> float:
+    """The median scale ``sqrt(|det A|)`` of the transforms ``tf`` fitted on ``min_landmarks`` or more
+    landmarks (1 for a rigid map); NaN where none was."""
+    ok = ~tf["degraded"] & (tf["n"] >= min_landmarks)
+    if not ok.any():
+        return math.nan
+    return float(np.median(np.sqrt(np.abs(np.linalg.det(tf["A"][ok])))))
+
+
+def candidate_window(log: ScanLog, fe: dict, t: np.ndarray, k: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:
+    """The points in S ``[n, window, 2]`` and mask of candidates ``(t, k)`` (scan, slot) of the front
+    end's output ``fe``, as the step's candidate windows hold them."""
+    lane = np.arange(window)
+    start, length = fe["start"][t, k], fe["length"][t, k]
+    inside = lane[None] < np.minimum(length, window)[:, None]
+    beam = np.minimum(start[:, None] + lane[None], log.n_beams - 1)
+    valid = log.valid()[t[:, None], beam] & inside
+    r = np.where(valid, log.ranges[t[:, None], beam], 0.0)
+    a = log.angle_min + beam * log.angle_increment
+    return np.stack([r * np.cos(a), r * np.sin(a)], -1), valid
+
+
+def circle_centres(pts: np.ndarray, mask: np.ndarray, origin: np.ndarray, radius: float, iterations: int = 8,
+                   robust: float = 0.01) -> np.ndarray:
+    """The centres ``[n, 2]`` of circles of ``radius`` through each candidate's points ``pts`` ``[n, w, 2]``
+    (where ``mask``): Gauss-Newton on the points' distances to the circle, Cauchy-weighted (scale
+    ``robust``, metres) against a mixed pixel at an edge, started ``radius`` behind the ORS ``origin``
+    along its line of sight."""
+    u = origin / np.maximum(np.linalg.norm(origin, axis=-1, keepdims=True), 1e-9)
+    q = origin + radius * u
+    for _ in range(iterations):
+        d = pts - q[:, None]
+        n = np.maximum(np.linalg.norm(d, axis=-1), 1e-9)
+        r = n - radius
+        w = mask / (1.0 + (r / robust) ** 2)
+        J = -d / n[..., None]
+        JtJ = np.einsum("kni,knj,kn->kij", J, J, w) + 1e-9 * np.eye(2)
+        Jtr = np.einsum("kni,kn,kn->ki", J, r, w)
+        q = q - np.linalg.solve(JtJ, Jtr[..., None])[..., 0]
+    return q
+
+
+def landmark_centres(log: ScanLog, fe: dict, site: Site, cfg: TrainConfig, steps: int = 4) -> tuple[dict, dict]:
+    """The first pass's map transformations, from each landmark candidate's centre: ``(transforms,
+    evidence)`` (``evidence["radius"]`` the landmarks' radius found, NaN where none was).
+
+    A candidate's ORS origin (eq. 8: the midpoints of its range and bearing extents) lies in front of a
+    post's centre, by 0.7-0.8 of its radius and more with range as fewer beams reach its edges; the site
+    gives the centres. Fitted to the origins, the affine map (eq. 10) takes that shortfall up as a scale
+    (1.012 for a 5 cm post at 3-4 m), and the labels through it sit that share of their range too close
+    to the laser: the landmark GPs learn centres short by that much, the run-time map keeps the scale,
+    and every robot's label and learnt outline shrink with it (the outline 1.5 cm small in radius on the
+    tests' Nao recording). So the candidates that the map from their origins puts near a landmark are
+    placed at the centre of a circle through their points, and the circle's radius is the one that
+    leaves the map rigid (a horizontal laser's geometry is): the secant method on the median scale. The
+    radius cannot come from the points alone: four points on a short arc fit a smaller circle nearly as
+    well (millimetres short, centimetres of map). Without three landmarks in view in any scan, or where
+    no radius within :data:`~gtsjax.train.bounds.LANDMARK_RADIUS` brings the scale within
+    :data:`~gtsjax.train.bounds.MAP_SCALE_WARN` of 1 (landmarks that are not round), the map from the
+    origins, as before."""
+    tf0 = estimate_transforms(fe["origin"], fe["keep"], site, cfg)
+    s0 = map_scale(tf0)
+    evidence = {"radius": math.nan, "scale_before": s0, "scale_after": s0, "candidates": 0}
+    if not math.isfinite(s0) or len(site.landmark_xy) == 0:
+        return tf0, evidence
+    origin_o = sensor_to_field(*_per_scan(tf0), fe["origin"])
+    gap = np.linalg.norm(origin_o[:, :, None] - site.landmark_xy[None, None], axis=-1).min(-1)
+    t, k = np.nonzero(fe["keep"] & (gap < cfg.landmark_radius))
+    pts, mask = candidate_window(log, fe, t, k, int(min(cfg.frontend.window, fe["length"][t, k].max(initial=1))))
+    evidence["candidates"] = int(t.size)
+
+    def fitted(radius: float) -> tuple[dict, float]:
+        det = fe["origin"].copy()
+        det[t, k] = circle_centres(pts, mask, fe["origin"][t, k], radius)
+        tf = estimate_transforms(det, fe["keep"], site, cfg)
+        return tf, map_scale(tf)
+
+    lo, hi = 1e-3 * LANDMARK_RADIUS.floor, 1e-3 * LANDMARK_RADIUS.ceiling
+    r0, r1 = 0.03, 0.06
+    tf_a, sa = fitted(r0)
+    best = (abs(sa - 1.0), r0, tf_a, sa)
+    for _ in range(steps):
+        tf_b, sb = fitted(r1)
+        if not (math.isfinite(sa) and math.isfinite(sb)):
+            break
+        if abs(sb - 1.0) < best[0]:
+            best = (abs(sb - 1.0), r1, tf_b, sb)
+        if sb == sa or best[0] < 1e-5:
+            break
+        r2 = float(np.clip(r1 - (sb - 1.0) * (r1 - r0) / (sb - sa), lo, hi))
+        r0, sa, r1 = r1, sb, r2
+    off, radius, tf, s = best
+    if off > MAP_SCALE_WARN:
+        return tf0, evidence
+    return tf, {**evidence, "radius": radius, "scale_after": s}
+
+
 def _per_scan(tf):
     """A log's transforms ``[T]`` as arguments of ``geometry``'s S ↔ O maps for points ``[T, n, 2]``."""
     return tf["A"][:, None], tf["mu_s"][:, None], tf["mu_o"][:, None]
@@ -345,19 +446,22 @@ def per_log_sites(site: "Site | Sequence[Site]", n: int) -> list[Site]:
 
 
 def first_pass(logs: Sequence[ScanLog], per_log: Sequence[dict], site: "Site | Sequence[Site]",
-               classes: tuple[str, ...], cfg: TrainConfig) -> tuple[Examples, list[np.ndarray], int]:
-    """Pass 1: transforms from the raw ORS origins, and the labels they give. Returns the examples of
-    all logs, each log's class per candidate slot ``[T, K]``, and the next free held-out group id.
-    ``site``: one for every log, or one per log (:func:`per_log_sites`)."""
+               classes: tuple[str, ...], cfg: TrainConfig) -> tuple[Examples, list[np.ndarray], int, list[dict]]:
+    """Pass 1: transforms from the landmark candidates' circle centres (:func:`landmark_centres`; from
+    the raw ORS origins where the landmarks are not round), and the labels they give. Returns the
+    examples of all logs, each log's class per candidate slot ``[T, K]``, the next free held-out group
+    id, and each log's evidence of :func:`landmark_centres`. ``site``: one for every log, or one per log
+    (:func:`per_log_sites`)."""
     offset = 0
-    exs, cls_slots = [], []
+    exs, cls_slots, centres = [], [], []
     for log, fe, log_site in zip(logs, per_log, per_log_sites(site, len(logs)), strict=True):
-        tf = estimate_transforms(fe["origin"], fe["keep"], log_site, cfg)
+        tf, evidence = landmark_centres(log, fe, log_site, cfg)
         ex, cls_tk = label_log(log, fe, tf, log_site, classes, cfg, offset)
         cls_slots.append(cls_tk)
+        centres.append(evidence)
         offset = int(ex.group.max(initial=offset)) + 1
         exs.append(ex)
-    return Examples.concat(exs), cls_slots, offset
+    return Examples.concat(exs), cls_slots, offset, centres
 
 
 def _relabel(logs, per_log, cls_slots, pose, site, classes, landmarks, cfg) -> tuple[Examples, int, int]:
