@@ -42,6 +42,12 @@ from gtsjax.drivers.batch import process_log  # noqa: E402
 from gtsjax.io.logs import to_scans  # noqa: E402
 from gtsjax.sim.scene import OUTLINES  # noqa: E402
 
+
+def heading_error(d: float, period: float) -> float:
+    """``d`` wrapped to ``[-period/2, period/2)``: a heading error, modulo a half-turn for a class read so."""
+    return float((d + period / 2) % period - period / 2)
+
+
 RANGES = ((0.0, 2.0), (2.0, 3.0), (3.0, 4.0), (4.0, 8.0))
 # The side of the robot the laser sees: the laser's bearing in the robot's frame, in sectors of 45°.
 SIDES = ("back (180°)", "back right (-135°)", "right (-90°)", "front right (-45°)", "front (0°)", "front left (45°)",
@@ -92,6 +98,8 @@ def measure(model, log, name: str) -> str:
     ok = ~np.asarray(out.transform.degraded)
     scale = np.sqrt(np.abs(np.linalg.det(A[ok])))
     c = list(model.classes).index("robot")
+    turns = model.pose[c].turns
+    period = 2 * math.pi / (1 if turns is None else int(turns))  # a class alike turned half a turn: modulo π
     sp = np.asarray(log.extra["truth_sensor_pose"], np.float64)
     rows = []
     for t in range(log.n_scans):
@@ -110,7 +118,7 @@ def measure(model, log, name: str) -> str:
             u = los / rng
             e = pose[j, :2] - truth[:2]
             side = float(wrap(math.atan2(-los[1], -los[0]) - truth[2]))  # the laser's bearing in the robot's frame
-            rows.append((rng, float(e @ u), float(e[1] * u[0] - e[0] * u[1]), float(wrap(pose[j, 2] - truth[2])), side))
+            rows.append((rng, float(e @ u), float(e[1] * u[0] - e[0] * u[1]), heading_error(pose[j, 2] - truth[2], period), side))
     r = np.asarray(rows).reshape(-1, 5)
     lines = [f"**{name}**: map scale √det A median {np.median(scale):.4f} (5–95 %: {np.percentile(scale, 5):.4f}–"
              f"{np.percentile(scale, 95):.4f}) over {ok.sum()} scans; {len(r)} detections", "",
