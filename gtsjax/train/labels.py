@@ -264,17 +264,18 @@ def map_scale(tf: dict, min_landmarks: int = 3) -> float:
     return float(np.median(np.sqrt(np.abs(np.linalg.det(tf["A"][ok])))))
 
 
-def candidate_window(log: ScanLog, fe: dict, t: np.ndarray, k: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:
-    """The points in S ``[n, window, 2]`` and mask of candidates ``(t, k)`` (scan, slot) of the front
-    end's output ``fe``, as the step's candidate windows hold them."""
+def window_points(log: ScanLog, scan: np.ndarray, start: np.ndarray, length: np.ndarray, window: int,
+                  dtype=np.float64) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The points in S ``[n, window, 2]`` of candidate windows of ``log`` (scan, first beam, length; as
+    the front end gives them), their mask and beams: as the step's candidate windows hold them, the
+    arithmetic in ``dtype`` (the step's float32 where what is learnt from them must match it)."""
     lane = np.arange(window)
-    start, length = fe["start"][t, k], fe["length"][t, k]
-    inside = lane[None] < np.minimum(length, window)[:, None]
-    beam = np.minimum(start[:, None] + lane[None], log.n_beams - 1)
-    valid = log.valid()[t[:, None], beam] & inside
-    r = np.where(valid, log.ranges[t[:, None], beam], 0.0)
-    a = log.angle_min + beam * log.angle_increment
-    return np.stack([r * np.cos(a), r * np.sin(a)], -1), valid
+    inside = (lane[None, :] < np.minimum(length, window)[:, None]) & (start[:, None] + lane[None, :] < log.n_beams)
+    beam = np.minimum(start[:, None] + lane[None, :], log.n_beams - 1)
+    valid = log.valid()[scan[:, None], beam] & inside
+    r = np.where(valid, log.ranges[scan[:, None], beam], 0.0).astype(dtype)
+    a = (dtype(log.angle_min) + beam.astype(dtype) * dtype(log.angle_increment)).astype(dtype)
+    return np.stack([r * np.cos(a), r * np.sin(a)], -1), valid, beam
 
 
 def circle_centres(pts: np.ndarray, mask: np.ndarray, origin: np.ndarray, radius: float, iterations: int = 8,
@@ -318,12 +319,13 @@ def landmark_centres(log: ScanLog, fe: dict, site: Site, cfg: TrainConfig, steps
     tf0 = estimate_transforms(fe["origin"], fe["keep"], site, cfg)
     s0 = map_scale(tf0)
     evidence = {"radius": math.nan, "scale_before": s0, "scale_after": s0, "candidates": 0}
-    if not math.isfinite(s0) or len(site.landmark_xy) == 0:
+    if not math.isfinite(s0):  # never three landmarks in view (a site without landmarks included)
         return tf0, evidence
     origin_o = sensor_to_field(*_per_scan(tf0), fe["origin"])
     gap = np.linalg.norm(origin_o[:, :, None] - site.landmark_xy[None, None], axis=-1).min(-1)
     t, k = np.nonzero(fe["keep"] & (gap < cfg.landmark_radius))
-    pts, mask = candidate_window(log, fe, t, k, int(min(cfg.frontend.window, fe["length"][t, k].max(initial=1))))
+    length = fe["length"][t, k]
+    pts, mask, _ = window_points(log, t, fe["start"][t, k], length, int(min(cfg.frontend.window, length.max(initial=1))))
     evidence["candidates"] = int(t.size)
 
     def fitted(radius: float) -> tuple[dict, float]:

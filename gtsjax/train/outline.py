@@ -48,7 +48,7 @@ from ..core.geometry import compose, relative, wrap
 from ..drivers.evaluation import heading_error
 from ..io.logs import ScanLog
 from .calibrate import robust_variance_scale
-from .labels import Examples
+from .labels import Examples, window_points
 
 BEARING_BINS = 128
 GRID = 64
@@ -66,22 +66,14 @@ def candidate_points(logs: Sequence[ScanLog], ex: Examples, window: int, intensi
     pts = np.zeros((n, window, 2), np.float32)
     mask = np.zeros((n, window), bool)
     inten = np.zeros((n, window), np.float32)
-    lane = np.arange(window)
     for li, log in enumerate(logs):
         rows = np.flatnonzero(ex.where[:, 0] == li)
         if rows.size == 0:
             continue
-        scan, start, length = ex.where[rows, 1], ex.where[rows, 2], ex.where[rows, 3]
-        beam = start[:, None] + lane[None, :]
-        inside = (lane[None, :] < np.minimum(length, window)[:, None]) & (beam < log.n_beams)
-        beam = np.minimum(beam, log.n_beams - 1)
-        valid = log.valid()[scan[:, None], beam] & inside
-        r = np.where(valid, log.ranges[scan[:, None], beam], 0.0).astype(np.float32)
-        a = (np.float32(log.angle_min) + beam.astype(np.float32) * np.float32(log.angle_increment)).astype(np.float32)
-        pts[rows] = np.stack([r * np.cos(a), r * np.sin(a)], -1)
-        mask[rows] = valid
+        scan = ex.where[rows, 1]
+        pts[rows], mask[rows], beam = window_points(log, scan, ex.where[rows, 2], ex.where[rows, 3], window, np.float32)
         if intensities and log.intensities is not None:
-            inten[rows] = np.where(valid, np.nan_to_num(log.intensities[scan[:, None], beam]), 0.0)
+            inten[rows] = np.where(mask[rows], np.nan_to_num(log.intensities[scan[:, None], beam]), 0.0)
     return (pts, mask, inten) if intensities else (pts, mask)
 
 
