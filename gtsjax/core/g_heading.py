@@ -77,25 +77,38 @@ def side_evidence(
     """The evidence of one detection per track for each of its heading hypotheses, ``log p(z | j) =
     log Σ_h p(h) N(z_h; φ_j, σ_j² + r)`` over the detection's sides ``h`` (with a floor, ``_OUTLIER_P``
     of a uniform heading); for each hypothesis the detection side nearest it, the innovation and its
-    variance, and the squared normalised innovation."""
+    variance, and the statistic its heading gate tests (:func:`gate_statistic`)."""
     nu = wrap(z[:, None, :] - heading[:, :, None])  # [M, j, h]
     S = var[:, :, None] + r[:, None, None]
     d2 = nu**2 / S
     usable = jnp.isfinite(z_logp)[:, None, :]
     ll = jnp.where(usable, z_logp[:, None, :] - 0.5 * d2 - 0.5 * jnp.log(2 * jnp.pi * S), -jnp.inf)
-    ev = jnp.logaddexp(jax.nn.logsumexp(ll, axis=-1), jnp.log(_OUTLIER_P / (2 * jnp.pi)))
+    mixture = jax.nn.logsumexp(ll, axis=-1)  # [M, j]: log Σ_h p(h) N(z_h; φ_j, S_j)
+    ev = jnp.logaddexp(mixture, jnp.log(_OUTLIER_P / (2 * jnp.pi)))
     # The side that most likely explains each hypothesis: its probability times its likelihood there
     # (S is one for all sides). The nearest side alone would let a track that drifted a few degrees
     # take the detection's least likely side beside it over its most likely one.
     near = jnp.argmax(ll, axis=-1).astype(jnp.int32)  # [M, j]
-    return ev, near, _select(nu, near), S[..., 0], _select(d2, near)  # S is the same for every side h
+    S = S[..., 0]  # the same for every side h
+    return ev, near, _select(nu, near), S, gate_statistic(_select(d2, near), mixture, S)
 
 
-def heading_mixture(state: TrackerState, ev, nu, S, d2, seen, z_best, r, dt, params: TrackerParams):
+def gate_statistic(d2_near: Float[Array, "*b"], mixture: Float[Array, "*b"], S: Float[Array, "*b"]) -> Float[Array, "*b"]:
+    """What a hypothesis's heading gate (``heading_gate``, χ² of 1 dof) tests against a detection of
+    several sides: the larger of its nearest side's squared normalised innovation and the sides'
+    together, ``-2 log Σ_h p(h) exp(-d_h² / 2)`` (from ``mixture``, ``log Σ_h p(h) N(z_h; φ, S)``).
+    One sure side is the χ² test itself; a side the detection gives little probability must lie that
+    much nearer to pass, by ``-2 log p(h)``. (Tested alone, a misread 125° off, sure of itself, passed
+    the gate with its least likely side, 0.02 and 18° off a track whose gate a rejected read had just
+    widened, and swung the track 40° off for half a second: spl-legs:2004 at 44 s.)"""
+    return jnp.maximum(d2_near, -2.0 * mixture - jnp.log(2 * jnp.pi * S))
+
+
+def heading_mixture(state: TrackerState, ev, nu, S, gate, seen, z_best, r, dt, params: TrackerParams):
     """Weights and headings of every track's hypotheses after this scan's evidence (see
     :mod:`~gtsjax.core.g_track`): the log-weights (the rest's too) fade towards uniform over ``heading_memory`` and add
-    the evidence; each hypothesis but the main one within the heading gate of its nearest detection side
-    takes it as a one-dimensional Kalman update; the rest's share of the read goes to the hypothesis that explains
+    the evidence; each hypothesis but the main one whose heading gate the detection passes (``gate``:
+    :func:`gate_statistic`) takes its nearest side as a one-dimensional Kalman update; the rest's share of the read goes to the hypothesis that explains
     the detection's most probable side ``z_best``, or to a new one there; near-duplicates merge.
     Returns the new headings, variances, log-weights, the rest's log-weight and the hypothesis the
     state's heading becomes (the most probable one, where its odds over the present one exceed
@@ -107,7 +120,7 @@ def heading_mixture(state: TrackerState, ev, nu, S, d2, seen, z_best, r, dt, par
     side = jnp.arange(lw.shape[1], dtype=jnp.int32)[None, :]
     # The main hypothesis is the state's heading: its update is the state's own (``track_step``, with the
     # state's gate and turn-rate test), written back after it (:func:`follow_state`).
-    upd = seen[:, None] & used & (d2 <= params.heading_gate) & (side != state.main[:, None])
+    upd = seen[:, None] & used & (gate <= params.heading_gate) & (side != state.main[:, None])
     gain = state.side_var / S
     heading = jnp.where(upd, wrap(state.side_heading + gain * nu), state.side_heading)
     var = jnp.where(upd, (1.0 - gain) * state.side_var, state.side_var)
@@ -176,6 +189,7 @@ class Headings(NamedTuple):
     main: Int[Array, " tracks"]  # the hypothesis the state's heading is
     switch: Bool[Array, " tracks"]  # whether that is another one than before the scan
     near: Int[Array, "tracks sides"]  # for each hypothesis, the detection side nearest it
+    gate: Float[Array, "tracks sides"]  # for each hypothesis, what its heading gate tests (``gate_statistic``)
 
 
 def weigh_headings(
@@ -184,14 +198,14 @@ def weigh_headings(
     """The hypotheses after each track's detection ``obs`` (whose heading counts where ``seen``): its
     evidence for each (:func:`side_evidence`), their weights and their own updates
     (:func:`heading_mixture`), and which is the state's heading now."""
-    ev, near, nu, S, d2 = side_evidence(
+    ev, near, nu, S, gate = side_evidence(
         state.side_heading, state.side_var, obs.side_heading, obs.side_logp, obs.cov[:, 2, 2]
     )
     ev = ev + motion_evidence(state, params, dt)
     heading, var, logw, rest, main, switch = heading_mixture(
-        state, ev, nu, S, d2, seen, obs.pose[:, 2], obs.cov[:, 2, 2], dt, params
+        state, ev, nu, S, gate, seen, obs.pose[:, 2], obs.cov[:, 2, 2], dt, params
     )
-    return Headings(heading, var, logw, rest, main, switch, near)
+    return Headings(heading, var, logw, rest, main, switch, near, gate)
 
 
 def main_heading_prior(

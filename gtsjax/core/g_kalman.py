@@ -91,12 +91,6 @@ def mahalanobis(mean, cov, z, R) -> Float[Array, ""]:
     return nu[:2] @ inv2(S[:2, :2]) @ nu[:2]
 
 
-def heading_consistent(mean, cov, z, R, gate) -> Bool[Array, ""]:
-    """Whether a detection's heading agrees with the track's: ``ν_θ² / S_θθ ≤ gate`` (1 dof)."""
-    nu, S = innovation(mean, cov, z, R)
-    return nu[2] ** 2 <= gate * S[2, 2]
-
-
 def _mm(a, b):
     """``a @ b`` over the last two axes (batched, broadcast) as a sum of outer products, one per index
     of the contracted axis: elementwise, so XLA fuses it with its neighbours instead of running a dot."""

@@ -11,7 +11,10 @@ heading is re-wrapped after each update.
 another side, and the pose regressor then returns a heading off by 90° or 180°. Association
 therefore gates on position only (2 dof); the heading of an assigned detection updates the track
 only if its own innovation passes ``heading_gate`` (χ², 1 dof), otherwise the update is
-position-only. A rejected heading also discards the turn-rate estimate (``ω = 0`` with its initial
+position-only. A detection of several sides (below) passes only where its side nearest the track's
+heading does and its sides together do, each weighted by its probability
+(:func:`~gtsjax.core.g_heading.gate_statistic`): a side the detection itself gives little
+probability must lie that much nearer the track to be taken. A rejected heading also discards the turn-rate estimate (``ω = 0`` with its initial
 variance): a turn rate learnt from misread headings would otherwise spin the track's heading past
 every right one it rejects. ``ω`` is kept within its class's ``max_turn_rate``.
 
@@ -117,7 +120,6 @@ algebra), :mod:`.g_assign` (gating and assignment), :mod:`.g_heading` (the headi
 """
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
@@ -131,10 +133,10 @@ from .g_heading import heading_mixture as heading_mixture
 from .g_heading import merge_duplicates as merge_duplicates
 from .g_heading import side_evidence as side_evidence
 from .g_identity import update_identities
-from .g_kalman import heading_consistent, kalman_update, predict
 from .g_kalman import innovation as innovation
 from .g_kalman import inv2 as inv2
 from .g_kalman import inv3 as inv3
+from .g_kalman import kalman_update, predict
 from .g_kalman import mahalanobis as mahalanobis
 from .g_kalman import motion_model as motion_model
 from .g_life import confirm_and_end, explain_holds, next_state, plausible_turn, scans_spanned, start_tracks
@@ -153,6 +155,7 @@ def update_tracks(
     state: TrackerState,
     has: Bool[Array, " tracks"],
     seen: Bool[Array, " tracks"],
+    head_ok: Bool[Array, " tracks"],
     mean0: Float[Array, "tracks 6"],
     cov0: Float[Array, "tracks 6 6"],
     z: Float[Array, "tracks 3"],
@@ -161,11 +164,12 @@ def update_tracks(
 ) -> tuple[Float[Array, "tracks 6"], Float[Array, "tracks 6 6"], Float[Array, " tracks"]]:
     """The measurement update of each track that has a detection (``has``), from the state
     :func:`~gtsjax.core.g_heading.main_heading_prior` gives, with the heading where the detection's is
-    ``seen``, passes the heading gate and, on a confirmed track, turns it no faster than its class can;
-    position-only otherwise (see the module docstring). Returns the new means and covariances (the
-    prior's where no detection), with the turn rate clipped at its class's limit, and the updated turn
-    rate before clipping, for the plausibility test."""
-    head_ok = jax.vmap(heading_consistent, in_axes=(0, 0, 0, 0, None))(mean0, cov0, z, R, params.heading_gate)
+    ``seen``, passes the heading gate (``head_ok``: its main hypothesis's,
+    :func:`~gtsjax.core.g_heading.gate_statistic`, the χ² test of its nearest side for a detection of
+    one side) and, on a confirmed track, turns it no faster than its class can; position-only
+    otherwise (see the module docstring). Returns the new means and covariances (the prior's where no
+    detection), with the turn rate clipped at its class's limit, and the updated turn rate before
+    clipping, for the plausibility test."""
     # Both candidate updates, with the heading and position-only, in one batched call (a leading axis
     # of two); each test selects one of them.
     both_mean, both_cov = kalman_update(
@@ -242,7 +246,9 @@ def track_step(
     seen = assoc.has & ~obs.partial & ~obs.vague
     headings = weigh_headings(state, obs, seen, dt, params)
     mean0, cov0, z = main_heading_prior(state, headings, obs)
-    mean, cov, omega_raw = update_tracks(state, assoc.has, seen, mean0, cov0, z, obs.cov, params)
+    # The state's heading is its main hypothesis: the detection passes its heading gate where it passes that one's.
+    head_ok = _select(headings.gate, headings.main) <= params.heading_gate
+    mean, cov, omega_raw = update_tracks(state, assoc.has, seen, head_ok, mean0, cov0, z, obs.cov, params)
     headings = follow_state(headings, mean, cov)
     spanned = scans_spanned(dt, period, visible, span_dt)
     tally = confirm_and_end(state, assoc.has, assoc.other_near, spanned, mean, cov, omega_raw, params, watchers)

@@ -156,6 +156,12 @@ class Tracker:
         def nearest(j):  # the detection's side most likely to explain hypothesis j's prediction
             return max(sides, key=lambda h: zlp[h] - 0.5 * wrap(zh[h] - phi[j]) ** 2 / (var[j] + r))
 
+        def within(j):  # the heading gate of hypothesis j's prediction: its nearest side, and all sides together
+            s = var[j] + r
+            d2 = [wrap(zh[h] - phi[j]) ** 2 / s for h in sides]
+            together = -2.0 * logsumexp([zlp[h] - 0.5 * d for h, d in zip(sides, d2, strict=True)])
+            return d2[sides.index(nearest(j))] <= self.heading_gate and together <= self.heading_gate
+
         fade = math.exp(-dt / self.heading_memory)
         logw = np.full(n, -np.inf)
         for j in used:
@@ -172,7 +178,7 @@ class Tracker:
                 h = nearest(j)
                 nu = wrap(zh[h] - phi[j])
                 s = var[j] + r
-                if nu**2 / s <= self.heading_gate:
+                if within(j):
                     t.heading[j] = wrap(phi[j] + var[j] / s * nu)
                     t.var[j] = (1.0 - var[j] / s) * var[j]
             # the rest reads the detection's most probable side
@@ -216,7 +222,7 @@ class Tracker:
             t.kf.P[:, 2] = 0.0
             t.kf.P[2, 2] = var[main]
             t.main = main
-        return main, (nearest(main) if sides else None)
+        return main, (nearest(main) if sides else None), (within(main) if sides else True)
 
     def step(
         self,
@@ -322,14 +328,14 @@ class Tracker:
             if j is None:
                 self.mixture(t, None, None, 0.0, False, dt)
             else:
-                _, h = self.mixture(t, side_heading[j], side_logp[j], R[j][2, 2], not position_only, dt)
+                _, h, sides_ok = self.mixture(t, side_heading[j], side_logp[j], R[j][2, 2], not position_only, dt)
             omega = t.kf.x[5, 0]  # a coasting track's turn rate: clipped at its last update
             if j is not None:
                 zj = z[j].copy()
                 zj[2] = side_heading[j, h]  # the side nearest the filter's heading
                 zj[2] = t.kf.x[2, 0] + wrap(zj[2] - t.kf.x[2, 0])  # innovation wrapped
                 r_theta = R[j][2, 2]
-                head_ok = (zj[2] - t.kf.x[2, 0]) ** 2 <= self.heading_gate * (t.kf.P[2, 2] + r_theta)
+                head_ok = (zj[2] - t.kf.x[2, 0]) ** 2 <= self.heading_gate * (t.kf.P[2, 2] + r_theta) and sides_ok
                 w_max = self.max_turn_rate[t.cls]
                 if head_ok and t.confirmed and not position_only:
                     # a heading that would turn a confirmed track faster than its class can is a misread
