@@ -113,10 +113,10 @@ class TrackerParams(eqx.Module):
         track after 1 s without detections, of a tentative one after 0.3 s, reported while it has
         missed less than 0.3 s; position gate
         χ²₂(0.999) = 13.82, heading gate χ²₁(0.999) = 10.83, heading evidence fading over 1 s (a wrong
-        heading is given up within about a second); turn-rate noise ``q_theta`` 0.02 rad²/s³ (the turn
-        rate of a robot changes slowly: with the 0.5 of before, a few scans without a detection left a
-        heading so uncertain that a misread passed its gate and took it; chosen on simulated seeds
-        3001–3004, not the README's); speed at most 0.6 m/s (a Nao walks at most about
+        heading is given up within about a second); turn-rate noise ``q_theta`` 0.02 rad²/s³ where
+        nothing says otherwise (with the 0.5 of before, a few scans without a detection left a heading
+        so uncertain that a misread passed its gate and took it; chosen on simulated seeds 3001–3004,
+        not the README's; training learns it from the labels' motion, ``train.motion.turn_rate_noise``); speed at most 0.6 m/s (a Nao walks at most about
         0.35 m/s) and turn rate at most 3 rad/s (a humanoid turns at about 1 rad/s, a wheeled robot
         faster). ``max_speed`` and ``max_turn_rate`` are one value for every class or one per class."""
         tracked = jnp.asarray(tracked, dtype=bool)

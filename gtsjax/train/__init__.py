@@ -59,7 +59,7 @@ from .labels import fit_background as fit_background
 from .labels import label_log as label_log
 from .labels import landmark_centres as landmark_centres
 from .labels import run_front_end as run_front_end
-from .motion import confirmation_entry, motion_heading, scan_rate_entry, tracker_limits
+from .motion import confirmation_entry, motion_heading, scan_rate_entry, tracker_limits, turn_rate_noise
 from .motion import motion_limits as motion_limits
 from .outline import fit_outlines, half_turn_symmetry
 from .pose import POSE_GROUPS, fit_landmark_positions, fit_pose_regressors
@@ -352,14 +352,17 @@ def _motion_limits(run: _Run, logs: Sequence[ScanLog], env_report: dict,
     cfg, classes, mobiles = run.cfg, run.classes, run.mobiles
     rate_hz, rate_row = scan_rate_entry(logs, cfg.scan_rate_hz)
     speed, turn, motion, motion_rows = tracker_limits(logs, classes, mobiles, cfg, period=1.0 / rate_hz)
+    # How fast the robots' turn rate changes while they move: the tracker's turn-rate process noise.
+    q_theta, q_row = turn_rate_noise(logs, mobiles, period=1.0 / rate_hz, max_speed=dict(zip(classes, speed, strict=True)),
+                                     max_turn_rate=dict(zip(classes, turn, strict=True)))
     tracker = TrackerParams.default([c in mobiles for c in classes], rate_hz=rate_hz, max_speed=speed,
-                                    max_turn_rate=turn)
+                                    max_turn_rate=turn, q_theta=q_theta)
     # The heading against the direction of travel, the tracker's evidence from a track's motion.
     heading_table, heading_rows = motion_heading(logs, classes, mobiles, period=1.0 / rate_hz)
     if heading_table is not None:
         tracker = eqx.tree_at(lambda t: t.motion_heading, tracker, jnp.asarray(heading_table, jnp.float32),
                               is_leaf=lambda x: x is None)
-    learnt = [rate_row, confirmation_entry(int(tracker.n_confirm), rate_hz), *motion_rows, *heading_rows,
+    learnt = [rate_row, confirmation_entry(int(tracker.n_confirm), rate_hz), *motion_rows, q_row, *heading_rows,
               *shape_rows(env_report, sup_report, classes, mobiles)]
     return tracker, rate_hz, motion, learnt
 

@@ -16,11 +16,12 @@ the plausible range (:mod:`.bounds`) is a placement, not motion: a robot faster 
 ``--max-speed`` / ``--max-turn-rate``.
 """
 
+import math
 from collections.abc import Iterator, Sequence
 
 import numpy as np
 
-from ..core.g_track import DEFAULT_MAX_SPEED, DEFAULT_MAX_TURN_RATE
+from ..core.g_track import DEFAULT_MAX_SPEED, DEFAULT_MAX_TURN_RATE, TrackerParams
 from ..core.geometry import wrap
 from ..io.logs import ScanLog
 from ..sensors import MODELS
@@ -31,6 +32,7 @@ WINDOW_S = 0.5  # s: the windows motion is measured over
 MIN_TRANSLATION = 0.05  # m: a window that went less far did not translate (label jitter, a turn on the spot)
 MIN_TURN = 0.1  # rad: likewise for turning
 MIN_EVIDENCE_S = 2.0  # s: of translating (turning) windows, at least, before a limit is learnt from them
+TURN_NOISE_LAG_S = 0.1  # s: the shorter lag of the turn-rate noise's second differences (the longer: twice it)
 
 
 def _runs(stamps: np.ndarray, present: np.ndarray, period: float) -> Iterator[tuple[int, int]]:
@@ -210,6 +212,84 @@ def motion_heading(logs: Sequence[ScanLog], classes: tuple[str, ...], mobiles: t
                  bounds.entry(bounds.MOTION_OFFSET, c, round(float(np.degrees(mu)), 2), "learnt", evidence),
                  bounds.entry(bounds.MOTION_OTHER, c, round(u, 3), "learnt", evidence)]
     return (table if np.any(table[:, 1] > 0) else None), rows
+
+
+def _in_motion(q: np.ndarray, t: np.ndarray, k: int) -> np.ndarray:
+    """``[n - 1]``: which steps of a run lie in a window of ``k`` steps that translated or turned
+    (:func:`_moved`, as :func:`motion_limits` counts them)."""
+    step = np.hypot(*np.diff(q[:, :2], axis=0).T)
+    turn = np.abs(wrap(np.diff(q[:, 2])))
+    duration = t[k:] - t[:-k]
+    moved = _moved(_windows(step, k), np.hypot(*(q[k:, :2] - q[:-k, :2]).T), duration, MIN_TRANSLATION,
+                   bounds.MAX_SPEED.plausible[1])
+    moved |= _moved(_windows(turn, k), np.abs(_windows(wrap(np.diff(q[:, 2])), k).sum(1)), duration, MIN_TURN,
+                    bounds.MAX_TURN_RATE.plausible[1])
+    # a step is in motion where any window holding it moved
+    return np.convolve(moved.astype(int), np.ones(k, int))[: step.size] > 0
+
+
+def turn_second_differences(logs: Sequence[ScanLog], mobiles: tuple[str, ...], *, period: float,
+                            max_speed: dict[str, float], max_turn_rate: dict[str, float],
+                            lags: tuple[int, ...] = (1, 2)) -> dict[str, list[np.ndarray]]:
+    """Per mobile class and lag ``L`` (scans), the labelled headings' second differences
+    ``θ(t + 2L) - 2 θ(t + L) + θ(t)`` over the steps in which the robot moved (:func:`_in_motion`) and
+    no step was a placement: faster than the class's ``max_speed`` or ``max_turn_rate`` (carried or
+    turned by hand between two scans)."""
+    k = max(2, round(WINDOW_S / period))
+    out: dict[str, list[list]] = {}
+    for name, q, t in _labelled_runs(logs, period, max(k, 2 * max(lags)), with_heading=True):
+        if name not in mobiles:
+            continue
+        dt = np.diff(t)
+        step = wrap(np.diff(q[:, 2]))
+        placed = (np.abs(step) > max_turn_rate[name] * dt) | (np.hypot(*np.diff(q[:, :2], axis=0).T) > max_speed[name] * dt)
+        good = _in_motion(q, t, k) & ~placed
+        per = out.setdefault(name, [[] for _ in lags])
+        for i, lag in enumerate(lags):
+            later = _windows(step, lag).sum(1)  # θ(s + L) - θ(s), s = 0 … n - 1 - L
+            d = later[lag:] - later[:-lag]
+            ok = _windows(good, 2 * lag).all(1)
+            per[i].append(d[ok])
+    return {c: [np.concatenate(v) for v in per] for c, per in out.items()}
+
+
+def turn_rate_noise(logs: Sequence[ScanLog], mobiles: tuple[str, ...], *, period: float,
+                    max_speed: dict[str, float], max_turn_rate: dict[str, float]) -> tuple[float, dict]:
+    """The tracker's turn-rate process noise ``q`` (``TrackerParams.q_theta``, rad²/s³) from the mobile
+    classes' labelled headings while they move, and its row of the learnt-parameter table. Under the
+    tracker's own model (the heading's second derivative white, of density ``q``) with labels of
+    independent noise ``σ²``, a second difference over ``L`` scans of ``dt`` has variance
+    ``2/3 q (L dt)³ + 6 σ²``: lags of ``TURN_NOISE_LAG_S`` and twice that give both, whatever the
+    labels' noise (over one scan of a 40 Hz scanner, half a degree of label noise is 400 times the
+    turn rate's changes). The
+    largest over the classes with ``MIN_EVIDENCE_S`` of such differences (one ``q`` serves every track,
+    and the tracker must keep up with the most agile); else the tracker's default. Means, not robust
+    statistics: a robot's turn rate changes now and then, in a few scans, and those changes are what
+    ``q`` must allow for."""
+    lag = max(1, round(TURN_NOISE_LAG_S / period))
+    diffs = turn_second_differences(logs, mobiles, period=period, max_speed=max_speed, max_turn_rate=max_turn_rate,
+                                    lags=(lag, 2 * lag))
+    default = float(TrackerParams.default([True]).q_theta)
+    tau = lag * period
+    found = []
+    for c in mobiles:
+        d1, d2 = diffs.get(c, [np.zeros(0), np.zeros(0)])
+        seconds = d1.size * period
+        if seconds < MIN_EVIDENCE_S or d2.size < 2:
+            continue
+        v1, v2 = float(np.mean(d1**2)), float(np.mean(d2**2))
+        q = 3.0 * (v2 - v1) / (14.0 * tau**3)
+        sigma = math.sqrt(max(v1 - 2.0 / 3.0 * q * tau**3, 0.0) / 6.0)
+        found.append((q, c, seconds, sigma))
+    if not found:
+        return default, bounds.entry(bounds.TURN_RATE_NOISE, None, default, "default",
+                                     f"less than {MIN_EVIDENCE_S:g} s of a mobile class moving in the labels")
+    raw, c, seconds, sigma = max(found)
+    value = bounds.clamp(bounds.TURN_RATE_NOISE, raw)
+    others = "; ".join(f"{o}: {qo:.3g}" for qo, o, _, _ in sorted(found, reverse=True)[1:])
+    evidence = (f"{c}'s labelled headings over {seconds:.3g} s of motion (second differences over {tau:.2g} and {2 * tau:.2g} s; "
+                f"the labels' own noise {math.degrees(sigma):.2g}°)" + (f"; {others}" if others else ""))
+    return value, bounds.entry(bounds.TURN_RATE_NOISE, None, round(value, 4), "learnt", evidence, learnt=round(raw, 4))
 
 
 def _one_limit(bound, cls: str, set_value: float | None, info: dict, key: str, default: float, seconds_key: str,
