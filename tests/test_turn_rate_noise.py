@@ -11,7 +11,7 @@ import pytest
 
 from gtsjax.train import bounds as B
 from gtsjax.train.motion import turn_rate_noise, turn_second_differences
-from tests.test_train_limits import _log
+from tests.test_train_limits import _log, turned_on_the_spot
 
 LIMITS = {"max_speed": {"robot": 1.0}, "max_turn_rate": {"robot": 3.0}}
 
@@ -69,13 +69,18 @@ def test_still_stretches_and_placements_teach_nothing():
     assert row["source"] == "learnt" and both == pytest.approx(alone, rel=1e-9)
 
 
-def test_a_value_outside_its_range_is_held_and_warned_about():
-    """A robot that never changes its turn rate (turning at a constant 0.5 rad/s, exact labels) has no
-    turn-rate noise: held to the floor, with a warning."""
+def test_labels_steadier_than_the_default_are_held_to_it():
+    """A robot that never changes its turn rate (turning at a constant 0.5 rad/s, exact labels), and one
+    turned on the spot by 22.5° a scan: no turn-rate noise in their labels, held to the floor, the
+    tracker's default (no evidence that a robot turns more steadily), and the row says so."""
     t = np.arange(0, 60, 0.1)
     rows = np.column_stack([3 + 1.0 * np.cos(0.5 * t), 2 + 1.0 * np.sin(0.5 * t), np.angle(np.exp(1j * (0.5 * t + np.pi / 2)))])
     value, row = turn_rate_noise([_log(rows, 0.1)], ("robot",), period=0.1, **LIMITS)
-    assert value == B.TURN_RATE_NOISE.floor and row["source"] == "learnt" and "warning" in row
+    assert value == B.TURN_RATE_NOISE.floor == pytest.approx(0.02) and row["source"] == "learnt"
+    assert "held to 0.02" in row["evidence"] and "warning" not in row
+    value, row = turn_rate_noise([turned_on_the_spot()], ("robot",), period=0.1, max_speed={"robot": 0.6},
+                                 max_turn_rate={"robot": 4.9})
+    assert value == pytest.approx(0.02)
 
 
 def test_training_puts_it_in_the_model_with_its_row(tiny):

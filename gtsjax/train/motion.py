@@ -287,8 +287,10 @@ def turn_rate_noise(logs: Sequence[ScanLog], mobiles: tuple[str, ...], *, period
     raw, c, seconds, sigma = max(found)
     value = bounds.clamp(bounds.TURN_RATE_NOISE, raw)
     others = "; ".join(f"{o}: {qo:.3g}" for qo, o, _, _ in sorted(found, reverse=True)[1:])
-    evidence = (f"{c}'s labelled headings over {seconds:.3g} s of motion (second differences over {tau:.2g} and {2 * tau:.2g} s; "
-                f"the labels' own noise {math.degrees(sigma):.2g}°)" + (f"; {others}" if others else ""))
+    held = f"; fitted {raw:.2g}, held to {value:g}" if value != raw else ""
+    evidence = (f"{c}'s labelled headings over {seconds:.3g} s of motion (second differences over {tau:.2g} and "
+                f"{2 * tau:.2g} s; the labels' own noise {math.degrees(sigma):.2g}°){held}"
+                + (f"; {others}" if others else ""))
     return value, bounds.entry(bounds.TURN_RATE_NOISE, None, round(value, 4), "learnt", evidence, learnt=round(raw, 4))
 
 
