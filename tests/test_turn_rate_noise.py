@@ -96,3 +96,24 @@ def test_training_puts_it_in_the_model_with_its_row(tiny):
     alone, _ = turn_rate_noise([legs], ("robot",), period=0.1, max_speed={"robot": float(tracker.max_speed[i])},
                                max_turn_rate={"robot": float(tracker.max_turn_rate[i])})
     assert row["value"] == pytest.approx(alone, rel=1e-3)
+
+
+def test_a_hands_turns_are_warned_about_and_the_default_kept():
+    """A robot carried from pose to pose, turned by 6° a scan for half a second at a time, its turns
+    started and stopped within a scan: a turn rate that jumps like a hand's (several rad²/s³), warned
+    about, and the tracker's default kept."""
+    rng = np.random.default_rng(5)
+    rows, x, y, th = [], 1.0, 1.0, 0.0
+    for _ in range(40):
+        for _ in range(30):  # put down: still
+            rows.append([x + rng.normal(0, 0.003), y + rng.normal(0, 0.003), th + rng.normal(0, 0.01)])
+        for _ in range(6):  # carried: moved and turned at once
+            x, y, th = x + 0.1, y + 0.02, th + math.radians(6)
+            rows.append([x, y, th])
+        x, y = (1.0, 1.0) if x > 5 else (x, y)
+    rows = np.asarray(rows)
+    rows[:, 2] = np.angle(np.exp(1j * rows[:, 2]))
+    value, row = turn_rate_noise([_log(rows, 0.1)], ("robot",), period=0.1, max_speed={"robot": 1.5},
+                                 max_turn_rate={"robot": 3.0})
+    assert value == pytest.approx(0.02) and "warning" in row and "by hand" in row["evidence"]
+    assert row["warning"].startswith("turn-rate noise learnt as")

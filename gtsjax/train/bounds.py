@@ -48,7 +48,7 @@ MAX_TURN_RATE = Bound("max turn rate", "rad/s", 1.0, 12.0, (1.0, 2 * math.pi), "
 # by a fixed step each scan, a hand-drawn path) are no evidence that a robot does.
 TURN_RATE_NOISE = Bound("turn-rate noise", "rad²/s³", 0.02, 5.0, (0.0, 1.0), None,
                         "how fast the robots' turn rate changes while they move: the simulator's 0.07-0.25; "
-                        "above 1 a still robot's heading follows its reads' noise")
+                        "above 1 a hand's, and the tracker's default is kept")
 MOTION_SPREAD = Bound("heading's spread about its travel", "°", 5.0, 180.0, (0.5, 180.0), None,
                       "a robot that walks along its heading does so within some degrees; at 180° its travel "
                       "says nothing of its heading (a holonomic robot, or labels without translation)")
