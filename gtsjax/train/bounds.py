@@ -35,11 +35,6 @@ MAX_SPEED = Bound("max speed", "m/s", 0.3, 5.0, (0.3, 2.0), "--max-speed",
                   "a walking robot is slower than 2 m/s; people's legs (1-1.5 m/s) are told from robots by it")
 MAX_TURN_RATE = Bound("max turn rate", "rad/s", 1.0, 12.0, (1.0, 2 * math.pi), "--max-turn-rate",
                       "a humanoid turns at about 1 rad/s, a wheeled robot at up to one turn a second")
-# A mobile class's heading against its direction of travel (the tracker's motion evidence,
-# ``core.g_heading.motion_evidence``): the spread of its heading about its travel, the offset, and the
-# share of travel in other directions. The floor keeps labels steadier than any robot walks (a
-# simulator's, a hand-drawn path) from making one second of walking outweigh every view; at 180° the
-# travel says nothing (a holonomic robot).
 # The tracker's turn-rate process noise (``TrackerParams.q_theta``, the density of the white angular
 # acceleration of its constant-velocity model): how fast a robot's turn rate changes. Too small, a track
 # lags a robot that starts or stops turning and rejects its right reads; too large, a still robot's
@@ -49,6 +44,11 @@ MAX_TURN_RATE = Bound("max turn rate", "rad/s", 1.0, 12.0, (1.0, 2 * math.pi), "
 TURN_RATE_NOISE = Bound("turn-rate noise", "rad²/s³", 0.02, 5.0, (0.0, 1.0), None,
                         "how fast the robots' turn rate changes while they move: the simulator's 0.07-0.25; "
                         "above 1 a hand's, and the tracker's default is kept")
+# A mobile class's heading against its direction of travel (the tracker's motion evidence,
+# ``core.g_heading.motion_evidence``): the spread of its heading about its travel, the offset, and the
+# share of travel in other directions. The floor keeps labels steadier than any robot walks (a
+# simulator's, a hand-drawn path) from making one second of walking outweigh every view; at 180° the
+# travel says nothing (a holonomic robot).
 MOTION_SPREAD = Bound("heading's spread about its travel", "°", 5.0, 180.0, (0.5, 180.0), None,
                       "a robot that walks along its heading does so within some degrees; at 180° its travel "
                       "says nothing of its heading (a holonomic robot, or labels without translation)")

@@ -214,16 +214,14 @@ def motion_heading(logs: Sequence[ScanLog], classes: tuple[str, ...], mobiles: t
     return (table if np.any(table[:, 1] > 0) else None), rows
 
 
-def _in_motion(q: np.ndarray, t: np.ndarray, k: int) -> np.ndarray:
-    """``[n - 1]``: which steps of a run lie in a window of ``k`` steps that translated or turned
-    (:func:`_moved`, as :func:`motion_limits` counts them)."""
-    step = np.hypot(*np.diff(q[:, :2], axis=0).T)
-    turn = np.abs(wrap(np.diff(q[:, 2])))
+def _in_motion(q: np.ndarray, t: np.ndarray, step: np.ndarray, turn: np.ndarray, k: int) -> np.ndarray:
+    """``[n - 1]``: which steps of a run (``step``: their lengths, ``turn``: their wrapped turns) lie in a
+    window of ``k`` steps that translated or turned (:func:`_moved`, as :func:`motion_limits` counts them)."""
     duration = t[k:] - t[:-k]
     moved = _moved(_windows(step, k), np.hypot(*(q[k:, :2] - q[:-k, :2]).T), duration, MIN_TRANSLATION,
                    bounds.MAX_SPEED.plausible[1])
-    moved |= _moved(_windows(turn, k), np.abs(_windows(wrap(np.diff(q[:, 2])), k).sum(1)), duration, MIN_TURN,
-                    bounds.MAX_TURN_RATE.plausible[1])
+    turns = _windows(turn, k)
+    moved |= _moved(np.abs(turns), np.abs(turns.sum(1)), duration, MIN_TURN, bounds.MAX_TURN_RATE.plausible[1])
     # a step is in motion where any window holding it moved
     return np.convolve(moved.astype(int), np.ones(k, int))[: step.size] > 0
 
@@ -241,12 +239,12 @@ def turn_second_differences(logs: Sequence[ScanLog], mobiles: tuple[str, ...], *
         if name not in mobiles:
             continue
         dt = np.diff(t)
-        step = wrap(np.diff(q[:, 2]))
-        placed = (np.abs(step) > max_turn_rate[name] * dt) | (np.hypot(*np.diff(q[:, :2], axis=0).T) > max_speed[name] * dt)
-        good = _in_motion(q, t, k) & ~placed
+        step, turn = np.hypot(*np.diff(q[:, :2], axis=0).T), wrap(np.diff(q[:, 2]))
+        placed = (np.abs(turn) > max_turn_rate[name] * dt) | (step > max_speed[name] * dt)
+        good = _in_motion(q, t, step, turn, k) & ~placed
         per = out.setdefault(name, [[] for _ in lags])
         for i, lag in enumerate(lags):
-            later = _windows(step, lag).sum(1)  # θ(s + L) - θ(s), s = 0 … n - 1 - L
+            later = _windows(turn, lag).sum(1)  # θ(s + L) - θ(s), s = 0 … n - 1 - L
             d = later[lag:] - later[:-lag]
             ok = _windows(good, 2 * lag).all(1)
             per[i].append(d[ok])
