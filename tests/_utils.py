@@ -155,6 +155,16 @@ def stop_with_ctrl_c(proc: subprocess.Popen, timeout: float = 30) -> None:
         proc.stderr.close()
 
 
+def without_offset_and_floor(model):
+    """``model`` with no class's mean error taken off its rows and no variance floor added (the
+    shipped model learnt a pose bias): the rows as the filter gives them, for the tests that set
+    their own (:func:`offset_and_floor`) or compare the rows with a smoother's raw states."""
+    import equinox as eqx
+
+    return eqx.tree_at(lambda m: (m.tracker.pose_offset, m.tracker.var_floor), model, (None, None),
+                       is_leaf=lambda x: x is None)
+
+
 def offset_and_floor(model):
     """The tracker of ``model`` with a robot's mean error to take off (``pose_offset``: 2 cm ahead, 1 cm
     to the right, 3°) and a variance floor to add (``var_floor``: (1 cm)² to each position variance,

@@ -6,6 +6,7 @@ import dataclasses
 import math
 
 import numpy as np
+import scipy.special
 from filterpy.kalman import KalmanFilter
 
 NX = 6
@@ -22,6 +23,8 @@ SAME_SIDE = 0.5
 NEW_P = 0.1
 MERGE = 0.05  # hypotheses closer than this (rad) merge
 SWITCH_ODDS = 3.0
+MOTION_S = 1.0  # the direction of travel counts as one reading per this many seconds
+MOTION_MIN_SPEED = 0.05  # m/s: slower, the direction of travel is not read
 # A guess (gtsjax: ``g_track.GUESS_RADIUS``, ``GUESS_MISSES``) updates only a confirmed track that has
 # missed at most this many scans in a row, within this distance (m) of its prediction.
 GUESS_RADIUS = 0.03
@@ -109,6 +112,8 @@ class Tracker:
         self.n_confirm, self.m_tentative, self.m_delete = int(g["n_confirm"]), int(g["m_tentative"]), int(g["m_delete"])
         self.birth_exclusion = float(g["birth_exclusion"])
         self.constant_velocity = bool(g["constant_velocity"])
+        mh = getattr(params, "motion_heading", None)  # per class: offset of the heading from the travel, κ, other share
+        self.motion_heading = None if mh is None else np.asarray(mh, np.float64)
         self.max_tracks = max_tracks
         self.sides = sides
         self.period = period  # a scan without a detection counts as the scan periods its dt spans
@@ -143,6 +148,27 @@ class Tracker:
             and abs(omega) <= self.max_turn_rate[t.cls] + 2.0 * sigma_w
         )
 
+    def travel_evidence(self, t: Track, phi: float, dt: float) -> float:
+        """The direction of travel's evidence for heading ``phi`` of the (predicted) track: the class's
+        von Mises about the travel plus its learnt offset, its concentration lowered by the travel
+        direction's own variance, mixed with a uniform share, against a uniform heading; weighted by
+        ``dt`` over ``MOTION_S``; zero when slow, untaught or not constant-velocity. Written from its
+        definition with SciPy's Bessel function."""
+        if self.motion_heading is None or not self.constant_velocity:
+            return 0.0
+        mu, kappa, other = self.motion_heading[t.cls]
+        kappa, other = max(kappa, 0.0), min(max(other, 1e-3), 1.0)
+        vx, vy = float(t.kf.x[3, 0]), float(t.kf.x[4, 0])
+        speed2 = max(vx * vx + vy * vy, 1e-12)
+        if speed2 < MOTION_MIN_SPEED**2 or kappa <= 0.0:
+            return 0.0
+        across = np.array([-vy, vx])
+        var_dir = float(across @ t.kf.P[3:5, 3:5] @ across) / speed2**2
+        k = kappa / (1.0 + kappa * var_dir)
+        delta = wrap(phi - math.atan2(vy, vx) - mu)
+        vm = math.exp(k * (math.cos(delta) - 1.0)) / scipy.special.i0e(k)  # 2π times the von Mises density
+        return min(dt / MOTION_S, 1.0) * math.log((1.0 - other) * vm + other)
+
     def mixture(self, t: Track, zh, zlp, r: float, seen: bool, dt: float) -> tuple[int, int | None]:
         """This scan's weights and updates of the track's (predicted) heading hypotheses, for a
         detection with side headings ``zh`` and log-probabilities ``zlp`` (``None``: no detection) and
@@ -170,6 +196,7 @@ class Tracker:
                 s = var[j] + r
                 terms = [zlp[h] - 0.5 * wrap(zh[h] - phi[j]) ** 2 / s - 0.5 * math.log(2 * math.pi * s) for h in sides]
                 logw[j] += logsumexp([logsumexp(terms), math.log(OUTLIER_P / (2 * math.pi))])
+                logw[j] += self.travel_evidence(t, phi[j], dt)
         rest = fade * t.rest
         if seen:
             for j in used:  # each hypothesis takes its nearest side where that passes the heading gate
