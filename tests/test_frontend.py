@@ -444,3 +444,26 @@ def test_gradients_finite_through_empty_slots():
 
     g = jax.grad(loss)(scan.ranges)
     assert np.isfinite(np.asarray(g)).all()
+
+
+def test_trainings_front_end_pads_a_short_log_and_drops_the_padding():
+    """Training runs stages a–c over whole logs (``train.labels.run_front_end``), a short log or a long
+    log's last chunk padded to a power of two (``padded_size``) so that logs of every length share a
+    few compiled programs: every scan's candidates are the per-scan front end's, and logs of 23 and
+    50 scans run one program."""
+    from gtsjax.sim import simulate
+    from gtsjax.train import labels
+
+    cfg = FrontEndConfig()
+    assert [labels.padded_size(n, 1024) for n in (1, 64, 65, 700, 1024, 1500)] == [64, 64, 128, 1024, 1024, 1500]
+    log, _ = simulate("spl-trajectory", seed=5, n_scans=50)
+    before = labels._front_end_batch._cache_size()
+    for n in (23, 50):
+        got = labels.run_front_end(log.slice(0, n), cfg, log.n_beams, chunk=32)  # 23: one padded chunk; 50: 32 + 18
+        for t in (0, n // 2, n - 1):
+            one = front_end(cfg, jax.tree.map(lambda a, t=t: a[t], to_scans(log.slice(0, n), log.n_beams)))
+            np.testing.assert_array_equal(got["keep"][t], np.asarray(one.keep))
+            np.testing.assert_array_equal(got["start"][t], np.asarray(one.candidates.start))
+            assert_allclose(got["origin"][t], np.asarray(one.features.origin, np.float64))
+        assert got["keep"].shape[0] == n
+    assert labels._front_end_batch._cache_size() - before == 1  # 32 scans each time: one program

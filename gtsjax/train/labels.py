@@ -179,16 +179,39 @@ def scan_groups(log: ScanLog, *, moved: float = 0.05, jump: float = 0.25, block_
 _front_end_batch = jax.jit(front_end_batch, static_argnames=("chunk", "windows"))
 
 
+def padded_size(n: int, cap: int, least: int = 64) -> int:
+    """The leading size a program is compiled for when it gets ``n`` rows (at most ``cap``): the
+    smallest power of two that holds them, at least ``least``, at most ``cap``. Logs and example sets
+    of every length then share a few compiled programs (a log's last chunk was a program of its own,
+    compiled afresh for each length), at a cost of less than twice the rows of that last chunk."""
+    size = least
+    while size < n:
+        size *= 2
+    return min(size, cap) if n <= cap else n
+
+
+def pad_rows(tree, size: int):
+    """Every leaf of ``tree`` (host or device arrays with a common leading axis) padded to ``size``
+    rows by repeating its last row: values the program can compute on, whose results are dropped."""
+    def pad(a):
+        a = np.asarray(a)
+        return np.concatenate([a, np.repeat(a[-1:], size - a.shape[0], axis=0)]) if a.shape[0] < size else a
+
+    return jax.tree.map(pad, tree)
+
+
 def run_front_end(log: ScanLog, cfg: FrontEndConfig, n_beams: int, chunk: int = 1024):
     """Stages a–c over a log, chunk by chunk; returns host arrays ``[T, K, …]``: origin, heading,
     keep, ``vector`` (the GP inputs of each candidate, :func:`~gtsjax.core.d_classify.gp_inputs`),
     ``shape`` (:func:`~gtsjax.core.c_filters.shape_quantities`), ``rng`` (the ORS origin's range) and
-    ``occluded``, and each candidate's ``start`` beam and ``length``."""
+    ``occluded``, and each candidate's ``start`` beam and ``length``. A last chunk shorter than
+    ``chunk`` is padded to :func:`padded_size` and its padding dropped."""
     outs = {"origin": [], "heading": [], "vector": [], "keep": [], "shape": [], "rng": [], "occluded": [],
             "start": [], "length": []}
     for start in range(0, log.n_scans, chunk):
         scans = to_scans(log.slice(start, start + chunk), n_beams)
-        fe = _front_end_batch(cfg, scans)
+        n = int(scans.dt.shape[0])
+        fe = jax.tree.map(lambda a, n=n: a[:n], _front_end_batch(cfg, pad_rows(scans, padded_size(n, chunk))))
         f = fe.features
         rng = jnp.sqrt(jnp.sum(f.origin**2, axis=-1))
         outs["origin"].append(np.asarray(f.origin, np.float64))

@@ -13,7 +13,7 @@ from ..core.d_classify import classify
 from ..core.e_pose import regress_one_class
 from ..core.geometry import wrap
 from ..core.model import Model
-from .labels import Examples
+from .labels import Examples, pad_rows, padded_size
 
 
 @jax.jit
@@ -27,12 +27,13 @@ def decide(model: Model, ex: Examples, chunk: int = 4096):
     it was dropped as unlike its class's examples, or outside its best class's envelope."""
     outs = [[], [], []]
     for s in range(0, len(ex.cls), chunk):
-        f32 = jnp.float32
         part = slice(s, s + chunk)
-        res = _decide(model.classifier, model.envelope, jnp.asarray(ex.vectors[part], f32),
-                      jnp.asarray(ex.shape[part], f32), jnp.asarray(ex.rng[part], f32))
+        n = len(ex.cls[part])
+        args = pad_rows((ex.vectors[part].astype(np.float32), ex.shape[part].astype(np.float32),
+                         ex.rng[part].astype(np.float32)), padded_size(n, chunk))  # one program for every set
+        res = _decide(model.classifier, model.envelope, *args)
         for o, r in zip(outs, res, strict=True):
-            o.append(np.asarray(r))
+            o.append(np.asarray(r)[:n])
     if not outs[0]:
         return np.zeros(0, np.int64), np.zeros(0, bool), np.zeros(0, bool)
     return tuple(np.concatenate(o) for o in outs)
