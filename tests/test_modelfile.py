@@ -51,11 +51,11 @@ def _cut_features(h, a):
 
 
 # The heading GPs' inducing inputs: of the heading group where the pose GPs share kernels, else of sin.
-_HEADING_Z = ("pose[2].shared[1].z" if json.loads(str(np.load(DEMO_MODEL)["gtsjax_model"]))["schema"]
-              ["fields"]["pose"]["tuple"][2]["fields"].get("shared") else "pose[2].sin.z")
+_HEADER, _ARRAYS = _read(DEMO_MODEL)
+_HEADING_Z = ("pose[2].shared[1].z" if _HEADER["schema"]["fields"]["pose"]["tuple"][2]["fields"].get("shared")
+              else "pose[2].sin.z")
 # Their number in the shipped model (the training set's, which a rebuild may change).
-_N_HEADING_Z = int(np.load(DEMO_MODEL)[_node(json.loads(str(np.load(DEMO_MODEL)["gtsjax_model"]))["schema"],
-                                             _HEADING_Z)["array"]].shape[0])
+_N_HEADING_Z = int(_ARRAYS[_node(_HEADER["schema"], _HEADING_Z)["array"]].shape[0])
 
 
 def _cut_inducing(h, a):

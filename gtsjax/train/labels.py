@@ -37,6 +37,7 @@ from ..core.e_pose import PoseRegressor, regress_one_class
 from ..core.f_maptransform import Transform, update_transform
 from ..core.frontend import FrontEndConfig, front_end_batch
 from ..core.geometry import affine_heading, compose, field_to_sensor, in_bounds, relative, sensor_to_field, wrap
+from ..drivers.batch import pad_chunk
 from ..errors import InputError
 from ..io.logs import ScanLog, fit_geometry, to_scans
 from ..io.site import Site
@@ -190,16 +191,6 @@ def padded_size(n: int, cap: int, least: int = 64) -> int:
     return min(size, cap) if n <= cap else n
 
 
-def pad_rows(tree, size: int):
-    """Every leaf of ``tree`` (host or device arrays with a common leading axis) padded to ``size``
-    rows by repeating its last row: values the program can compute on, whose results are dropped."""
-    def pad(a):
-        a = np.asarray(a)
-        return np.concatenate([a, np.repeat(a[-1:], size - a.shape[0], axis=0)]) if a.shape[0] < size else a
-
-    return jax.tree.map(pad, tree)
-
-
 def run_front_end(log: ScanLog, cfg: FrontEndConfig, n_beams: int, chunk: int = 1024):
     """Stages a–c over a log, chunk by chunk; returns host arrays ``[T, K, …]``: origin, heading,
     keep, ``vector`` (the GP inputs of each candidate, :func:`~gtsjax.core.d_classify.gp_inputs`),
@@ -211,7 +202,7 @@ def run_front_end(log: ScanLog, cfg: FrontEndConfig, n_beams: int, chunk: int = 
     for start in range(0, log.n_scans, chunk):
         scans = to_scans(log.slice(start, start + chunk), n_beams)
         n = int(scans.dt.shape[0])
-        fe = jax.tree.map(lambda a, n=n: a[:n], _front_end_batch(cfg, pad_rows(scans, padded_size(n, chunk))))
+        fe = jax.tree.map(lambda a, n=n: a[:n], _front_end_batch(cfg, pad_chunk(scans, 0, n, padded_size(n, chunk))))
         f = fe.features
         rng = jnp.sqrt(jnp.sum(f.origin**2, axis=-1))
         outs["origin"].append(np.asarray(f.origin, np.float64))

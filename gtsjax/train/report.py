@@ -13,7 +13,8 @@ from ..core.d_classify import classify
 from ..core.e_pose import regress_one_class
 from ..core.geometry import wrap
 from ..core.model import Model
-from .labels import Examples, pad_rows, padded_size
+from ..drivers.batch import pad_chunk
+from .labels import Examples, padded_size
 
 
 @jax.jit
@@ -29,8 +30,8 @@ def decide(model: Model, ex: Examples, chunk: int = 4096):
     for s in range(0, len(ex.cls), chunk):
         part = slice(s, s + chunk)
         n = len(ex.cls[part])
-        args = pad_rows((ex.vectors[part].astype(np.float32), ex.shape[part].astype(np.float32),
-                         ex.rng[part].astype(np.float32)), padded_size(n, chunk))  # one program for every set
+        args = pad_chunk((ex.vectors[part].astype(np.float32), ex.shape[part].astype(np.float32),
+                          ex.rng[part].astype(np.float32)), 0, n, padded_size(n, chunk))  # one program for every set
         res = _decide(model.classifier, model.envelope, *args)
         for o, r in zip(outs, res, strict=True):
             o.append(np.asarray(r)[:n])
