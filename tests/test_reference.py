@@ -232,10 +232,13 @@ def test_reference_refines_what_the_model_refines(tiny, precision):
         var = np.asarray(p.cov_s, np.float64)[kept][fit, 2, 2]
         np.testing.assert_allclose(var, r.cov_s[fit, 2, 2], rtol=tol_var)
         # Every side with a probability is one of ours (two sides of equal probability in either order).
+        # In float32 a side the reference gives under 1e-3 (nothing in the tracker's heading mixture) may
+        # sit on a flatter stretch of its fit's cost: 1.1e-2 rad at p = 4e-5 with one machine's tiny model.
         side = np.asarray(p.side_pose, np.float64)[kept]
         for i in np.flatnonzero(ok):
             for h in np.flatnonzero(np.isfinite(r.sides.side_logp[i])):
-                assert np.min(np.abs(wrap(side[i, :, 2] - r.sides.side_pose[i, h, 2]))) <= tol_side, (t, i, h)
+                tol = tol_side if exact or r.sides.side_logp[i, h] >= np.log(1e-3) else 4 * tol_side
+                assert np.min(np.abs(wrap(side[i, :, 2] - r.sides.side_pose[i, h, 2]))) <= tol, (t, i, h)
         sure = ok & firm
         np.testing.assert_allclose(np.exp(np.asarray(p.side_logp, np.float64)[kept][sure]),
                                    np.exp(r.sides.side_logp[sure]), rtol=0, atol=tol_p)
