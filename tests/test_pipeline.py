@@ -173,18 +173,20 @@ def test_several_logs_side_by_side_give_each_logs_own_tracks(tiny):
     step, and the logs' own final states; a log that ended passes through the later chunks."""
     from gtsjax.drivers.batch import process_logs
 
-    sims = [simulate("spl-crossing", seed=s, n_scans=n) for s, n in ((21, 40), (22, 23), (23, 9))]
+    # Two logs, one ending in the first of three chunks: the call with ``None`` below is the same
+    # program as the vectorised pair's (a third log was a program of its own, some 15 s to compile).
+    sims = [simulate("spl-crossing", seed=s, n_scans=n) for s, n in ((21, 40), (23, 9))]
     model = tiny["model"].with_site(sims[0][1])
     stacks = [to_scans(log, model.n_beams) for log, _ in sims]
     for vectorise in (True, False):
         finals, outs = process_logs(model, stacks, chunk=16, vectorise=vectorise)
-        assert [len(o.track_id) for o in outs] == [40, 23, 9]
+        assert [len(o.track_id) for o in outs] == [40, 9]
         for k, sc in enumerate(stacks):
             final, alone = process_log(model, sc, chunk=16, vectorise=vectorise)
             _same_tracks(alone, outs[k], f"log {k}, vectorise={vectorise}")
             np.testing.assert_array_equal(np.asarray(final.tracker.track_id), np.asarray(finals[k].tracker.track_id))
     assert sum(int(o.track_mask.sum()) for o in outs) > 40  # the robots were tracked: the comparison is not empty
-    _, (none, some) = process_logs(model, [None, stacks[2]], chunk=16)
+    _, (none, some) = process_logs(model, [None, stacks[1]], chunk=16)
     assert none is None and len(some.track_id) == 9
 
 
