@@ -161,8 +161,9 @@ def without_offset_and_floor(model):
     their own (:func:`offset_and_floor`) or compare the rows with a smoother's raw states."""
     import equinox as eqx
 
-    return eqx.tree_at(lambda m: (m.tracker.pose_offset, m.tracker.var_floor), model, (None, None),
-                       is_leaf=lambda x: x is None)
+    # Zeros, not None: the same tree as a model with both (``offset_and_floor``, a trained model's), so
+    # the same compiled programs (``TrackerParams.with_row_corrections``).
+    return eqx.tree_at(lambda m: m.tracker, model, model.tracker.with_row_corrections())
 
 
 def offset_and_floor(model):

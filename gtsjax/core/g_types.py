@@ -96,6 +96,18 @@ class TrackerParams(eqx.Module):
         f = self.var_floor[jnp.clip(class_id, 0, self.var_floor.shape[0] - 1)]
         return var + jnp.stack([f[..., 0], f[..., 0], f[..., 1]], axis=-1).astype(var.dtype)
 
+    def with_row_corrections(self, offset=None, floor=None) -> "TrackerParams":
+        """This tracker with both row corrections as arrays: ``offset`` (``pose_offset`` [classes, 3])
+        and ``floor`` (``var_floor`` [classes, 2]) where given, zeros where not, which leave the rows
+        as they are (to the last bit of a heading's wrap; :meth:`off`, :meth:`widened`). ``None`` and
+        an array are two tree structures, so two compiled programs of every form of the step: training
+        fills both before its tracking check and keeps them, so the model checked and the model saved
+        share them (a batch chunk of the whole step is some 10 s of compiling on 2 cores)."""
+        n = self.tracked.shape[0]
+        offset = jnp.zeros((n, 3), jnp.float32) if offset is None else jnp.asarray(offset, jnp.float32)
+        floor = jnp.zeros((n, 2), jnp.float32) if floor is None else jnp.asarray(floor, jnp.float32)
+        return eqx.tree_at(lambda t: (t.pose_offset, t.var_floor), self, (offset, floor), is_leaf=lambda x: x is None)
+
     @classmethod
     def default(
         cls,

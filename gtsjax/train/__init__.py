@@ -235,6 +235,9 @@ def train(logs: Sequence[ScanLog], site: "Site | Sequence[Site]", cfg: TrainConf
     report["tags"] = tags_report
     report["coverage"], where = coverage(logs, per_log_sites(site, len(logs)), mobiles)
     report["warnings"] = report["warnings"] + where
+    # Both row corrections as arrays from here on, zeros until learnt: the model the check runs and the
+    # model saved are one tree structure, so the same compiled programs (TrackerParams.with_row_corrections).
+    model = eqx.tree_at(lambda m: m.tracker, model, model.tracker.with_row_corrections())
     if cfg.check_pipeline:
         run.stage("tracking check")
         errors, row_errs = _tracking_check(report, model, logs, site, ex_lab, lab.held, mobiles, rate_hz, cfg.seed)
@@ -246,9 +249,7 @@ def train(logs: Sequence[ScanLog], site: "Site | Sequence[Site]", cfg: TrainConf
         floor, floor_rows, floor_warned = variance_floor(row_errs, classes, offset, errors)
         report["learnt"] = report["learnt"] + rows + floor_rows
         report["warnings"] = report["warnings"] + warned + floor_warned
-        for leaf, value in ((lambda m: m.tracker.pose_offset, offset), (lambda m: m.tracker.var_floor, floor)):
-            if value is not None:
-                model = eqx.tree_at(leaf, model, jnp.asarray(value), is_leaf=lambda x: x is None)
+        model = eqx.tree_at(lambda m: m.tracker, model, model.tracker.with_row_corrections(offset, floor))
     if len(lab.bg_ex.cls):
         report["heldout_background_logs"] = evaluate_examples(
             model, lab.bg_ex.take(np.flatnonzero(np.isin(lab.bg_ex.group, lab.held))))
