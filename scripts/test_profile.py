@@ -20,10 +20,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("folder", type=Path, help="the folder GTSJAX_TEST_PROFILE named")
     ap.add_argument("--top", type=int, default=25, help="rows per table")
     args = ap.parse_args(argv)
+    if args.top < 1:
+        ap.error(f"--top {args.top}: rows per table, at least 1")
+    if not args.folder.is_dir():
+        ap.error(f"{args.folder}: not a folder (the one GTSJAX_TEST_PROFILE named)")
     tests: dict[str, dict] = {}
     files = sorted(args.folder.glob("*.json"))
     if not files:
-        raise SystemExit(f"{args.folder}: no profile files (*.json) there; run pytest -p tests._compile_profile first")
+        ap.error(f"{args.folder}: no profile files (*.json) there; run pytest -p tests._compile_profile first")
     for f in files:
         tests.update(json.loads(f.read_text()))
     events: collections.Counter = collections.Counter()

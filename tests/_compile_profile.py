@@ -36,6 +36,13 @@ def _folder() -> Path:
 
 
 def pytest_configure(config) -> None:
+    folder = _folder()
+    if folder.exists() and not folder.is_dir():
+        raise pytest.UsageError(f"GTSJAX_TEST_PROFILE={folder}: a file, not a folder for the profile")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise pytest.UsageError(f"GTSJAX_TEST_PROFILE={folder}: cannot make the folder ({err.strerror})") from None
     import jax.monitoring
 
     def listen(event: str, duration: float, **_kwargs) -> None:
@@ -63,6 +70,5 @@ def pytest_runtest_protocol(item, nextitem):
 
 def pytest_sessionfinish(session) -> None:
     folder = _folder()
-    folder.mkdir(parents=True, exist_ok=True)
     worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
     (folder / f"{worker}.json").write_text(json.dumps(_PER_TEST))

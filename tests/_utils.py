@@ -171,14 +171,9 @@ def offset_and_floor(model):
     to the right, 3°) and a variance floor to add (``var_floor``: (1 cm)² to each position variance,
     (2°)² to the heading's), every other class without: ``(offset [classes, 3], floor [classes, 2],
     params)``, for the tests of the rows that carry them."""
-    import equinox as eqx
-    import jax.numpy as jnp
-
     k = model.class_index("robot")
     offset = np.zeros((len(model.classes), 3), np.float32)
     offset[k] = (0.02, -0.01, np.radians(3.0))
     floor = np.zeros((len(model.classes), 2), np.float32)
     floor[k] = (1e-4, np.radians(2.0) ** 2)
-    params = eqx.tree_at(lambda p: (p.pose_offset, p.var_floor), model.tracker, (jnp.asarray(offset), jnp.asarray(floor)),
-                         is_leaf=lambda x: x is None)
-    return offset, floor, params
+    return offset, floor, model.tracker.with_row_corrections(offset, floor)
