@@ -82,6 +82,25 @@ def test_hidden_edges_are_not_seen():
     assert np.all(np.abs(y) <= 0.2 + 1e-9)
 
 
+def test_a_cast_in_parts_gives_each_scan_the_numbers_of_a_cast_whole(monkeypatch):
+    """Scans are cast in parts that fit the CPU's caches (``scene._CAST_ELEMENTS``): every scan's
+    ranges, incidences and reflectivities are those of one cast of all of them, bit for bit."""
+    import gtsjax.sim.scene as scene_module
+
+    scene = Scene(circles=[Circle(1.0, 0.5, 0.1), Circle(-2.0, 1.0, 0.3)],
+                  polygons=[box(1.8, -0.2, 2.2, 0.2), box(-3.0, -3.0, 3.0, 3.0)])
+    rng = np.random.default_rng(3)
+    poses = np.column_stack([rng.uniform(-1, 1, 37), rng.uniform(-1, 1, 37), rng.uniform(-np.pi, np.pi, 37)])
+    monkeypatch.setattr(scene_module, "_CAST_ELEMENTS", 1 << 40)
+    whole = cast(scene, URG_04LX, poses)
+    per_scan = URG_04LX.n_beams * (2 + 8)
+    monkeypatch.setattr(scene_module, "_CAST_ELEMENTS", 5 * per_scan)  # parts of 5 scans, the last of 2
+    parts = cast(scene, URG_04LX, poses)
+    for a, b in zip(whole, parts, strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert np.isfinite(whole[0]).any()
+
+
 def test_range_window_and_dropouts():
     scene = Scene(circles=[Circle(0.015, 0.0, 0.005), Circle(7.0, 0.5, 0.3)])  # too close; beyond 5.6 m
     ranges, _ = render(scene, URG_04LX, np.zeros((3, 3)), rng=np.random.default_rng(0), effects=EXACT)

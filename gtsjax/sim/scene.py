@@ -210,9 +210,12 @@ def cast(scene: Scene, model: SensorModel, sensor_poses: np.ndarray, tilt: np.nd
     return _cast(scene, model, sensor_poses, tilt, sl)[:3]
 
 
-#: Elements of the ``[scans, beams, segments]`` arrays one ray cast holds at a time (≈ 64 MB of
-#: float64 each): a chunk of scans is cast in parts of at most this many, the same numbers either way.
-_CAST_ELEMENTS = 1 << 23
+#: Elements of the ``[scans, beams, segments]`` arrays one ray cast holds at a time (2 MB of float64
+#: each): a chunk of scans is cast in parts of at most this many, the same numbers either way. The cast
+#: is a dozen element-wise passes over these arrays; parts that stay in the CPU's caches cast the same
+#: scans 1.5–4× faster than parts of 64 MB did (8M elements), on a scene of a dozen robots and on a
+#: recording's one robot among clutter.
+_CAST_ELEMENTS = 1 << 18
 
 
 def _cast(scene: Scene, model: SensorModel, sensor_poses: np.ndarray, tilt: np.ndarray | None = None,
