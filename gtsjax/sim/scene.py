@@ -212,9 +212,8 @@ def cast(scene: Scene, model: SensorModel, sensor_poses: np.ndarray, tilt: np.nd
 
 #: Elements of the ``[scans, beams, segments]`` arrays one ray cast holds at a time (2 MB of float64
 #: each): a chunk of scans is cast in parts of at most this many, the same numbers either way. The cast
-#: is a dozen element-wise passes over these arrays; parts that stay in the CPU's caches cast the same
-#: scans 1.5–4× faster than parts of 64 MB did (8M elements), on a scene of a dozen robots and on a
-#: recording's one robot among clutter.
+#: is a dozen element-wise passes over these arrays, so parts small enough to stay in the CPU's caches
+#: cast faster than large ones (``docs/speed.md`` has the measurement).
 _CAST_ELEMENTS = 1 << 18
 
 
